@@ -1,0 +1,124 @@
+"""Thin asyncio drivers around the sans-I/O machines: master, slave, channel.
+
+Goals: all protocol decisions stay in `link.master`, `link.slave` and
+`link.channel`; these loops only move bytes between them and an `Endpoint`
+and feed them the clock (the event loop's monotonic time).
+
+Each driver runs until cancelled and hands events to a callback
+`on_events(events, now)`; a callback that raises is logged and the link goes
+on (a bug in a display must not stop the vehicle's commands).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Callable, Iterable
+
+from .channel import Channel
+from .master import Master
+from .slave import Slave
+from .transport import Endpoint
+
+log = logging.getLogger("rovlink.link")
+
+EventSink = Callable[[list, float], None]
+
+
+def _now() -> float:
+    return asyncio.get_running_loop().time()
+
+
+def _hand(on_events: EventSink | None, events: list, now: float) -> None:
+    if on_events is None or not events:
+        return
+    try:
+        on_events(events, now)
+    except Exception:
+        log.exception("event handler failed; the link goes on")
+
+
+async def run_master(
+    master: Master,
+    endpoint: Endpoint,
+    on_events: EventSink | None = None,
+    *,
+    idle_poll_s: float = 0.05,
+) -> None:
+    """Poll, wait for the reply or its timeout, repeat.  Cancel to stop."""
+    while True:
+        now = _now()
+        frame = master.next_poll(now)
+        _hand(on_events, master.take_events(), now)
+        if frame is not None:
+            endpoint.send(frame)
+        deadline = master.deadline()
+        wait = idle_poll_s if deadline is None else max(0.0, deadline - _now())
+        try:
+            data = await asyncio.wait_for(endpoint.recv(), wait)
+        except asyncio.TimeoutError:
+            continue
+        now = _now()
+        _hand(on_events, master.receive_bytes(data, now), now)
+        # Drain whatever else already arrived before polling again.
+        while (more := endpoint.recv_nowait()) is not None:
+            _hand(on_events, master.receive_bytes(more, now), now)
+
+
+async def run_slave(
+    slave: Slave,
+    endpoint: Endpoint,
+    on_events: EventSink | None = None,
+    *,
+    tick_s: float = 0.1,
+) -> None:
+    """Answer polls as they come; check the failsafe every `tick_s`."""
+    while True:
+        try:
+            data = await asyncio.wait_for(endpoint.recv(), tick_s)
+        except asyncio.TimeoutError:
+            now = _now()
+            _hand(on_events, slave.tick(now), now)
+            continue
+        now = _now()
+        out = slave.receive_bytes(data, now)
+        if out.reply:
+            endpoint.send(out.reply)
+        _hand(on_events, out.events, now)
+
+
+async def run_channel(channel: Channel, a: Endpoint, b: Endpoint) -> None:
+    """Carry bytes between two endpoints through the emulated channel."""
+    wake = asyncio.Event()
+    ends = {"a": a, "b": b}
+
+    async def pump(side: str) -> None:
+        end = ends[side]
+        while True:
+            data = await end.recv()
+            channel.send(side, data, _now())
+            wake.set()
+
+    async def deliver() -> None:
+        while True:
+            for d in channel.deliver(_now()):
+                ends[d.to].send(d.data)
+            nxt = channel.next_time()
+            wake.clear()
+            timeout = None if nxt is None else max(0.0, nxt - _now())
+            try:
+                await asyncio.wait_for(wake.wait(), timeout)
+            except asyncio.TimeoutError:
+                pass
+
+    tasks = [asyncio.create_task(pump("a")), asyncio.create_task(pump("b")), asyncio.create_task(deliver())]
+    try:
+        await asyncio.gather(*tasks)
+    finally:
+        for t in tasks:
+            t.cancel()
+
+
+async def close_all(endpoints: Iterable[Endpoint]) -> None:
+    for ep in endpoints:
+        await ep.close()

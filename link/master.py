@@ -1,0 +1,524 @@
+"""The operator's end of the link (PROTOCOL.md §2–5), without I/O.
+
+Goals: the pilot's freshest wish reaches the ROV every cycle; every one-shot
+order runs exactly once whatever is lost; the image arrives as fast as the
+channel allows and is shown refining as it comes.
+
+Plan: the master owns the token.  `next_poll(now)` returns the next poll frame
+when the token is ours (the last reply came, or its timeout passed), else
+None.  `receive(payload, now)` consumes a reply payload (or `receive_bytes`
+raw bytes through the master's own FrameDecoder) and returns events.
+`deadline()` says when to call `next_poll` again if nothing arrives.
+
+Decisions where PROTOCOL.md is silent:
+- The first poll carries only the velocity wish: one-shot orders wait for the
+  first reply's ACK (§3), so a restart of either end never replays one.
+- One-shot orders go one at a time in a queue.  STOP jumps the queue and
+  cancels queued (not yet sent) POSITION and STOP orders: a target the pilot
+  chose before pressing STOP must not start after it.  An order in flight is
+  never replaced (its SEQ may already be executed), it is finished first.
+- ARM and MODE requests ride in the VELOCITY soft state only until a reply
+  shows them done, or for `request_hold_s`, then fall back to "no request":
+  a soft state must not re-arm a vehicle that disarmed itself later.
+- SIZE class: while steering (a non-neutral wish, or one changed within
+  `steer_hold_s`) the small `steering_size`, for a short command cycle.
+  Otherwise the class with the best expected goodput for the bit error rate
+  the master has observed (lost replies per bit sent); at a clean link that
+  is SIZE 3, at BER 1e-3 it is SIZE 1.
+- The first IMG is chosen at random so that a restarted console does not take
+  a stale image the ROV still holds for a fresh one (and the ROV drops its
+  image on failsafe).  IMAGE settings sent: the next IMG is asked for in the
+  same poll (the ROV executes the order before it serves the request).
+- With `retransmit=False` (the paper's baseline) a lost reply abandons the
+  image being received and the next IMG is asked for.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import random
+from dataclasses import dataclass, field
+from typing import Deque
+
+from .frame import OVERHEAD, FrameDecoder, encode_frame
+from .messages import (
+    MAX_OBJECT,
+    NO_IMAGE_DATA,
+    REPLY_HEADER,
+    REPLY_IMAGE_HEADER,
+    SIZE_CLASS_BYTES,
+    Arm,
+    ImageSettings,
+    Mode,
+    Poll,
+    Position,
+    ProtocolError,
+    Reply,
+    Stop,
+    Velocity,
+)
+
+# ---------------------------------------------------------------------------
+# Events handed to the console
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PoseReceived:
+    reply: Reply
+    at: float
+    round_trip_s: float | None
+
+
+@dataclass(frozen=True)
+class OrderAcknowledged:
+    order_id: int
+    order: object
+    at: float
+
+
+@dataclass(frozen=True)
+class OrderCancelled:
+    order_id: int
+    order: object
+    reason: str
+
+
+@dataclass(frozen=True)
+class ImageProgress:
+    img: int
+    received_bytes: int  # contiguous bytes of the object held
+    total_bytes: int | None  # object size, once its first two bytes are in
+    prefix: bytes  # the DEBT stream prefix held (object without its length)
+
+
+@dataclass(frozen=True)
+class ImageComplete:
+    img: int
+    data: bytes  # the whole DEBT stream
+    started_at: float
+    at: float
+
+
+@dataclass(frozen=True)
+class ImageAbandoned:
+    img: int
+    received_bytes: int
+    reason: str
+
+
+@dataclass(frozen=True)
+class ReplyLost:
+    poll_sent_at: float
+    at: float
+
+
+@dataclass(frozen=True)
+class RequestExpired:
+    what: str  # "arm" or "mode"
+
+
+@dataclass
+class MasterStats:
+    polls_sent: int = 0
+    replies: int = 0
+    replies_lost: int = 0
+    protocol_errors: int = 0
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    images_started: int = 0
+    images_completed: int = 0
+    images_abandoned: int = 0
+    last_round_trip_s: float | None = None
+
+
+@dataclass
+class _PendingOrder:
+    order_id: int
+    order: object
+    sent: bool = False
+    seq: int = 0  # the SEQ it carries, fixed when first sent
+
+
+@dataclass
+class _Image:
+    img: int
+    started_at: float | None = None
+    data: bytearray = field(default_factory=bytearray)
+
+    @property
+    def total(self) -> int | None:
+        if len(self.data) < 2:
+            return None
+        return 2 + int.from_bytes(self.data[:2], "big")
+
+    @property
+    def complete(self) -> bool:
+        total = self.total
+        return total is not None and len(self.data) >= total
+
+
+class Master:
+    """Operator-side protocol state machine (sans I/O)."""
+
+    def __init__(
+        self,
+        *,
+        bitrate_bps: float = 1900.0,
+        delay_s: float = 0.085,
+        margin_s: float = 0.15,
+        steering_size: int = 0,
+        idle_size: int | None = None,
+        steer_hold_s: float = 1.5,
+        max_frame: int = 259,
+        retransmit: bool = True,
+        images: bool = True,
+        request_hold_s: float = 3.0,
+        first_img: int | None = None,
+        rng: random.Random | None = None,
+    ) -> None:
+        if bitrate_bps <= 0:
+            raise ValueError("bitrate_bps must be positive")
+        if not 0 <= steering_size <= 3 or (idle_size is not None and not 0 <= idle_size <= 3):
+            raise ValueError("SIZE classes are 0..3")
+        if max_frame < OVERHEAD + REPLY_HEADER:
+            raise ValueError(f"max_frame must be at least {OVERHEAD + REPLY_HEADER} bytes")
+        self.bitrate_bps = float(bitrate_bps)
+        self.delay_s = float(delay_s)
+        self.margin_s = float(margin_s)
+        self.steering_size = steering_size
+        self.idle_size = idle_size  # None: adapt to the observed error rate
+        self.steer_hold_s = steer_hold_s
+        self.max_frame = min(max_frame, 259)
+        self.retransmit = retransmit
+        self.images_enabled = images
+        self.request_hold_s = request_hold_s
+        self.stats = MasterStats()
+        self.decoder = FrameDecoder()
+
+        self._rng = rng or random.Random()
+        self._wish = Velocity()
+        self._wish_changed_at = -math.inf
+        self._arm_request: tuple[Arm, float] | None = None
+        self._mode_request: tuple[Mode, float] | None = None
+        self._orders: Deque[_PendingOrder] = collections.deque()
+        self._next_order_id = 1
+        self._ack: int | None = None  # ACK of the last reply; None before the first
+        self._awaiting: tuple[float, Poll, int] | None = None  # (sent at, poll, reply bytes expected)
+        self._events: list[object] = []
+        first = self._rng.randrange(8) if first_img is None else first_img
+        self._image = _Image(first)
+        self._last_reply: Reply | None = None
+        # Error-rate estimate for the SIZE choice: exponentially weighted
+        # counts of cycles lost and bits at risk per cycle.
+        self._ewma_lost = 0.0
+        self._ewma_bits = 0.0
+        self._ewma_n = 0.0
+
+    # ------------------------------------------------------------------
+    # What the pilot wants
+    # ------------------------------------------------------------------
+
+    @property
+    def velocity(self) -> Velocity:
+        return self._wish
+
+    def set_velocity(self, vx: int, vy: int, vz: int, vyaw: int, now: float) -> None:
+        """Soft-state wish, -127..127 per axis; raises ProtocolError if out of range."""
+        wish = Velocity(vx, vy, vz, vyaw)
+        if (wish.vx, wish.vy, wish.vz, wish.vyaw) != (self._wish.vx, self._wish.vy, self._wish.vz, self._wish.vyaw):
+            self._wish_changed_at = now
+        self._wish = wish
+
+    def request_arm(self, arm: bool, now: float) -> None:
+        self._arm_request = (Arm.ARM if arm else Arm.DISARM, now)
+
+    def request_mode(self, mode: Mode | int, now: float) -> None:
+        mode = Mode(mode)
+        if not 1 <= mode <= 6:
+            raise ProtocolError(f"mode {mode!r} cannot be requested")
+        self._mode_request = (mode, now)
+
+    def send_order(self, order: Position | ImageSettings | Stop) -> int:
+        """Queue a one-shot order; returns its id for OrderAcknowledged/OrderCancelled."""
+        if not isinstance(order, (Position, ImageSettings, Stop)):
+            raise ProtocolError(f"not a one-shot order: {order!r}")
+        order_id = self._next_order_id
+        self._next_order_id += 1
+        pending = _PendingOrder(order_id, order)
+        if isinstance(order, Stop):
+            kept: Deque[_PendingOrder] = collections.deque()
+            for p in self._orders:
+                if p.sent or isinstance(p.order, ImageSettings):
+                    kept.append(p)
+                else:
+                    self._events.append(OrderCancelled(p.order_id, p.order, "superseded by STOP"))
+            # After the order in flight (if any), before everything else.
+            insert_at = 1 if kept and kept[0].sent else 0
+            kept.insert(insert_at, pending)
+            self._orders = kept
+        else:
+            self._orders.append(pending)
+        return order_id
+
+    @property
+    def pending_orders(self) -> list[object]:
+        return [p.order for p in self._orders]
+
+    def set_images(self, enabled: bool) -> None:
+        """Stop or resume asking for image data (e.g. after BUDGET 0)."""
+        self.images_enabled = enabled
+
+    # ------------------------------------------------------------------
+    # Timing
+    # ------------------------------------------------------------------
+
+    def tx_time(self, nbytes: int) -> float:
+        return 8.0 * nbytes / self.bitrate_bps
+
+    def reply_frame_bytes(self, size: int) -> int:
+        trunk = min(SIZE_CLASS_BYTES[size], self.max_frame - OVERHEAD - REPLY_IMAGE_HEADER)
+        return OVERHEAD + REPLY_IMAGE_HEADER + trunk
+
+    def timeout_for(self, poll_frame_bytes: int, reply_frame_bytes: int) -> float:
+        return self.tx_time(poll_frame_bytes) + self.tx_time(reply_frame_bytes) + 2 * self.delay_s + self.margin_s
+
+    def deadline(self) -> float | None:
+        """When the awaited reply counts as lost; None if the token is ours."""
+        if self._awaiting is None:
+            return None
+        sent_at, poll, reply_bytes = self._awaiting
+        return sent_at + self.timeout_for(OVERHEAD + len(poll.encode()), reply_bytes)
+
+    @property
+    def awaiting_reply(self) -> bool:
+        return self._awaiting is not None
+
+    # ------------------------------------------------------------------
+    # Sending
+    # ------------------------------------------------------------------
+
+    def next_poll(self, now: float) -> bytes | None:
+        """The next poll frame if the token is ours at `now`, else None."""
+        if self._awaiting is not None:
+            deadline = self.deadline()
+            assert deadline is not None
+            if now < deadline:
+                return None
+            self._reply_lost(now)
+        poll = self._build_poll(now)
+        frame = encode_frame(poll.encode())
+        expected = self._expected_reply_bytes(poll)
+        self._awaiting = (now, poll, expected)
+        self.stats.polls_sent += 1
+        self.stats.bytes_sent += len(frame)
+        if poll.wants_image and self._image.started_at is None:
+            self._image.started_at = now
+            self.stats.images_started += 1
+        return frame
+
+    def take_events(self) -> list[object]:
+        """Events raised outside `receive` (timeouts, cancellations)."""
+        events, self._events = self._events, []
+        return events
+
+    def _build_poll(self, now: float) -> Poll:
+        order: object = self._soft_state(now)
+        seq = self._ack if self._ack is not None else 0
+        if self._ack is not None and self._orders:
+            pending = self._orders[0]
+            if not pending.sent:
+                pending.sent = True
+                pending.seq = 1 - self._ack
+                if isinstance(pending.order, ImageSettings):
+                    self.images_enabled = pending.order.budget_bytes > 0
+                    self._next_image("settings changed")
+            order = pending.order
+            seq = pending.seq
+        size = self._choose_size(now)
+        if self.images_enabled:
+            img, offset = self._image.img, min(len(self._image.data), NO_IMAGE_DATA - 1)
+        else:
+            img, offset = self._image.img, NO_IMAGE_DATA
+        return Poll(seq=seq, size=size, order=order, img=img, offset=offset)  # type: ignore[arg-type]
+
+    def _soft_state(self, now: float) -> Velocity:
+        arm = Arm.NONE
+        mode = Mode.KEEP
+        if self._arm_request is not None:
+            if now - self._arm_request[1] > self.request_hold_s:
+                self._arm_request = None
+                self._events.append(RequestExpired("arm"))
+            else:
+                arm = self._arm_request[0]
+        if self._mode_request is not None:
+            if now - self._mode_request[1] > self.request_hold_s:
+                self._mode_request = None
+                self._events.append(RequestExpired("mode"))
+            else:
+                mode = self._mode_request[0]
+        w = self._wish
+        return Velocity(w.vx, w.vy, w.vz, w.vyaw, arm, mode)
+
+    def steering(self, now: float) -> bool:
+        return not self._wish.is_neutral or now - self._wish_changed_at < self.steer_hold_s
+
+    def _choose_size(self, now: float) -> int:
+        if self.steering(now):
+            size = self.steering_size
+        elif self.idle_size is not None:
+            size = self.idle_size
+        else:
+            size = self._best_size_for_error_rate()
+        return size
+
+    def estimated_ber(self) -> float:
+        """Bit error rate inferred from lost cycles (0 until something is lost)."""
+        if self._ewma_n <= 0 or self._ewma_lost <= 0:
+            return 0.0
+        loss = min(self._ewma_lost / self._ewma_n, 0.999)
+        bits = self._ewma_bits / self._ewma_n
+        return 1.0 - (1.0 - loss) ** (1.0 / max(bits, 1.0))
+
+    def _best_size_for_error_rate(self) -> int:
+        ber = self.estimated_ber()
+        poll_bytes = OVERHEAD + 3 + 5
+        best, best_rate = 3, -1.0
+        for size in range(4):
+            reply = self.reply_frame_bytes(size)
+            trunk = reply - OVERHEAD - REPLY_IMAGE_HEADER
+            p_ok = (1.0 - ber) ** (8 * (poll_bytes + reply))
+            cycle = self.timeout_for(poll_bytes, reply) - self.margin_s
+            # A lost cycle costs the full timeout instead of the cycle.
+            expected_time = p_ok * cycle + (1 - p_ok) * (cycle + self.margin_s)
+            rate = trunk * p_ok / expected_time
+            if rate > best_rate * 1.02:  # prefer larger trunks unless clearly worse
+                best, best_rate = size, rate
+        return best
+
+    def _expected_reply_bytes(self, poll: Poll) -> int:
+        if not poll.wants_image:
+            return OVERHEAD + REPLY_HEADER
+        return self.reply_frame_bytes(poll.size)
+
+    def _observe_cycle(self, lost: bool, bits: int) -> None:
+        decay = 0.95
+        self._ewma_lost = self._ewma_lost * decay + (1.0 if lost else 0.0)
+        self._ewma_bits = self._ewma_bits * decay + bits
+        self._ewma_n = self._ewma_n * decay + 1.0
+
+    # ------------------------------------------------------------------
+    # Receiving
+    # ------------------------------------------------------------------
+
+    def receive_bytes(self, data: bytes, now: float) -> list[object]:
+        """Feed raw received bytes; returns the events of the replies they completed."""
+        self.stats.bytes_received += len(data)
+        events: list[object] = []
+        for payload in self.decoder.feed(data):
+            events.extend(self.receive(payload, now))
+        return events
+
+    def receive(self, payload: bytes, now: float) -> list[object]:
+        """Consume one reply payload (a frame whose CRC held)."""
+        try:
+            reply = Reply.decode(payload)
+        except ProtocolError:
+            self.stats.protocol_errors += 1
+            return self.take_events()
+        events = self.take_events()
+        round_trip = None
+        if self._awaiting is not None:
+            sent_at, poll, _ = self._awaiting
+            round_trip = now - sent_at
+            bits = 8 * (OVERHEAD + len(poll.encode()) + OVERHEAD + len(payload))
+            self._observe_cycle(False, bits)
+            self._awaiting = None
+        self.stats.replies += 1
+        self.stats.last_round_trip_s = round_trip
+        self._last_reply = reply
+        events.append(PoseReceived(reply, now, round_trip))
+        events.extend(self._update_ack(reply, now))
+        events.extend(self._update_requests(reply))
+        events.extend(self._take_trunk(reply, now))
+        return events
+
+    def _update_ack(self, reply: Reply, now: float) -> list[object]:
+        events: list[object] = []
+        if self._ack is None:
+            self._ack = reply.ack
+            return events
+        self._ack = reply.ack
+        if self._orders and self._orders[0].sent:
+            # The order in flight was sent with SEQ = not(previous ACK); it
+            # is done when the reply's ACK equals that SEQ.
+            pending = self._orders[0]
+            if reply.ack == pending.seq:
+                self._orders.popleft()
+                events.append(OrderAcknowledged(pending.order_id, pending.order, now))
+        return events
+
+    def _update_requests(self, reply: Reply) -> list[object]:
+        if self._arm_request is not None and reply.autopilot:
+            want = self._arm_request[0] == Arm.ARM
+            if reply.armed == want:
+                self._arm_request = None
+        if self._mode_request is not None and reply.mode == self._mode_request[0]:
+            self._mode_request = None
+        return []
+
+    def _take_trunk(self, reply: Reply, now: float) -> list[object]:
+        if not reply.has_trunk or reply.img != self._image.img or not self.images_enabled:
+            return []
+        image = self._image
+        assert reply.offset is not None
+        if reply.offset > len(image.data):
+            return []  # beyond the contiguous prefix: cannot happen with a conforming ROV
+        end = reply.offset + len(reply.trunk)
+        if end > len(image.data):
+            image.data[reply.offset :] = reply.trunk
+        total = image.total
+        if total is not None and len(image.data) > total:
+            del image.data[total:]
+        received = len(image.data)
+        events: list[object] = [ImageProgress(image.img, received, total, bytes(image.data[2:]))]
+        if image.complete:
+            self.stats.images_completed += 1
+            started = image.started_at if image.started_at is not None else now
+            events.append(ImageComplete(image.img, bytes(image.data[2:]), started, now))
+            self._image = _Image((image.img + 1) % 8)
+        return events
+
+    def _reply_lost(self, now: float) -> None:
+        assert self._awaiting is not None
+        sent_at, poll, expected = self._awaiting
+        self._awaiting = None
+        self.stats.replies_lost += 1
+        self._observe_cycle(True, 8 * (OVERHEAD + len(poll.encode()) + expected))
+        self._events.append(ReplyLost(sent_at, now))
+        if not self.retransmit and poll.wants_image and self._image.data:
+            self._next_image("reply lost (no retransmission)")
+
+    def _next_image(self, reason: str) -> None:
+        image = self._image
+        if image.started_at is not None and not image.complete:
+            self.stats.images_abandoned += 1
+            self._events.append(ImageAbandoned(image.img, len(image.data), reason))
+        self._image = _Image((image.img + 1) % 8)
+
+    def abandon_image(self) -> None:
+        """The pilot has seen enough of this picture: ask for the next one."""
+        self._next_image("good enough")
+
+    @property
+    def last_reply(self) -> Reply | None:
+        return self._last_reply
+
+    @property
+    def image_img(self) -> int:
+        return self._image.img
+
+    @property
+    def image_received(self) -> int:
+        return len(self._image.data)

@@ -1,0 +1,418 @@
+"""Transports for link frames (asyncio): UDP, serial (pyserial), in-process.
+
+Goals: the protocol machines never see a socket and never crash because a
+port vanished.  A transport that fails is reported, closed and reopened with
+backoff, and whatever was sent while it was down is counted, not queued (a
+stale poll or reply is worse than none on a token-passing link).
+
+Plan: `open_transport(url)` parses a URL and returns an `Endpoint`:
+    udp://HOST:PORT?peer=HOST:PORT     one frame per datagram; without peer,
+                                        replies go to the last sender
+    serial:///dev/ttyUSB0?baud=9600&crlf=1&mtu=64
+                                        raw bytes on a serial line; crlf ends
+                                        each frame with CR LF (S100); mtu caps
+                                        the frame size the protocol may use
+    inproc://NAME                       two in-process ends with the same NAME
+`Endpoint.start()` opens it under a supervisor task; `send(data)` writes a
+frame (never blocks); `await recv()` returns the next chunk of bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+from urllib.parse import parse_qs, urlsplit
+
+log = logging.getLogger("rovlink.link.transport")
+
+
+class TransportError(Exception):
+    """A transport URL or operation that cannot work; the message says why."""
+
+
+@dataclass
+class TransportStats:
+    opens: int = 0
+    failures: int = 0
+    frames_sent: int = 0
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    dropped_while_down: int = 0
+    last_error: str | None = None
+    history: list[tuple[float, str]] = field(default_factory=list)  # (time, "up"/"down: why")
+
+
+class _Driver:
+    """One opening of a concrete transport; raises or calls `failed` on error."""
+
+    async def open(self) -> None:
+        raise NotImplementedError
+
+    def write(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class Endpoint:
+    """A supervised transport: reopened with backoff whenever it fails."""
+
+    def __init__(
+        self,
+        url: str,
+        make_driver: Callable[["Endpoint"], _Driver],
+        *,
+        max_frame: int | None = None,
+        crlf: bool = False,
+        backoff_s: tuple[float, float] = (0.05, 2.0),
+    ) -> None:
+        self.url = url
+        self.max_frame = max_frame
+        self.crlf = crlf
+        self.stats = TransportStats()
+        self._make_driver = make_driver
+        self._driver: _Driver | None = None
+        self._queue: asyncio.Queue[bytes] = asyncio.Queue()
+        self._failed = asyncio.Event()
+        self._up = asyncio.Event()
+        self._task: asyncio.Task | None = None
+        self._backoff = backoff_s
+        self._closing = False
+
+    # -- life cycle ------------------------------------------------------
+
+    async def start(self, *, wait: bool = True, timeout_s: float = 5.0) -> "Endpoint":
+        """Open under supervision; with `wait`, until the first opening succeeded."""
+        if self._task is None:
+            self._task = asyncio.get_running_loop().create_task(self._supervise(), name=f"transport {self.url}")
+        if wait:
+            try:
+                await asyncio.wait_for(self._up.wait(), timeout_s)
+            except asyncio.TimeoutError:
+                raise TransportError(f"{self.url}: could not open: {self.stats.last_error}") from None
+        return self
+
+    async def close(self) -> None:
+        self._closing = True
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except (asyncio.CancelledError, Exception):
+                pass
+            self._task = None
+        self._drop_driver()
+
+    async def __aenter__(self) -> "Endpoint":
+        return await self.start()
+
+    async def __aexit__(self, *exc) -> None:
+        await self.close()
+
+    @property
+    def is_up(self) -> bool:
+        return self._up.is_set()
+
+    async def _supervise(self) -> None:
+        delay = self._backoff[0]
+        while not self._closing:
+            driver = self._make_driver(self)
+            try:
+                await driver.open()
+            except Exception as exc:  # every way a port or socket can fail to open
+                self._note_down(f"open failed: {exc}")
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, self._backoff[1])
+                continue
+            self._driver = driver
+            self._failed.clear()
+            self._up.set()
+            self.stats.opens += 1
+            self.stats.history.append((time.time(), "up"))
+            log.info("%s: open", self.url)
+            delay = self._backoff[0]
+            await self._failed.wait()
+            self._up.clear()
+            self._drop_driver()
+
+    def _drop_driver(self) -> None:
+        driver, self._driver = self._driver, None
+        if driver is not None:
+            try:
+                driver.close()
+            except Exception:  # closing a dead port may fail too; it is gone either way
+                pass
+
+    def _note_down(self, why: str) -> None:
+        if self.stats.last_error != why:
+            log.warning("%s: %s", self.url, why)
+        self.stats.last_error = why
+        self.stats.history.append((time.time(), f"down: {why}"))
+        del self.stats.history[:-50]
+
+    # -- called by drivers -------------------------------------------------
+
+    def _received(self, data: bytes) -> None:
+        if data:
+            self.stats.bytes_received += len(data)
+            self._queue.put_nowait(bytes(data))
+
+    def _fail(self, why: str) -> None:
+        if self._failed.is_set():
+            return
+        self.stats.failures += 1
+        self._note_down(why)
+        self._failed.set()
+        self._up.clear()
+
+    # -- data --------------------------------------------------------------
+
+    def send(self, frame: bytes) -> bool:
+        """Write one frame; False (and counted) if the transport is down."""
+        driver = self._driver
+        if driver is None or not self._up.is_set():
+            self.stats.dropped_while_down += 1
+            return False
+        data = frame + b"\r\n" if self.crlf else frame
+        try:
+            driver.write(data)
+        except Exception as exc:  # the port vanished under us
+            self._fail(f"write failed: {exc}")
+            self.stats.dropped_while_down += 1
+            return False
+        self.stats.frames_sent += 1
+        self.stats.bytes_sent += len(data)
+        return True
+
+    async def recv(self) -> bytes:
+        """The next bytes received (waits across reopenings)."""
+        return await self._queue.get()
+
+    def recv_nowait(self) -> bytes | None:
+        try:
+            return self._queue.get_nowait()
+        except asyncio.QueueEmpty:
+            return None
+
+
+# ---------------------------------------------------------------------------
+# UDP
+# ---------------------------------------------------------------------------
+
+
+def _hostport(text: str, what: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise TransportError(f"{what} must be HOST:PORT, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+class _UdpDriver(_Driver, asyncio.DatagramProtocol):
+    def __init__(self, endpoint: Endpoint, local: tuple[str, int], peer: tuple[str, int] | None) -> None:
+        self.endpoint = endpoint
+        self.local = local
+        self.peer = peer
+        self.last_sender: tuple[str, int] | None = None
+        self.transport: asyncio.DatagramTransport | None = None
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        self.transport, _ = await loop.create_datagram_endpoint(lambda: self, local_addr=self.local)
+
+    @property
+    def local_address(self) -> tuple[str, int]:
+        assert self.transport is not None
+        return self.transport.get_extra_info("sockname")[:2]
+
+    def write(self, data: bytes) -> None:
+        target = self.peer or self.last_sender
+        if target is None or self.transport is None:
+            raise TransportError("no peer to send to yet (no datagram received and no ?peer=)")
+        self.transport.sendto(data, target)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
+
+    def datagram_received(self, data: bytes, addr) -> None:
+        self.last_sender = addr[:2]
+        self.endpoint._received(data)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP "port unreachable" when the peer is not up yet: not a failure
+        # of ours, the next poll or reply simply finds it later.
+        self.endpoint.stats.last_error = f"udp: {exc}"
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None:
+            self.endpoint._fail(f"udp socket lost: {exc}")
+
+
+class UdpEndpoint(Endpoint):
+    def __init__(self, url: str, local: tuple[str, int], peer: tuple[str, int] | None, **kw) -> None:
+        super().__init__(url, lambda ep: _UdpDriver(ep, local, peer), **kw)
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        driver = self._driver
+        return driver.local_address if isinstance(driver, _UdpDriver) else None
+
+
+# ---------------------------------------------------------------------------
+# Serial
+# ---------------------------------------------------------------------------
+
+
+class _SerialDriver(_Driver):
+    def __init__(self, endpoint: Endpoint, path: str, baud: int) -> None:
+        self.endpoint = endpoint
+        self.path = path
+        self.baud = baud
+        self.port = None
+        self._fd: int | None = None
+
+    async def open(self) -> None:
+        import serial  # pyserial
+
+        port = serial.Serial()
+        port.port = self.path
+        port.baudrate = self.baud
+        port.timeout = 0
+        port.write_timeout = 2.0
+        port.open()  # raises SerialException if the device is not there
+        self.port = port
+        self._fd = port.fileno()
+        asyncio.get_running_loop().add_reader(self._fd, self._readable)
+
+    def _readable(self) -> None:
+        try:
+            data = self.port.read(max(1, self.port.in_waiting))
+            if not data:
+                # Readable but empty: the other side of a pty closed, or the
+                # USB adapter went away.
+                raise OSError("device reports readiness to read but returned no data")
+        except Exception as exc:
+            self._remove_reader()
+            self.endpoint._fail(f"serial read failed: {exc}")
+            return
+        self.endpoint._received(data)
+
+    def _remove_reader(self) -> None:
+        if self._fd is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._fd)
+            except Exception:
+                pass
+            self._fd = None
+
+    def write(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def close(self) -> None:
+        self._remove_reader()
+        if self.port is not None:
+            try:
+                self.port.close()
+            finally:
+                self.port = None
+
+
+# ---------------------------------------------------------------------------
+# In-process
+# ---------------------------------------------------------------------------
+
+
+class _InprocDriver(_Driver):
+    def __init__(self, endpoint: "InprocEndpoint") -> None:
+        self.endpoint = endpoint
+
+    async def open(self) -> None:
+        return None
+
+    def write(self, data: bytes) -> None:
+        peer = self.endpoint.peer
+        if peer is None or not peer.is_up:
+            raise TransportError("the other in-process end is not open")
+        peer._received(data)
+
+    def close(self) -> None:
+        return None
+
+
+class InprocEndpoint(Endpoint):
+    def __init__(self, url: str, **kw) -> None:
+        super().__init__(url, lambda ep: _InprocDriver(ep), **kw)  # type: ignore[arg-type]
+        self.peer: InprocEndpoint | None = None
+
+
+_INPROC: dict[str, list[InprocEndpoint]] = {}
+
+
+def inproc_pair(name: str = "pair", **kw) -> tuple[InprocEndpoint, InprocEndpoint]:
+    """Two connected in-process ends (not registered by name)."""
+    a, b = InprocEndpoint(f"inproc://{name}", **kw), InprocEndpoint(f"inproc://{name}", **kw)
+    a.peer, b.peer = b, a
+    return a, b
+
+
+# ---------------------------------------------------------------------------
+
+
+def open_transport(url: str) -> Endpoint:
+    """Parse a transport URL; raises TransportError saying what is wrong."""
+    parts = urlsplit(url)
+    query = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
+    common: dict = {}
+    if "mtu" in query:
+        mtu = query.pop("mtu")
+        if not mtu.isdigit() or not 20 <= int(mtu) <= 259:
+            raise TransportError(f"mtu must be a frame size of 20..259 bytes, got {mtu!r}")
+        common["max_frame"] = int(mtu)
+    if "crlf" in query:
+        common["crlf"] = query.pop("crlf") in ("1", "true", "yes")
+    if parts.scheme == "udp":
+        local = _hostport(parts.netloc, "udp:// address")
+        peer = _hostport(query.pop("peer"), "peer") if "peer" in query else None
+        _no_extra(query, url)
+        return UdpEndpoint(url, local, peer, **common)
+    if parts.scheme == "serial":
+        path = parts.path or parts.netloc
+        if not path:
+            raise TransportError(f"serial URL needs a device path, e.g. serial:///dev/ttyUSB0, got {url!r}")
+        baud_text = query.pop("baud", "9600")
+        if not baud_text.isdigit() or int(baud_text) <= 0:
+            raise TransportError(f"baud must be a positive integer, got {baud_text!r}")
+        _no_extra(query, url)
+        return Endpoint(url, lambda ep: _SerialDriver(ep, path, int(baud_text)), **common)
+    if parts.scheme == "inproc":
+        name = parts.netloc or parts.path
+        if not name:
+            raise TransportError("inproc URL needs a name, e.g. inproc://link")
+        _no_extra(query, url)
+        ends = _INPROC.setdefault(name, [])
+        if len(ends) >= 2:
+            raise TransportError(f"inproc://{name} already has two ends")
+        ep = InprocEndpoint(url, **common)
+        if ends:
+            ep.peer, ends[0].peer = ends[0], ep
+        ends.append(ep)
+        return ep
+    raise TransportError(f"unknown transport {parts.scheme!r} in {url!r}: use udp://, serial:// or inproc://")
+
+
+def _no_extra(query: dict, url: str) -> None:
+    if query:
+        raise TransportError(f"unknown option(s) {', '.join(sorted(query))} in {url!r}")
+
+
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A UDP port free right now on host (for tests and the demo)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
