@@ -1,0 +1,89 @@
+"""MAVLink connection strings, checked before pymavlink sees them.
+
+Goal: accept exactly the endpoints the bridge and the simulator mean to use, and
+turn anything else into one clear ValueError.  pymavlink's `mavlink_connection`
+guesses from the string: an existing file path is opened as a log to replay, and
+one under a `bin/` folder is even executed as a child process, which must never
+happen because of a typo in `--mavlink`.
+
+Accepted: `udpin:HOST:PORT`, `udpout:HOST:PORT`, `udp:HOST:PORT` (pymavlink's
+"listen" spelling), `tcp:HOST:PORT`, `tcpin:HOST:PORT`, and serial devices
+`/dev/...` or `COMn`, optionally followed by `,BAUD` (default 115200).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_NET = re.compile(r"^(udpin|udpout|udp|tcp|tcpin):([^:\s]+):(\d{1,5})$")
+_SERIAL = re.compile(r"^(/dev/[^,\s]+|COM\d+)(?:,(\d{3,7}))?$", re.IGNORECASE)
+
+DEFAULT_BAUD = 115200
+
+
+@dataclass(frozen=True)
+class MavlinkUrl:
+    kind: str  # udpin, udpout, tcp, tcpin or serial
+    device: str  # what pymavlink gets as `device`
+    baud: int = DEFAULT_BAUD
+    host: str = ""
+    port: int = 0
+
+
+def parse_mavlink_url(url: str) -> MavlinkUrl:
+    """Check a connection string; raise ValueError with a one-line reason."""
+    if not isinstance(url, str) or not url.strip():
+        raise ValueError("empty MAVLink URL")
+    url = url.strip()
+    match = _NET.match(url)
+    if match:
+        kind, host, port_text = match.groups()
+        port = int(port_text)
+        if port > 65535:
+            raise ValueError(f"port out of range in MAVLink URL {url!r}")
+        if kind == "udp":
+            kind = "udpin"
+        if kind in ("udpout", "tcp") and port == 0:
+            raise ValueError(f"{kind} needs a port to reach, not 0: {url!r}")
+        return MavlinkUrl(kind=kind, device=f"{kind}:{host}:{port}", host=host, port=port)
+    match = _SERIAL.match(url)
+    if match:
+        device, baud_text = match.groups()
+        return MavlinkUrl(kind="serial", device=device, baud=int(baud_text) if baud_text else DEFAULT_BAUD)
+    raise ValueError(
+        f"not a MAVLink URL: {url!r} (expected udpin:HOST:PORT, udpout:HOST:PORT, "
+        "tcp:HOST:PORT, tcpin:HOST:PORT or a serial device such as /dev/ttyACM0,115200)"
+    )
+
+
+def open_mavlink(url: str | MavlinkUrl, source_system: int, source_component: int):
+    """Open a pymavlink connection with the ardupilotmega dialect."""
+    from pymavlink import mavutil
+
+    parsed = url if isinstance(url, MavlinkUrl) else parse_mavlink_url(url)
+    extra = {}
+    if parsed.kind == "udpin":
+        # Forget UDP peers silent for this long, so a reconnecting ground station
+        # (new source port) does not keep old addresses fed forever.
+        extra["udp_timeout"] = 10
+    return mavutil.mavlink_connection(
+        parsed.device,
+        baud=parsed.baud,
+        dialect="ardupilotmega",
+        source_system=source_system,
+        source_component=source_component,
+        **extra,
+    )
+
+
+def bound_port(conn) -> int | None:
+    """The local port a udpin/tcpin connection listens on (after binding port 0)."""
+    for attr in ("listen", "port"):
+        sock = getattr(conn, attr, None)
+        if sock is not None and hasattr(sock, "getsockname"):
+            try:
+                return int(sock.getsockname()[1])
+            except OSError:
+                return None
+    return None
