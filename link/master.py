@@ -29,6 +29,11 @@ Decisions where PROTOCOL.md is silent:
   a stale image the ROV still holds for a fresh one (and the ROV drops its
   image on failsafe).  IMAGE settings sent: the next IMG is asked for in the
   same poll (the ROV executes the order before it serves the request).
+- Known limit of the one-bit SEQ (§3): if the ROV restarts while a reply
+  from before the restart is still in flight, the next order can go out with
+  SEQ equal to the fresh ACK 0 and be taken for a repeat.  Nothing on the
+  wire tells that window apart; the console shows the vehicle's state, and
+  STOP is also what the ROV's own failsafe does after a silence.
 - With `retransmit=False` (the paper's baseline) a lost reply abandons the
   image being received and the next IMG is asked for.
 """
