@@ -67,6 +67,10 @@ def open_mavlink(url: str | MavlinkUrl, source_system: int, source_component: in
         # Forget UDP peers silent for this long, so a reconnecting ground station
         # (new source port) does not keep old addresses fed forever.
         extra["udp_timeout"] = 10
+    elif parsed.kind == "tcp":
+        # One attempt per open: the caller owns retrying (with backoff), and a
+        # blocking retry loop inside pymavlink would delay a clean stop.
+        extra["retries"] = 0
     return mavutil.mavlink_connection(
         parsed.device,
         baud=parsed.baud,
