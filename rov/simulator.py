@@ -126,7 +126,9 @@ class SimulatedVehicle:
         self._thread: threading.Thread | None = None
         self._conn = None
         self._boot_s = time.monotonic()
-        self._ready = threading.Event()
+        self._last_gcs_s = -math.inf
+        self._tcp_client = None
+        self._tcp_client_since_s = 0.0
         self.port: int | None = None
 
     # --- lifecycle -----------------------------------------------------------
@@ -210,6 +212,7 @@ class SimulatedVehicle:
                     self._model.step(now - last_step, self._controls())
                     last_step = now
                     self._check_pilot_failsafe(now)
+                self._drop_silent_tcp_client(now)
                 if now >= next_heartbeat:
                     next_heartbeat = now + 1.0
                     self._send_heartbeat()
@@ -220,6 +223,25 @@ class SimulatedVehicle:
             except OSError:
                 pass
             self._conn = None
+
+    def _drop_silent_tcp_client(self, now: float) -> None:
+        """pymavlink's tcpin never notices a client that went away, and so never
+        accepts the next one; after 5 s of silence let the next one in."""
+        conn = self._conn
+        if self._url.kind != "tcpin":
+            return
+        client = getattr(conn, "port", None)
+        if client is not self._tcp_client:
+            self._tcp_client, self._tcp_client_since_s = client, now
+        if client is None or now - max(self._last_gcs_s, self._tcp_client_since_s) < 5.0:
+            return
+        try:
+            conn.port.close()
+        except OSError:
+            pass
+        conn.port = None
+        conn.fd = conn.listen.fileno()
+        log.info("TCP client silent for 5 s: waiting for the next one")
 
     def _controls(self) -> Controls:
         return Controls(pilot=self._pilot, mode=self._mode, armed=self._armed, target=self._target)
@@ -237,6 +259,13 @@ class SimulatedVehicle:
 
     def _handle(self, msg, now: float) -> None:
         kind = msg.get_type()
+        if kind != "BAD_DATA":
+            if now - self._last_gcs_s > 2.0:
+                # A new (or returning) ground station: greet it at once rather than
+                # at the next 1 Hz heartbeat, so it finds us without delay.
+                self._last_gcs_s = now
+                self._send_heartbeat()
+            self._last_gcs_s = now
         try:
             if kind == "MANUAL_CONTROL":
                 if msg.target == self.system_id:
