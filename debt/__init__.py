@@ -1,0 +1,15 @@
+"""DEBT (Depth Embedded Block Tree): the progressive image codec of rovlink.
+
+A wavelet transform (CDF 9/7, or integer 5/3 for lossless streams), an
+embedded block-tree bit-plane coder (SPECK-style set partitioning) with a
+region of interest raised SHIFT planes, and an adaptive binary arithmetic
+coder.  Every prefix of a stream that holds its header is a picture, and a
+longer prefix is a better one.
+
+    data = debt.encode(image, budget, roi=(x0, y0, x1, y1), shift=6)
+    picture = debt.decode(data[:n])
+"""
+
+from .codec import Header, decode, encode, unpack_header
+
+__all__ = ["encode", "decode", "Header", "unpack_header"]

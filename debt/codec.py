@@ -1,0 +1,512 @@
+# DEBT's public functions: `encode(image, budget, ...) -> bytes` and
+# `decode(data) -> image`, plus the stream header.
+#
+# Plan for encode: validate everything at the edge (one ValueError each), turn
+# the image into components (grey, or YCbCr), transform each (CDF 9/7, or the
+# integer 5/3 when a lossless stream might fit the budget), scale every band by
+# the norm of its synthesis basis so that coefficient error stands for pixel
+# error, raise the region of interest SHIFT planes, and hand the magnitudes to
+# the bit-plane coder, which stops at the byte budget.  decode reverses it from
+# whatever prefix it gets, reconstructing each coefficient at the middle of the
+# interval its decoded bits leave open.
+#
+# Header, most significant bit first, then padded to a byte with a check:
+#     MAGIC:4 (1011)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
+#     if ROI:  SHIFT:4  X0:10  Y0:10  X1:10  Y1:10
+#     CHECK: the remaining bits of the last byte (7 without ROI, 3 with),
+#            the low bits of a CRC-8 of the header with CHECK zero
+# so 5 bytes without a region of interest and 10 with one.  The decomposition
+# depth follows from the size (`transform.levels_for`); TOP is the highest
+# bit plane coded.
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import coder
+from .transform import band_levels, band_shapes, band_weights, forward, inverse, levels_for
+
+MAGIC = 0b1011
+MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
+MAX_SHIFT = 15
+FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
+KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
+
+# Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT).
+_ICT = np.array([[0.299, 0.587, 0.114],
+                 [-0.168736, -0.331264, 0.5],
+                 [0.5, -0.418688, -0.081312]])
+_ICT_INV = np.linalg.inv(_ICT)
+# Weight of each component so that its error counts as it does in RGB squared
+# error (norm of its column of the inverse over sqrt(3)); chroma then gets
+# fewer bits simply because it holds less energy.
+_COLOUR_WEIGHTS = np.sqrt((_ICT_INV ** 2).sum(axis=0) / 3.0)
+
+
+@dataclass(frozen=True)
+class Header:
+    width: int
+    height: int
+    colour: bool
+    reversible: bool
+    top: int
+    roi: tuple[int, int, int, int] | None = None
+    shift: int = 0
+
+    @property
+    def size(self) -> int:
+        return header_size(self.roi is not None)
+
+
+def header_size(has_roi: bool) -> int:
+    return 10 if has_roi else 5
+
+
+def _crc8(data: bytes) -> int:
+    crc = 0
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def pack_header(h: Header) -> bytes:
+    fields = [(MAGIC, 4), (int(h.colour), 1), (int(h.reversible), 1), (int(h.roi is not None), 1),
+              (h.width, 10), (h.height, 10), (h.top, 6)]
+    if h.roi is not None:
+        fields.append((h.shift, 4))
+        fields.extend((v, 10) for v in h.roi)
+    value = 0
+    nbits = 0
+    for v, n in fields:
+        value = (value << n) | v
+        nbits += n
+    size = h.size
+    check_bits = 8 * size - nbits
+    value <<= check_bits
+    raw = value.to_bytes(size, "big")
+    check = _crc8(raw) & ((1 << check_bits) - 1)
+    return (value | check).to_bytes(size, "big")
+
+
+def unpack_header(data: bytes) -> Header:
+    if len(data) < 1:
+        raise ValueError("empty DEBT stream")
+    if data[0] >> 4 != MAGIC:
+        raise ValueError("not a DEBT stream (bad magic)")
+    has_roi = bool(data[0] & 0x02)
+    size = header_size(has_roi)
+    if len(data) < size:
+        raise ValueError(f"DEBT stream of {len(data)} bytes is shorter than its {size}-byte header")
+    value = int.from_bytes(data[:size], "big")
+    nbits = 8 * size
+
+    pos = 0
+
+    def take(n: int) -> int:
+        nonlocal pos
+        pos += n
+        return (value >> (nbits - pos)) & ((1 << n) - 1)
+
+    take(4)
+    colour = bool(take(1))
+    reversible = bool(take(1))
+    take(1)
+    width = take(10)
+    height = take(10)
+    top = take(6)
+    roi = None
+    shift = 0
+    if has_roi:
+        shift = take(4)
+        roi = (take(10), take(10), take(10), take(10))
+    check_bits = nbits - pos
+    check = value & ((1 << check_bits) - 1)
+    expected = _crc8((value & ~((1 << check_bits) - 1)).to_bytes(size, "big")) & ((1 << check_bits) - 1)
+    if check != expected:
+        raise ValueError("corrupted DEBT header (check bits do not match)")
+    if width < 1 or height < 1:
+        raise ValueError("corrupted DEBT header (zero image size)")
+    if roi is not None:
+        x0, y0, x1, y1 = roi
+        if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
+            raise ValueError("corrupted DEBT header (region of interest outside the image)")
+    h = Header(width, height, colour, reversible, top, roi, shift)
+    if top > _max_top(h):
+        raise ValueError("corrupted DEBT header (bit-plane count out of range)")
+    return h
+
+
+def _max_top(h: Header) -> int:
+    # Generous bound on the top plane a real image can produce.
+    return 20 + FRACTION_BITS + h.shift + (3 if h.reversible else 0)
+
+
+# ---------------------------------------------------------------- validation
+
+def _as_image(image, mono) -> tuple[np.ndarray, bool]:
+    """Validate the input image; return (uint8 array, colour?)."""
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"image must be a numpy array, not {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise ValueError(f"image must be uint8, not {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 3:
+        colour = True
+    elif image.ndim == 2:
+        colour = False
+    else:
+        raise ValueError(f"image must be HxW (grey) or HxWx3 (RGB), not shape {image.shape}")
+    h, w = image.shape[:2]
+    if h == 0 or w == 0:
+        raise ValueError(f"image is empty (shape {image.shape})")
+    if h > MAX_SIDE or w > MAX_SIDE:
+        raise ValueError(f"image is {w}x{h}; DEBT codes images up to {MAX_SIDE} pixels a side")
+    if mono is not None and not isinstance(mono, (bool, np.bool_)):
+        raise ValueError(f"mono must be True, False or None, not {mono!r}")
+    if colour and (mono is None or not mono):
+        return image, True
+    if colour:
+        luma = image.astype(np.float64) @ _ICT[0]
+        return np.clip(np.rint(luma), 0, 255).astype(np.uint8), False
+    # A grey image is always coded as grey, whatever `mono` says.
+    return image, False
+
+
+def _as_roi(roi, shift, width, height):
+    if isinstance(shift, bool) or not isinstance(shift, (int, np.integer)):
+        raise ValueError(f"shift must be an integer 0..{MAX_SHIFT}, not {shift!r}")
+    shift = int(shift)
+    if not 0 <= shift <= MAX_SHIFT:
+        raise ValueError(f"shift must be 0..{MAX_SHIFT}, not {shift}")
+    if roi is None:
+        return None, 0
+    try:
+        values = tuple(roi)
+    except TypeError:
+        raise ValueError(f"roi must be (x0, y0, x1, y1), not {roi!r}") from None
+    if len(values) != 4 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                                   for v in values):
+        raise ValueError(f"roi must be four integers (x0, y0, x1, y1), not {roi!r}")
+    x0, y0, x1, y1 = (int(v) for v in values)
+    if (x0, y0, x1, y1) == (0, 0, 0, 0):
+        return None, 0          # the IMAGE order's "no region of interest"
+    if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
+        raise ValueError(f"roi {(x0, y0, x1, y1)} is not a non-empty rectangle inside the "
+                         f"{width}x{height} image (x1, y1 exclusive)")
+    if shift == 0:
+        return None, 0          # no priority: the rectangle changes nothing
+    return (x0, y0, x1, y1), shift
+
+
+# ---------------------------------------------------------------- layout
+
+@dataclass
+class _Layout:
+    shapes: list            # per global band: (h, w)
+    comp: list              # per global band: component index
+    index: list             # per global band: band index within its component
+    binfo: np.ndarray
+    noff: np.ndarray
+    nw: np.ndarray
+    seg: np.ndarray
+    ncoef: int
+    nnodes: int
+
+
+def _layout(height: int, width: int, levels: int, ncomp: int) -> _Layout:
+    shapes1 = band_shapes(height, width, levels)
+    res = band_levels(levels)
+    order = [(c, i) for i in range(len(shapes1)) for c in range(ncomp)]
+    nb = len(order)
+    binfo = np.zeros((nb, 5), dtype=np.int64)
+    noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    count = np.zeros(KMAX + 2, dtype=np.int64)
+    off = 0
+    noffset = 0
+    for b, (c, i) in enumerate(order):
+        h, w = shapes1[i]
+        k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + res[i])
+        off += h * w
+        if h and w:
+            count[0] += h * w
+            for k in range(1, k_root + 1):
+                hk, wk = -(-h // (1 << k)), -(-w // (1 << k))
+                noff[b, k] = noffset
+                nw[b, k] = wk
+                noffset += hk * wk
+                count[k] += hk * wk
+    seg = np.zeros(KMAX + 2, dtype=np.int64)
+    seg[1:] = np.cumsum(count[:KMAX + 1])
+    return _Layout(
+        [shapes1[i] for _, i in order], [c for c, _ in order], [i for _, i in order],
+        binfo, noff, nw, seg, off, noffset,
+    )
+
+
+def _pyramid(values: np.ndarray, lay: _Layout, use_max: bool) -> np.ndarray:
+    """Per quadtree node the max (or min) of `values` over its block."""
+    out = np.zeros(max(lay.nnodes, 1), dtype=np.int64)
+    pad = 0 if use_max else np.iinfo(np.int64).max
+    reduce = np.maximum if use_max else np.minimum
+    for b in range(len(lay.shapes)):
+        off, h, w, k_root, _ = lay.binfo[b]
+        if not h or not w:
+            continue
+        level = values[off:off + h * w].reshape(h, w)
+        for k in range(1, k_root + 1):
+            hh, ww = level.shape
+            if hh % 2 or ww % 2:
+                padded = np.full((hh + hh % 2, ww + ww % 2), pad, dtype=np.int64)
+                padded[:hh, :ww] = level
+                level = padded
+            level = reduce(reduce(level[0::2, 0::2], level[0::2, 1::2]),
+                           reduce(level[1::2, 0::2], level[1::2, 1::2]))
+            start = lay.noff[b, k]
+            out[start:start + level.size] = level.ravel()
+    return out
+
+
+def _roi_ranges(a: int, b: int, n: int, levels: int):
+    # Per level, the low and high coefficient ranges whose synthesis basis
+    # reaches pixels [a, b) (9/7 supports: 7 taps low, 9 taps high).
+    out = []
+    for _ in range(levels):
+        nl, nh = -(-n // 2), n // 2
+        low = (max(0, -((3 - a) // 2)), min(nl, (b + 2) // 2 + 1))
+        high = (max(0, -((5 - a) // 2)), min(nh, (b + 2) // 2 + 1))
+        out.append((low, high))
+        a, b, n = low[0], low[1], nl
+    return out
+
+
+def _roi_masks(h: Header, levels: int) -> list[np.ndarray] | None:
+    """Per band of one component, a boolean mask of ROI coefficients."""
+    if h.roi is None:
+        return None
+    x0, y0, x1, y1 = h.roi
+    rows = _roi_ranges(y0, y1, h.height, levels)
+    cols = _roi_ranges(x0, x1, h.width, levels)
+    shapes = band_shapes(h.height, h.width, levels)
+    masks = []
+
+    def mask(shape, r, c):
+        m = np.zeros(shape, dtype=bool)
+        m[r[0]:r[1], c[0]:c[1]] = True
+        return m
+
+    if levels == 0:
+        full = np.zeros(shapes[0], dtype=bool)
+        full[y0:y1, x0:x1] = True
+        return [full]
+    masks.append(mask(shapes[0], rows[-1][0], cols[-1][0]))
+    for j in range(levels, 0, -1):
+        r, c = rows[j - 1], cols[j - 1]
+        i = 1 + 3 * (levels - j)
+        masks.append(mask(shapes[i], r[0], c[1]))      # LH: low rows, high columns
+        masks.append(mask(shapes[i + 1], r[1], c[0]))  # HL
+        masks.append(mask(shapes[i + 2], r[1], c[1]))  # HH
+    return masks
+
+
+# ---------------------------------------------------------------- components
+
+def _components(img: np.ndarray, colour: bool, reversible: bool) -> list[np.ndarray]:
+    if reversible:
+        x = img.astype(np.int64)
+        if not colour:
+            return [x - 128]
+        r, g, b = x[..., 0], x[..., 1], x[..., 2]
+        return [((r + 2 * g + b) >> 2) - 128, b - g, r - g]
+    x = img.astype(np.float64)
+    if not colour:
+        return [x - 128.0]
+    ycc = x @ _ICT.T
+    return [ycc[..., 0] - 128.0, ycc[..., 1].copy(), ycc[..., 2].copy()]
+
+
+def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarray:
+    if reversible:
+        if not colour:
+            out = comps[0] + 128
+        else:
+            y, cb, cr = comps
+            g = y + 128 - ((cb + cr) >> 2)
+            out = np.stack([cr + g, g, cb + g], axis=-1)
+        return np.clip(out, 0, 255).astype(np.uint8)
+    if not colour:
+        out = comps[0] + 128.0
+    else:
+        ycc = np.stack([comps[0] + 128.0, comps[1], comps[2]], axis=-1)
+        out = ycc @ _ICT_INV.T
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def _scales(h: Header, levels: int, ncomp: int) -> list[float] | list[int]:
+    """Per (component, band): the factor (9/7) or left shift (5/3) applied."""
+    if h.reversible:
+        w = band_weights(levels, "53")
+        lo = min(w)
+        shifts = [max(0, int(round(math.log2(v / lo)))) for v in w]
+        return [[s for s in shifts] for _ in range(ncomp)]
+    w = band_weights(levels, "97")
+    comp_w = _COLOUR_WEIGHTS if ncomp == 3 else [1.0]
+    return [[v * comp_w[c] * 2.0 ** FRACTION_BITS for v in w] for c in range(ncomp)]
+
+
+# ---------------------------------------------------------------- encode
+
+def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift: int,
+                    limit: int):
+    """Returns (header, payload bytes, complete?)."""
+    height, width = img.shape[:2]
+    levels = levels_for(height, width)
+    ncomp = 3 if colour else 1
+    probe = Header(width, height, colour, reversible, 0, roi, shift)
+    masks = _roi_masks(probe, levels)
+    scales = _scales(probe, levels, ncomp)
+    comp_bands = [forward(c, levels, "53" if reversible else "97") for c in _components(img, colour, reversible)]
+    lay = _layout(height, width, levels, ncomp)
+    mag = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
+    neg = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
+    cfloor = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
+    for b in range(len(lay.shapes)):
+        off, bh, bw = lay.binfo[b, :3]
+        if not bh or not bw:
+            continue
+        c, i = lay.comp[b], lay.index[b]
+        band = comp_bands[c][i]
+        m = masks[i] if masks is not None else None
+        if reversible:
+            s = scales[c][i]
+            f = np.full(band.shape, s, dtype=np.int64)
+            if m is not None:
+                f[m] += shift
+            q = np.abs(band) << f
+            cfloor[off:off + bh * bw] = f.ravel()
+        else:
+            a = np.abs(band) * scales[c][i]
+            if m is not None:
+                a[m] *= float(1 << shift)
+            q = np.floor(a).astype(np.int64)
+        mag[off:off + bh * bw] = q.ravel()
+        neg[off:off + bh * bw] = (band < 0).ravel()
+    top = max(int(mag.max()).bit_length() - 1, 0)
+    header = Header(width, height, colour, reversible, top, roi, shift)
+    node_max = _pyramid(mag, lay, True)
+    node_floor = _pyramid(cfloor, lay, False)
+    ccls = (lay.binfo[:, 4][np.repeat(np.arange(len(lay.shapes)), lay.binfo[:, 1] * lay.binfo[:, 2])]
+            if lay.ncoef else np.zeros(1, dtype=np.int64))
+    buf = np.zeros(limit + 64, dtype=np.uint8)
+    st = coder.encoder_state(limit + 1)
+    rec = np.zeros_like(mag)
+    pk = np.full_like(mag, -1)
+    sgn = np.zeros_like(mag)
+    complete = coder.run(0, mag, neg, cfloor, np.ascontiguousarray(ccls), node_max, node_floor,
+                         lay.binfo, lay.noff, lay.nw, lay.seg, KMAX, top, buf, st, rec, pk, sgn)
+    if complete:
+        n = coder.flush(st, buf)
+        n = min(n, buf.shape[0])
+        payload = bytes(buf[1:n])
+        if len(payload) <= limit:
+            return header, payload, True
+    return header, bytes(buf[1:limit + 1]), False
+
+
+def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) -> bytes:
+    """Code `image` into at most `budget` bytes of embedded DEBT stream.
+
+    image: HxW uint8 (grey) or HxWx3 uint8 (RGB), at most 1023 px a side.
+    roi: (x0, y0, x1, y1) pixel rectangle, (x1, y1) exclusive, raised `shift`
+    bit planes (0..15) above the rest; (0, 0, 0, 0) or shift 0 mean none.
+    mono: code luminance only (default True for grey, False for colour).
+    The stream is exactly `budget` bytes unless the image is coded losslessly
+    in fewer; every prefix holding the header decodes.
+    """
+    img, colour = _as_image(image, mono)
+    height, width = img.shape[:2]
+    roi, shift = _as_roi(roi, shift, width, height)
+    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)):
+        raise ValueError(f"budget must be an integer number of bytes, not {budget!r}")
+    budget = int(budget)
+    hsize = header_size(roi is not None)
+    if budget < hsize:
+        raise ValueError(f"budget of {budget} bytes is below the {hsize}-byte DEBT header")
+    limit = budget - hsize
+    samples = img.size
+    # Lossless (integer 5/3) only pays where the budget could hold it.
+    if 8 * limit >= samples // 2:
+        header, payload, complete = _encode_payload(img, colour, True, roi, shift, limit)
+        if complete:
+            return pack_header(header) + payload
+    header, payload, complete = _encode_payload(img, colour, False, roi, shift, limit)
+    if complete:
+        # The 9/7 stream ran out of planes: a lossless one is smaller still.
+        h2, p2, c2 = _encode_payload(img, colour, True, roi, shift, limit)
+        if c2:
+            return pack_header(h2) + p2
+    return pack_header(header) + payload
+
+
+# ---------------------------------------------------------------- decode
+
+def decode(data) -> np.ndarray:
+    """Decode a DEBT stream, or any prefix of one that holds its header."""
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise ValueError(f"data must be bytes, not {type(data).__name__}")
+    data = bytes(data)
+    h = unpack_header(data)
+    levels = levels_for(h.height, h.width)
+    ncomp = 3 if h.colour else 1
+    lay = _layout(h.height, h.width, levels, ncomp)
+    masks = _roi_masks(h, levels)
+    scales = _scales(h, levels, ncomp)
+    n = max(lay.ncoef, 1)
+    cfloor = np.zeros(n, dtype=np.int64)
+    if h.reversible:
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            c, i = lay.comp[b], lay.index[b]
+            f = np.full((bh, bw), scales[c][i], dtype=np.int64)
+            if masks is not None:
+                f[masks[i]] += h.shift
+            cfloor[off:off + bh * bw] = f.ravel()
+    node_floor = _pyramid(cfloor, lay, False)
+    ccls = (lay.binfo[:, 4][np.repeat(np.arange(len(lay.shapes)), lay.binfo[:, 1] * lay.binfo[:, 2])]
+            if lay.ncoef else np.zeros(1, dtype=np.int64))
+    payload = np.frombuffer(data[h.size:], dtype=np.uint8).copy()
+    st = coder.decoder_state(payload)
+    buf = payload if payload.size else np.zeros(1, dtype=np.uint8)
+    dummy = np.zeros(1, dtype=np.int64)
+    rec = np.zeros(n, dtype=np.int64)
+    pk = np.full(n, -1, dtype=np.int64)
+    sgn = np.zeros(n, dtype=np.int64)
+    coder.run(1, dummy, dummy, cfloor, np.ascontiguousarray(ccls), dummy, node_floor, lay.binfo,
+              lay.noff, lay.nw, lay.seg, KMAX, h.top, buf, st, rec, pk, sgn)
+    known = pk >= 0
+    if h.reversible:
+        span = np.where(known & (pk > cfloor), (np.int64(1) << np.maximum(pk - cfloor, 0)) - 1, 0) >> 1
+        mag = np.where(known, (rec >> cfloor) + span, 0)
+    else:
+        mag = np.where(known, rec + 0.5 * np.exp2(np.maximum(pk, 0)), 0.0)
+    val = np.where(sgn == 1, -mag, mag)
+    comp_bands = [[None] * len(band_shapes(h.height, h.width, levels)) for _ in range(ncomp)]
+    for b in range(len(lay.shapes)):
+        off, bh, bw = lay.binfo[b, :3]
+        c, i = lay.comp[b], lay.index[b]
+        band = val[off:off + bh * bw].reshape(bh, bw)
+        if not h.reversible:
+            band = band / scales[c][i]
+            if masks is not None and bh and bw:
+                band[masks[i]] /= float(1 << h.shift)
+        comp_bands[c][i] = band
+    kind = "53" if h.reversible else "97"
+    comps = [inverse(bands, levels, kind) for bands in comp_bands]
+    return _image(comps, h.colour, h.reversible)

@@ -1,0 +1,387 @@
+# The embedded block-tree bit-plane coder of DEBT and its arithmetic coder.
+#
+# Goals: every coefficient's bits are sent from the most significant plane
+# down, most useful first, so that any prefix of the stream is the best picture
+# those bytes can buy; the decoder can stop at any byte; the hot loops run
+# compiled (numba) because a stream holds tens of thousands of binary decisions.
+#
+# Plan
+# - Set partitioning in the manner of SPECK: each subband is the root of a
+#   quadtree of blocks (power-of-two aligned, clipped to the band).  Lists of
+#   insignificant sets are kept per block size; in every bit plane the small
+#   sets are tested before the big ones (single coefficients first), a
+#   significant set splits into its four quadrants, a coefficient found
+#   significant sends its sign, and then every coefficient already significant
+#   sends its bit of this plane (refinement).
+# - A coefficient may carry a "floor" plane below which its bits are known to be
+#   zero (bands scaled up by a shift in the reversible mode, the region of
+#   interest there); sets whose every member lies above the plane are skipped.
+# - One traversal routine serves both sides (`mode` 0 encodes, 1 decodes), so
+#   encoder and decoder can never disagree about the order of decisions.
+# - Binary decisions go through an adaptive binary range coder (LZMA-style
+#   carry handling) with contexts: coefficient significance by band class and
+#   number of significant neighbours, set significance by band class and block
+#   size, sign, and refinement (first or later).
+# - The decoder reads a truncated stream with interval arithmetic: it tracks
+#   the smallest and the largest code value the missing bytes allow and stops
+#   at the first decision on which they disagree.  Every decision it makes is
+#   therefore the encoder's, and a longer prefix yields a superset of them.
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+try:  # numba is a dependency, but the pure-Python path keeps things working.
+    import numba as _numba
+except ImportError:  # pragma: no cover - exercised only without numba
+    _numba = None
+
+
+def _cache_ok() -> bool:
+    # numba's on-disk cache needs a writable __pycache__ beside this file (or
+    # NUMBA_CACHE_DIR); without one it raises, so compile each process instead.
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return True
+    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    try:
+        os.makedirs(here, exist_ok=True)
+        return os.access(here, os.W_OK)
+    except OSError:
+        return False
+
+
+if _numba is not None:
+    _jit = _numba.njit(cache=_cache_ok(), nogil=True)
+else:  # pragma: no cover
+    def _jit(f):
+        return f
+
+# Context layout.  A band class is component class (0 luma/grey, 1 chroma)
+# times 8 plus resolution level (0 = low band, j = level-j details).
+NCLS = 16
+CTX_SIG = 0                      # + cls * 4 + min(neighbours, 3)
+CTX_SET = CTX_SIG + NCLS * 4     # + cls * 8 + min(k, 7)
+CTX_SIGN = CTX_SET + NCLS * 8    # + cls
+CTX_REF = CTX_SIGN + NCLS        # + cls * 2 + (first refinement)
+NCTX = CTX_REF + NCLS * 2
+
+PROB_BITS = 15
+PROB_ONE = 1 << PROB_BITS
+# Adaptation speed per context as it sees more decisions: fast at first (few
+# decisions at low budgets), then steadier.
+RATE = np.array([1, 2, 2, 3, 3, 3, 3] + [4] * 9 + [5] * 48, dtype=np.int64)
+RATE_LAST = RATE.shape[0] - 1
+
+
+@_jit
+def _shift_low(st, buf):
+    low = st[0]
+    if low < 0xFF000000 or low >= 0x100000000:
+        carry = low >> 32
+        temp = st[2]
+        while True:
+            pos = st[4]
+            if pos < buf.shape[0]:
+                buf[pos] = (temp + carry) & 0xFF
+            st[4] = pos + 1
+            temp = 0xFF
+            st[3] -= 1
+            if st[3] == 0:
+                break
+        st[2] = (low >> 24) & 0xFF
+    st[3] += 1
+    st[0] = (low & 0x00FFFFFF) << 8
+
+
+@_jit
+def _code(mode, st, buf, probs, counts, ctx, bit):
+    """Encode `bit` (mode 0) or decode one (mode 1) in context `ctx`.
+
+    Returns the bit, or -1 when the encoder reached its byte limit or the
+    decoder cannot be sure of the decision from the bytes it has."""
+    p = probs[ctx]
+    if mode == 0:
+        if st[4] >= st[5]:
+            return -1
+        rng = st[1]
+        bound = (rng >> PROB_BITS) * p
+        if bit == 0:
+            st[1] = bound
+        else:
+            st[0] += bound
+            st[1] = rng - bound
+        while st[1] < 0x1000000:
+            st[1] <<= 8
+            _shift_low(st, buf)
+    else:
+        rng = st[0]
+        bound = (rng >> PROB_BITS) * p
+        if st[2] < bound:
+            bit = 0
+            st[0] = bound
+        elif st[1] >= bound:
+            bit = 1
+            st[1] -= bound
+            st[2] -= bound
+            st[0] = rng - bound
+        else:
+            return -1
+        while st[0] < 0x1000000:
+            st[0] <<= 8
+            pos = st[3]
+            if pos < st[4]:
+                byte = np.int64(buf[pos])
+                st[1] = (st[1] << 8) | byte
+                st[2] = (st[2] << 8) | byte
+            else:
+                st[1] = st[1] << 8
+                st[2] = (st[2] << 8) | 0xFF
+            st[3] = pos + 1
+    n = counts[ctx]
+    shift = RATE[n]
+    if n < RATE_LAST:
+        counts[ctx] = n + 1
+    if bit == 0:
+        p += (PROB_ONE - p) >> shift
+    else:
+        p -= p >> shift
+    if p < 32:
+        p = 32
+    elif p > PROB_ONE - 32:
+        p = PROB_ONE - 32
+    probs[ctx] = p
+    return bit
+
+
+@_jit
+def _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x):
+    if k == 0:
+        return cfloor[binfo[b, 0] + y * binfo[b, 2] + x]
+    return node_floor[noff[b, k] + y * nw[b, k] + x]
+
+
+@_jit
+def _node_max(mag, node_max, binfo, noff, nw, b, k, y, x):
+    if k == 0:
+        return mag[binfo[b, 0] + y * binfo[b, 2] + x]
+    return node_max[noff[b, k] + y * nw[b, k] + x]
+
+
+@_jit
+def _neighbours(sig, off, h, w, y, x):
+    count = 0
+    for dy in range(-1, 2):
+        yy = y + dy
+        if yy < 0 or yy >= h:
+            continue
+        row = off + yy * w
+        for dx in range(-1, 2):
+            xx = x + dx
+            if xx < 0 or xx >= w or (dy == 0 and dx == 0):
+                continue
+            count += sig[row + xx]
+    return count
+
+
+@_jit
+def _new_significant(mode, st, buf, probs, counts, c, p, cls, neg, sig, sgn, rec,
+                     pk, sigplane, lsp, nlsp):
+    # A coefficient just found significant: its sign, then its state.
+    s = _code(mode, st, buf, probs, counts, CTX_SIGN + cls, neg[c])
+    if s < 0:
+        return -1
+    sig[c] = 1
+    sgn[c] = s
+    rec[c] = np.int64(1) << p
+    pk[c] = p
+    sigplane[c] = p
+    lsp[nlsp] = c
+    return nlsp + 1
+
+
+@_jit
+def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
+        kmax, top, buf, st, rec, pk, sgn):
+    """Traverse the bit planes from `top` down to 0, coding every decision.
+
+    Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
+    the end of the certain data (decoder) stopped it first."""
+    ncoef = cfloor.shape[0]
+    nb = binfo.shape[0]
+    probs = np.full(NCTX, PROB_ONE // 2, dtype=np.int64)
+    counts = np.zeros(NCTX, dtype=np.int64)
+    lis = np.empty(seg[kmax + 1], dtype=np.int64)
+    lis_len = np.zeros(kmax + 1, dtype=np.int64)
+    sig = np.zeros(ncoef, dtype=np.int64)
+    sigplane = np.zeros(ncoef, dtype=np.int64)
+    lsp = np.empty(ncoef, dtype=np.int64)
+    nlsp = 0
+    stack = np.empty((4 * (kmax + 2), 3), dtype=np.int64)
+    cy4 = np.empty(4, dtype=np.int64)
+    cx4 = np.empty(4, dtype=np.int64)
+    for b in range(nb):
+        if binfo[b, 1] == 0 or binfo[b, 2] == 0:
+            continue
+        kb = binfo[b, 3]
+        lis[seg[kb] + lis_len[kb]] = b << 40
+        lis_len[kb] += 1
+
+    for p in range(top, -1, -1):
+        thr = np.int64(1) << p
+        nbefore = nlsp
+        # Sorting pass: smallest sets first.
+        for k in range(kmax + 1):
+            base = seg[k]
+            n = lis_len[k]
+            j = 0
+            for i in range(n):
+                e = lis[base + i]
+                b = e >> 40
+                y = (e >> 20) & 0xFFFFF
+                x = e & 0xFFFFF
+                if _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x) > p:
+                    lis[base + j] = e
+                    j += 1
+                    continue
+                off = binfo[b, 0]
+                h = binfo[b, 1]
+                w = binfo[b, 2]
+                cls = binfo[b, 4]
+                bit = 0
+                if mode == 0:
+                    bit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
+                if k == 0:
+                    c = off + y * w + x
+                    nbr = _neighbours(sig, off, h, w, y, x)
+                    if nbr > 3:
+                        nbr = 3
+                    r = _code(mode, st, buf, probs, counts, CTX_SIG + cls * 4 + nbr, bit)
+                    if r < 0:
+                        return 0
+                    if r == 0:
+                        lis[base + j] = e
+                        j += 1
+                        continue
+                    nlsp = _new_significant(mode, st, buf, probs, counts, c, p, cls, neg,
+                                            sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                    if nlsp < 0:
+                        return 0
+                    continue
+                kk = k if k < 7 else 7
+                r = _code(mode, st, buf, probs, counts, CTX_SET + cls * 8 + kk, bit)
+                if r < 0:
+                    return 0
+                if r == 0:
+                    lis[base + j] = e
+                    j += 1
+                    continue
+                # Significant set: split it, depth first, until every piece
+                # is either an insignificant set (back in a list) or a
+                # significant coefficient.
+                depth = 1
+                stack[0, 0] = k
+                stack[0, 1] = y
+                stack[0, 2] = x
+                while depth > 0:
+                    depth -= 1
+                    pk_ = stack[depth, 0]
+                    py = stack[depth, 1]
+                    px = stack[depth, 2]
+                    ck = pk_ - 1
+                    hk = (h + (np.int64(1) << ck) - 1) >> ck
+                    wk = (w + (np.int64(1) << ck) - 1) >> ck
+                    nchild = 0
+                    for t in range(4):
+                        yy = 2 * py + (t >> 1)
+                        xx = 2 * px + (t & 1)
+                        if yy < hk and xx < wk:
+                            cy4[nchild] = yy
+                            cx4[nchild] = xx
+                            nchild += 1
+                    any_sig = False
+                    for t in range(nchild):
+                        yy = cy4[t]
+                        xx = cx4[t]
+                        packed = (b << 40) | (yy << 20) | xx
+                        if _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx) > p:
+                            lis[seg[ck] + lis_len[ck]] = packed
+                            lis_len[ck] += 1
+                            continue
+                        if t == nchild - 1 and not any_sig:
+                            r = 1  # the parent is significant, so this one is
+                        else:
+                            cbit = 0
+                            if mode == 0:
+                                cbit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, ck, yy, xx) >= thr else 0
+                            if ck == 0:
+                                nbr = _neighbours(sig, off, h, w, yy, xx)
+                                if nbr > 3:
+                                    nbr = 3
+                                ctx = CTX_SIG + cls * 4 + nbr
+                            else:
+                                kk = ck if ck < 7 else 7
+                                ctx = CTX_SET + cls * 8 + kk
+                            r = _code(mode, st, buf, probs, counts, ctx, cbit)
+                            if r < 0:
+                                return 0
+                        if r == 0:
+                            lis[seg[ck] + lis_len[ck]] = packed
+                            lis_len[ck] += 1
+                            continue
+                        any_sig = True
+                        if ck == 0:
+                            c = off + yy * w + xx
+                            nlsp = _new_significant(mode, st, buf, probs, counts, c, p, cls,
+                                                    neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                            if nlsp < 0:
+                                return 0
+                        else:
+                            stack[depth, 0] = ck
+                            stack[depth, 1] = yy
+                            stack[depth, 2] = xx
+                            depth += 1
+            # Splitting a set of this size only feeds smaller lists, so this
+            # one did not grow while it was scanned.
+            lis_len[k] = j
+        # Refinement pass: coefficients significant before this plane.
+        for i in range(nbefore):
+            c = lsp[i]
+            if cfloor[c] > p:
+                continue
+            bit = 0
+            if mode == 0:
+                bit = (mag[c] >> p) & 1
+            first = 1 if sigplane[c] == p + 1 else 0
+            r = _code(mode, st, buf, probs, counts, CTX_REF + ccls[c] * 2 + first, bit)
+            if r < 0:
+                return 0
+            rec[c] |= r << p
+            pk[c] = p
+    return 1
+
+
+@_jit
+def flush(st, buf):
+    for _ in range(5):
+        _shift_low(st, buf)
+    return st[4]
+
+
+def encoder_state(limit: int) -> np.ndarray:
+    # [low, range, cache, cache size, bytes out, byte limit]
+    return np.array([0, 0xFFFFFFFF, 0, 1, 0, limit, 0, 0], dtype=np.int64)
+
+
+def decoder_state(data: np.ndarray) -> np.ndarray:
+    # [range, lowest code, highest code, next byte, bytes held]
+    lo = 0
+    hi = 0
+    for i in range(4):
+        byte = int(data[i]) if i < data.shape[0] else None
+        lo = (lo << 8) | (0 if byte is None else byte)
+        hi = (hi << 8) | (0xFF if byte is None else byte)
+    rng = 0xFFFFFFFF
+    hi = min(hi, rng - 1)
+    return np.array([rng, lo, hi, 4, data.shape[0], 0, 0, 0], dtype=np.int64)
