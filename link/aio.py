@@ -29,6 +29,20 @@ def _now() -> float:
     return asyncio.get_running_loop().time()
 
 
+async def _recv(endpoint: Endpoint, timeout_s: float | None) -> bytes | None:
+    """Next bytes from endpoint, or None after timeout_s.
+
+    asyncio.timeout rather than wait_for: in Python 3.11 wait_for swallows a
+    cancellation that arrives just as the inner get completes, and a fast
+    link loop would then never stop.
+    """
+    try:
+        async with asyncio.timeout(timeout_s):
+            return await endpoint.recv()
+    except TimeoutError:
+        return None
+
+
 def _hand(on_events: EventSink | None, events: list, now: float) -> None:
     if on_events is None or not events:
         return
@@ -54,9 +68,8 @@ async def run_master(
             endpoint.send(frame)
         deadline = master.deadline()
         wait = idle_poll_s if deadline is None else max(0.0, deadline - _now())
-        try:
-            data = await asyncio.wait_for(endpoint.recv(), wait)
-        except asyncio.TimeoutError:
+        data = await _recv(endpoint, wait)
+        if data is None:
             continue
         now = _now()
         _hand(on_events, master.receive_bytes(data, now), now)
@@ -74,9 +87,8 @@ async def run_slave(
 ) -> None:
     """Answer polls as they come; check the failsafe every `tick_s`."""
     while True:
-        try:
-            data = await asyncio.wait_for(endpoint.recv(), tick_s)
-        except asyncio.TimeoutError:
+        data = await _recv(endpoint, tick_s)
+        if data is None:
             now = _now()
             _hand(on_events, slave.tick(now), now)
             continue
@@ -107,8 +119,9 @@ async def run_channel(channel: Channel, a: Endpoint, b: Endpoint) -> None:
             wake.clear()
             timeout = None if nxt is None else max(0.0, nxt - _now())
             try:
-                await asyncio.wait_for(wake.wait(), timeout)
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(timeout):
+                    await wake.wait()
+            except TimeoutError:
                 pass
 
     tasks = [asyncio.create_task(pump("a")), asyncio.create_task(pump("b")), asyncio.create_task(deliver())]

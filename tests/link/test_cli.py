@@ -1,0 +1,109 @@
+"""The rovlink command as a user runs it: real processes, real sockets."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from link.frame import FrameDecoder, encode_frame
+from link.transport import free_udp_port
+
+ROVLINK = [sys.executable, "-m", "console"]
+
+
+def rovlink(*args, timeout=120):
+    return subprocess.run(ROVLINK + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def test_help_lists_the_commands():
+    out = rovlink("--help")
+    assert out.returncode == 0
+    assert "channel" in out.stdout and "bench" in out.stdout
+
+
+@pytest.mark.parametrize("args", [["channel", "--help"], ["bench", "--help"], ["bench", "link", "--help"]])
+def test_every_command_explains_itself(args):
+    out = rovlink(*args)
+    assert out.returncode == 0 and "usage:" in out.stdout and len(out.stdout) > 100
+
+
+@pytest.mark.parametrize("args", [
+    ["nosuchcommand"],
+    ["channel"],
+    ["channel", "--a", "udp://127.0.0.1:1", "--b", "udp://127.0.0.1:2", "--bitrate", "fast"],
+    ["channel", "--a", "udp://127.0.0.1:1", "--b", "udp://127.0.0.1:2", "--ber", "2"],
+    ["bench", "link", "--duration", "x"],
+])
+def test_wrong_arguments_give_one_line_and_status_2(args):
+    out = rovlink(*args)
+    assert out.returncode == 2
+    assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+    assert "error:" in out.stderr
+
+
+def test_bad_transport_url_is_a_one_line_error():
+    out = rovlink("channel", "--a", "tcp://x:1", "--b", "udp://127.0.0.1:9")
+    assert out.returncode == 1
+    assert out.stderr.strip().splitlines() == [
+        "rovlink channel: error: unknown transport 'tcp' in 'tcp://x:1': use udp://, serial:// or inproc://"]
+
+
+def test_channel_process_carries_frames_with_delay_and_logs(tmp_path):
+    ports = [free_udp_port() for _ in range(4)]
+    a_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    a_user.bind(("127.0.0.1", ports[0]))
+    b_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    b_user.bind(("127.0.0.1", ports[3]))
+    log = tmp_path / "channel.jsonl"
+    proc = subprocess.Popen(
+        ROVLINK + ["channel", "--a", f"udp://127.0.0.1:{ports[1]}?peer=127.0.0.1:{ports[0]}",
+                   "--b", f"udp://127.0.0.1:{ports[2]}?peer=127.0.0.1:{ports[3]}",
+                   "--bitrate", "1900", "--delay", "0.085", "--log", str(log), "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(1.5)  # let it bind
+        frame = encode_frame(bytes(range(20)))  # 24 bytes: 101 ms on the air + 85 ms
+        a_user.settimeout(10)
+        b_user.settimeout(10)
+        t0 = time.monotonic()
+        a_user.sendto(frame, ("127.0.0.1", ports[1]))
+        data, _ = b_user.recvfrom(4096)
+        elapsed = time.monotonic() - t0
+        assert FrameDecoder().feed(data) == [bytes(range(20))]
+        assert elapsed >= 0.18  # serialisation + intrinsic delay really applied
+        reply = encode_frame(b"back")
+        b_user.sendto(reply, ("127.0.0.1", ports[2]))
+        data, _ = a_user.recvfrom(4096)
+        assert data == reply
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+        a_user.close()
+        b_user.close()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    events = [json.loads(line) for line in log.read_text().splitlines()]
+    kinds = [(e["ev"], e["dir"]) for e in events]
+    assert ("tx", "a>b") in kinds and ("rx", "a>b") in kinds and ("rx", "b>a") in kinds
+    assert all("t" in e for e in events)
+
+
+def test_bench_link_prints_a_table_and_json():
+    out = rovlink("bench", "link", "--duration", "120")
+    assert out.returncode == 0, out.stderr
+    assert "idle img s" in out.stdout and "targets:" in out.stdout
+    out = rovlink("bench", "link", "--duration", "120", "--json")
+    doc = json.loads(out.stdout)
+    assert {r["mode"] for r in doc["results"]} == {"rovlink", "paper"}
+    assert {r["ber"] for r in doc["results"]} == {0.0, 7e-6, 1e-4, 1e-3}
+    for r in doc["results"]:
+        if r["mode"] == "rovlink" and r["ber"] == 0.0:
+            # Never faster than physics: 2000 bytes at 1900 bit/s.
+            assert r["idle_image_s_median"] >= r["floor_s"]
+    assert set(doc["targets"]) == {"idle_2000B_at_ber_7e-6_le_1.4x_floor", "steering_median_poll_interval_le_0.5s",
+                                   "every_image_completes_at_ber_1e-3"}

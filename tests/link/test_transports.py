@@ -1,0 +1,203 @@
+"""Transports with real sockets and real pseudo-terminals."""
+
+import asyncio
+import os
+import random
+import tempfile
+import tty
+
+import pytest
+
+from link.aio import run_channel, run_master, run_slave
+from link.channel import Channel, LinkParams
+from link.frame import FrameDecoder, encode_frame
+from link.master import ImageComplete, Master, PoseReceived
+from link.messages import Stop
+from link.slave import OrderExecuted, Slave
+from link.transport import TransportError, free_udp_port, inproc_pair, open_transport
+
+
+def run(coro, timeout=60):
+    return asyncio.run(asyncio.wait_for(coro, timeout))
+
+
+async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None, channel_eps=None):
+    master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2)
+    slave = Slave(image_source=lambda img, s: stream)
+    got = {"poses": 0, "images": [], "executed": []}
+
+    def on_master(events, now):
+        for e in events:
+            if isinstance(e, PoseReceived):
+                got["poses"] += 1
+            elif isinstance(e, ImageComplete):
+                got["images"].append(e.data)
+
+    def on_slave(events, now):
+        got["executed"] += [e.order for e in events if isinstance(e, OrderExecuted)]
+
+    if order is not None:
+        master.send_order(order)
+    tasks = [asyncio.create_task(run_master(master, master_ep, on_master)),
+             asyncio.create_task(run_slave(slave, slave_ep, on_slave))]
+    await asyncio.sleep(seconds)
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    return got, master, slave
+
+
+def test_udp_loopback_master_and_slave():
+    async def main():
+        pm, ps = free_udp_port(), free_udp_port()
+        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
+        s = open_transport(f"udp://127.0.0.1:{ps}")  # replies to whoever polled
+        await m.start()
+        await s.start()
+        try:
+            return await drive(m, s, 1.5, order=Stop())
+        finally:
+            await m.close()
+            await s.close()
+
+    got, master, slave = run(main())
+    assert got["poses"] > 10
+    assert got["images"] and got["images"][0] == b"s" * 300
+    assert got["executed"] == [Stop()]
+
+
+def test_udp_through_the_channel_process_model():
+    """Master and slave on UDP, with the channel emulator between them (real time)."""
+
+    async def main():
+        ports = [free_udp_port() for _ in range(4)]
+        m = open_transport(f"udp://127.0.0.1:{ports[0]}?peer=127.0.0.1:{ports[1]}")
+        ca = open_transport(f"udp://127.0.0.1:{ports[1]}?peer=127.0.0.1:{ports[0]}")
+        cb = open_transport(f"udp://127.0.0.1:{ports[2]}?peer=127.0.0.1:{ports[3]}")
+        s = open_transport(f"udp://127.0.0.1:{ports[3]}?peer=127.0.0.1:{ports[2]}")
+        for ep in (m, ca, cb, s):
+            await ep.start()
+        channel = Channel(LinkParams(bitrate_bps=200_000, delay_s=0.005, ber=1e-4), seed=1)
+        ch = asyncio.create_task(run_channel(channel, ca, cb))
+        try:
+            got = await drive(m, s, 3.0, stream=bytes(range(256)) * 4)
+        finally:
+            ch.cancel()
+            for ep in (m, ca, cb, s):
+                await ep.close()
+        return got, channel
+
+    (got, master, slave), channel = run(main())
+    assert channel.counters.delivered > 20
+    assert got["images"] and all(img == bytes(range(256)) * 4 for img in got["images"])
+
+
+def test_inproc_pair():
+    async def main():
+        a, b = inproc_pair()
+        await a.start()
+        await b.start()
+        return await drive(a, b, 0.5, order=Stop())
+
+    got, _, _ = run(main())
+    assert got["poses"] > 5 and got["executed"] == [Stop()]
+
+
+class Pty:
+    """A pseudo-terminal reachable at a fixed path, which can vanish and return."""
+
+    def __init__(self, path):
+        self.path = path
+        self.master_fd = None
+
+    def up(self):
+        master_fd, slave_fd = os.openpty()
+        tty.setraw(slave_fd)
+        name = os.ttyname(slave_fd)
+        os.close(slave_fd)
+        if os.path.lexists(self.path):
+            os.unlink(self.path)
+        os.symlink(name, self.path)
+        self.master_fd = master_fd
+        os.set_blocking(master_fd, False)
+
+    def down(self):
+        os.unlink(self.path)
+        os.close(self.master_fd)
+        self.master_fd = None
+
+    def read(self):
+        try:
+            return os.read(self.master_fd, 4096)
+        except BlockingIOError:
+            return b""
+
+    def write(self, data):
+        os.write(self.master_fd, data)
+
+
+def test_serial_over_a_pty_with_crlf_survives_the_port_vanishing():
+    async def main(tmp):
+        pty = Pty(os.path.join(tmp, "ttyROV"))
+        pty.up()
+        ep = open_transport(f"serial://{pty.path}?baud=9600&crlf=1")
+        await ep.start()
+        try:
+            assert ep.send(encode_frame(b"hello"))
+            await asyncio.sleep(0.1)
+            assert pty.read() == encode_frame(b"hello") + b"\r\n"
+            pty.write(encode_frame(b"from the modem") + b"\r\n")
+            data = await asyncio.wait_for(ep.recv(), 2)
+            assert FrameDecoder().feed(data) == [b"from the modem"]
+
+            pty.down()  # the USB adapter is pulled
+            for _ in range(100):
+                if not ep.is_up:
+                    break
+                ep.send(encode_frame(b"x"))
+                await asyncio.sleep(0.02)
+            assert not ep.is_up
+            assert ep.send(encode_frame(b"lost")) is False
+            assert ep.stats.dropped_while_down >= 1
+            await asyncio.sleep(0.3)  # reopen attempts fail while it is gone
+
+            pty.up()  # and plugged back in
+            for _ in range(200):
+                if ep.is_up:
+                    break
+                await asyncio.sleep(0.02)
+            assert ep.is_up and ep.stats.opens >= 2
+            assert ep.send(encode_frame(b"again"))
+            await asyncio.sleep(0.1)
+            assert encode_frame(b"again") + b"\r\n" in pty.read()
+        finally:
+            await ep.close()
+            if pty.master_fd is not None:
+                pty.down()
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run(main(tmp))
+
+
+def test_serial_port_absent_at_start_is_reported():
+    async def main():
+        ep = open_transport("serial:///nonexistent/ttyUSB9")
+        with pytest.raises(TransportError, match="could not open"):
+            await ep.start(timeout_s=0.3)
+        await ep.close()
+
+    run(main())
+
+
+@pytest.mark.parametrize("url,words", [
+    ("tcp://1.2.3.4:5", "unknown transport"),
+    ("udp://127.0.0.1", "HOST:PORT"),
+    ("udp://127.0.0.1:7000?peer=nowhere", "HOST:PORT"),
+    ("udp://127.0.0.1:7000?color=red", "unknown option"),
+    ("serial://", "device path"),
+    ("serial:///dev/ttyS0?baud=fast", "baud"),
+    ("serial:///dev/ttyS0?mtu=5", "mtu"),
+])
+def test_bad_urls_say_what_is_wrong(url, words):
+    with pytest.raises(TransportError, match=words):
+        open_transport(url)
