@@ -20,6 +20,7 @@ import sys
 COMMAND_MODULES = [
     "console.commands.channel",
     "console.commands.bench",
+    "console.commands.rov",
 ]
 
 

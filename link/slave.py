@@ -29,7 +29,7 @@ Decisions where PROTOCOL.md is silent:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from .frame import OVERHEAD, FrameDecoder, encode_frame
@@ -41,7 +41,6 @@ from .messages import (
     ImageSettings,
     Mode,
     NoOrder,
-    OrderCode,
     Poll,
     Position,
     ProtocolError,
@@ -76,6 +75,13 @@ class OrderRejected:
 class ImageWanted:
     img: int
     settings: ImageSettings
+
+
+@dataclass(frozen=True)
+class ImageDelivered:
+    """The reply carries the LAST trunk of image `img` (it may still be lost)."""
+
+    img: int
 
 
 @dataclass(frozen=True)
@@ -254,6 +260,8 @@ class Slave:
             last=bool(trunk) and trunk_offset + len(trunk) == len(self._held_object or b""),
         )
         out.reply = encode_frame(reply.encode())
+        if reply.last:
+            out.events.append(ImageDelivered(trunk_img))
         self.stats.replies_sent += 1
         self.stats.trunk_bytes_sent += len(trunk)
         return out

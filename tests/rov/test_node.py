@@ -1,0 +1,293 @@
+"""The ROV node driven over UDP by the link master, against the simulated ArduSub.
+
+Real parts throughout: UDP sockets for the link, pymavlink on both sides of
+MAVLink, the DEBT encoder, the simulated camera.  The master runs with a fast
+link model (no emulated narrow channel) so a test takes seconds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import debt
+from link.aio import run_master
+from link.frame import FrameDecoder, encode_frame
+from link.master import ImageComplete, Master, OrderAcknowledged, PoseReceived
+from link.messages import ImageSettings, Mode, Poll, Position, Reply, ReservedOrder, Stop
+from link.transport import free_udp_port, open_transport
+from rov.autopilot import AutopilotBridge
+from rov.camera import SimulatedCamera
+from rov.node import RovNode
+from rov.simulator import SimulatedVehicle
+from rov.vehicle import SubMode, VehicleState
+
+
+class CountingBridge:
+    """The real bridge, with a record of what the node asked of it."""
+
+    def __init__(self, bridge):
+        self._bridge = bridge
+        self.calls = []
+
+    def __getattr__(self, name):
+        attr = getattr(self._bridge, name)
+        if name in ("goto", "stop_motion", "request_arm", "request_mode", "failsafe"):
+            def record(*a, **kw):
+                self.calls.append((name, a))
+                return attr(*a, **kw)
+            return record
+        return attr
+
+    def count(self, name):
+        return sum(1 for n, _ in self.calls if n == name)
+
+
+class Rig:
+    def __init__(self, grab=None, failsafe_s=3.0):
+        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=2.0)).start()
+        self.bridge = CountingBridge(AutopilotBridge(self.sim.bridge_url).start())
+        self.camera = SimulatedCamera()
+        self.grab = grab or self.camera.capture
+        self.failsafe_s = failsafe_s
+        self.replies = []
+        self.images = []
+        self.acks = []
+
+    def on_master(self, events, now):
+        for e in events:
+            if isinstance(e, PoseReceived):
+                self.replies.append((now, e.reply))
+            elif isinstance(e, ImageComplete):
+                self.images.append(e.data)
+            elif isinstance(e, OrderAcknowledged):
+                self.acks.append(e.order)
+
+    async def start(self):
+        pm, pr = free_udp_port(), free_udp_port()
+        self.master_ep = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{pr}")
+        self.rov_ep = open_transport(f"udp://127.0.0.1:{pr}")
+        await self.master_ep.start()
+        await self.rov_ep.start()
+        self.node = RovNode(self.rov_ep, self.bridge, self.grab, failsafe_s=self.failsafe_s)
+        self.master = Master(bitrate_bps=200_000, delay_s=0.0, margin_s=0.3, rng=random.Random(1))
+        self.node_task = asyncio.create_task(self.node.run())
+        self.master_task = asyncio.create_task(run_master(self.master, self.master_ep, self.on_master))
+
+    async def until(self, predicate, timeout_s):
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            await asyncio.sleep(0.05)
+        return True
+
+    async def close(self):
+        for t in (self.master_task, self.node_task):
+            t.cancel()
+        await asyncio.gather(self.master_task, self.node_task, return_exceptions=True)
+        await self.master_ep.close()
+        await self.rov_ep.close()
+        self.bridge.stop()
+        self.sim.stop()
+
+
+def run(coro, timeout=90):
+    return asyncio.run(asyncio.wait_for(coro, timeout))
+
+
+def now():
+    return asyncio.get_running_loop().time()
+
+
+def test_node_answers_polls_sends_roi_images_and_runs_orders_once():
+    async def main():
+        rig = Rig()
+        await rig.start()
+        try:
+            # Odometry from the autopilot reaches the operator.
+            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].autopilot, 15)
+            reply = rig.replies[-1][1]
+            assert reply.position_valid and reply.z_cm == pytest.approx(200, abs=30)
+
+            # Images: the requested ROI, SHIFT and budget are honoured.
+            roi = (100, 60, 220, 180)
+            rig.master.send_order(ImageSettings(roi=roi, shift=6, mono=True, budget_bytes=900))
+            assert await rig.until(lambda: ImageSettings(roi=roi, shift=6, mono=True, budget_bytes=900) in rig.acks, 10)
+            n = len(rig.images)
+            assert await rig.until(lambda: len(rig.images) >= n + 2, 20)
+            stream = rig.images[-1]
+            assert len(stream) <= 900
+            header = debt.unpack_header(stream)
+            assert tuple(header.roi) == roi and header.shift == 6
+            picture = debt.decode(stream)
+            assert picture.shape == (240, 320) and picture.dtype == np.uint8
+
+            # Arm, then a position order: executed once, the vehicle goes there.
+            rig.master.request_arm(True, now())
+            assert await rig.until(lambda: rig.replies[-1][1].armed, 15)
+            start = rig.sim.truth().state
+            rig.master.send_order(Position(int(start.x_m * 100) + 200, int(start.y_m * 100), 200, 0))
+            assert await rig.until(lambda: rig.replies[-1][1].mode == Mode.GUIDED, 15)
+            assert await rig.until(lambda: abs(rig.sim.truth().state.x_m - (start.x_m + 2.0)) < 0.3, 30)
+            rig.master.send_order(Stop())
+            assert await rig.until(lambda: Stop() in rig.acks, 10)
+            assert await rig.until(lambda: rig.replies[-1][1].mode == Mode.DEPTH_HOLD, 10)
+            assert rig.bridge.count("goto") == 1
+            assert rig.bridge.count("stop_motion") == 1
+            # The arm request rode in many polls but reached the autopilot once.
+            assert rig.bridge.count("request_arm") == 1
+            assert rig.node.stats.images_encoded >= 2
+        finally:
+            await rig.close()
+
+    run(main())
+
+
+def test_failsafe_stops_the_vehicle_and_is_reported_when_polls_return():
+    async def main():
+        rig = Rig(failsafe_s=1.0)
+        await rig.start()
+        try:
+            rig.master.request_arm(True, now())
+            rig.master.request_mode(Mode.MANUAL, now())
+            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].armed, 15)
+            rig.master.set_velocity(100, 0, 0, 0, now())
+            assert await rig.until(lambda: rig.sim.truth().pilot.x > 500, 10)
+            # The operator goes silent.
+            rig.master_task.cancel()
+            await asyncio.gather(rig.master_task, return_exceptions=True)
+            assert await rig.until(lambda: rig.node.slave.failsafe, 5)
+            assert await rig.until(lambda: rig.sim.truth().mode == SubMode.ALT_HOLD, 10)
+            truth = rig.sim.truth()
+            assert abs(truth.pilot.x) < 50 and truth.armed  # neutral, holding depth, still armed
+            # Polls return: the first reply says FAILSAFE, then it clears.
+            rig.master.set_velocity(0, 0, 0, 0, now())
+            rig.master_task = asyncio.create_task(run_master(rig.master, rig.master_ep, rig.on_master))
+            assert await rig.until(lambda: any(r.failsafe for _, r in rig.replies), 10)
+            assert await rig.until(lambda: not rig.replies[-1][1].failsafe, 10)
+            assert not rig.node.slave.failsafe
+            assert rig.bridge.calls.count(("failsafe", (True,))) == 1
+            assert rig.bridge.calls.count(("failsafe", (False,))) == 1
+        finally:
+            await rig.close()
+
+    run(main())
+
+
+def test_replies_never_wait_for_the_encoder():
+    gate = threading.Event()
+    camera = SimulatedCamera()
+
+    def slow_grab(pose):
+        gate.wait(30)  # the encoder is stuck until the test lets it go
+        return camera.capture(pose)
+
+    async def main():
+        rig = Rig(grab=slow_grab)
+        await rig.start()
+        try:
+            assert await rig.until(lambda: len(rig.replies) >= 20, 20)
+            assert not rig.images
+            assert all(not r.has_trunk for _, r in rig.replies)  # answered, without image data
+            gate.set()
+            assert await rig.until(lambda: rig.images, 20)
+        finally:
+            gate.set()
+            await rig.close()
+
+    run(main())
+
+
+def test_reserved_and_out_of_range_orders_are_answered_and_ignored():
+    async def main():
+        rig = Rig()
+        pr = free_udp_port()
+        rig.rov_ep = open_transport(f"udp://127.0.0.1:{pr}")
+        await rig.rov_ep.start()
+        rig.node = RovNode(rig.rov_ep, rig.bridge, rig.grab)
+        task = asyncio.create_task(rig.node.run())
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", 0))
+        sock.settimeout(5)
+        try:
+            polls = [
+                Poll(order=ReservedOrder(9, b"junk")).encode(),
+                bytes([0x01, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0]),  # VELOCITY VX -128
+                bytes([0x02, 0x1F, 0xFF, 0x40]) + bytes(8),  # POSITION BODY without RELATIVE
+            ]
+            loop = asyncio.get_running_loop()
+            for payload in polls:
+                sock.sendto(encode_frame(payload), ("127.0.0.1", pr))
+                data = await loop.run_in_executor(None, sock.recv, 4096)
+                reply = Reply.decode(FrameDecoder().feed(data)[0])
+                assert reply.ack == 0
+            assert rig.node.stats.orders_rejected == 3
+            assert rig.bridge.count("goto") == 0
+            assert rig.sim.truth().pilot.x == 0
+        finally:
+            sock.close()
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            await rig.rov_ep.close()
+            rig.bridge.stop()
+            rig.sim.stop()
+
+    run(main())
+
+
+def test_rovlink_rov_process_answers_polls_over_udp():
+    pm, pr = free_udp_port(), free_udp_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "console", "rov", "--link", f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{pm}",
+         "--failsafe", "2", "--budget", "600"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    async def main():
+        ep = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{pr}")
+        await ep.start()
+        master = Master(bitrate_bps=200_000, delay_s=0.0, margin_s=0.3, rng=random.Random(2))
+        got = {"replies": [], "images": []}
+
+        def on(events, t):
+            for e in events:
+                if isinstance(e, PoseReceived):
+                    got["replies"].append(e.reply)
+                elif isinstance(e, ImageComplete):
+                    got["images"].append(e.data)
+
+        task = asyncio.create_task(run_master(master, ep, on))
+        deadline = time.monotonic() + 40
+        while time.monotonic() < deadline and not (got["images"] and got["replies"][-1].autopilot):
+            await asyncio.sleep(0.1)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await ep.close()
+        return got
+
+    try:
+        got = run(main(), timeout=60)
+    finally:
+        proc.terminate()
+        out, err = proc.communicate(timeout=15)
+    assert got["replies"] and got["replies"][-1].autopilot
+    assert got["images"] and len(got["images"][0]) <= 600
+    assert debt.decode(got["images"][0]).shape[:2] == (240, 320)
+    assert "Traceback" not in err, err
+
+
+def test_bad_rov_arguments():
+    out = subprocess.run([sys.executable, "-m", "console", "rov", "--link", "bogus://x"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "unknown transport" in out.stderr
+    out = subprocess.run([sys.executable, "-m", "console", "rov", "--link", "udp://127.0.0.1:1",
+                          "--failsafe", "-1"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
