@@ -21,6 +21,7 @@ COMMAND_MODULES = [
     "console.commands.channel",
     "console.commands.bench",
     "console.commands.rov",
+    "console.commands.sim",
 ]
 
 

@@ -29,7 +29,8 @@ Plan
   parameters, missions, the GCS-heartbeat failsafe (off by default in ArduSub).
 
 API
-    sim = SimulatedVehicle("udpin:127.0.0.1:0")   # port 0: pick a free port
+    sim = SimulatedVehicle("udpin:127.0.0.1:0")   # port 0: pick a free port; starts at
+                                                  # START_STATE, the seabed of rov.scene is its floor
     sim.start()                 # background thread; sim.bridge_url -> "udpout:127.0.0.1:PORT"
     sim.truth()                 # SimTruth(state, armed, mode, pilot, target): ground truth
     sim.stop()                  # or use `with SimulatedVehicle(...) as sim:`
@@ -45,6 +46,7 @@ import time
 from dataclasses import dataclass
 
 from rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
+from rov.scene import SEABED_DEPTH_M
 from rov.vehicle import (
     FLOWN_MODES,
     NEUTRAL,
@@ -80,6 +82,9 @@ TYPEMASK_POSITION_IGNORE = 0b111
 TYPEMASK_YAW_IGNORE = 1024
 
 PILOT_TIMEOUT_S = 3.0  # ArduSub's FS_PILOT_TIMEOUT default
+# By default the vehicle starts 2 m above the simulated seabed, facing north, with
+# the amphorae of `rov.scene` in view ahead and the wreck to the north-west.
+START_STATE = VehicleState(z_m=SEABED_DEPTH_M - 2.0)
 TICK_S = 0.02
 STREAMABLE = (MSG_SYS_STATUS, MSG_ATTITUDE, MSG_LOCAL_POSITION_NED)
 
@@ -103,7 +108,7 @@ class SimulatedVehicle:
         system_id: int = 1,
         component_id: int = 1,
         initial_state: VehicleState | None = None,
-        floor_depth_m: float | None = None,
+        floor_depth_m: float | None = SEABED_DEPTH_M,
         has_position: bool = True,
         pilot_timeout_s: float = PILOT_TIMEOUT_S,
         mode: int = SubMode.MANUAL,
@@ -113,7 +118,7 @@ class SimulatedVehicle:
         self.component_id = component_id
         self.has_position = has_position
         self.pilot_timeout_s = pilot_timeout_s
-        self._model = VehicleModel(state=initial_state, floor_depth_m=floor_depth_m)
+        self._model = VehicleModel(state=initial_state or START_STATE, floor_depth_m=floor_depth_m)
         self._lock = threading.Lock()
         self._armed = False
         self._mode = int(mode)
