@@ -1,0 +1,611 @@
+"""The operator's session: what the pilot wants in, what the ROV says out.
+
+Goals: one place that holds the console's truth, shared by the viser scene,
+the web API and the recorder: the link master and its loop, the latest
+odometry and its age, the predicted pose, the image being received (decoded
+prefix), link health, and bounded histories for the live plots.  Every
+method may be called from any thread (viser runs callbacks in a thread
+pool, FastAPI in its loop); memory stays flat however long the session.
+
+Plan: `Operator.run()` drives the master on an Endpoint in the running event
+loop, recording each frame both ways, each order and each pose to a JSON-lines
+file.  Commands take a lock and talk to the master directly.  Image prefixes
+are decoded in one worker thread, newest first (an older prefix still in the
+queue is skipped).  Subscribers get `(topic, payload)` callbacks: "pose",
+"image", "order", "link", "log"; they must be quick and must not raise.
+
+Prediction (the ghost): the last odometry, aged by the time since it was
+sampled on the ROV, flown forward with `rov.vehicle.VehicleModel` under the
+velocity commanded since, in the reported mode.  The same model previews the
+path of a position order before it is sent.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import concurrent.futures
+import json
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from link.frame import OVERHEAD
+from link.master import (
+    ImageAbandoned,
+    ImageComplete,
+    ImageProgress,
+    Master,
+    OrderAcknowledged,
+    OrderCancelled,
+    PoseReceived,
+    ReplyLost,
+    RequestExpired,
+)
+from link.messages import ImageSettings, Mode, Poll, Position, ProtocolError, Reply, Stop
+from link.transport import Endpoint
+
+log = logging.getLogger("rovlink.console.operator")
+
+MODE_NAMES = {m.name: m for m in (Mode.MANUAL, Mode.STABILIZE, Mode.DEPTH_HOLD, Mode.POS_HOLD, Mode.GUIDED,
+                                  Mode.SURFACE)}
+REPORTED_MODE_NAMES = {0: "UNKNOWN", 1: "MANUAL", 2: "STABILIZE", 3: "DEPTH_HOLD", 4: "POS_HOLD", 5: "GUIDED",
+                       6: "SURFACE", 7: "OTHER"}
+
+
+class OrderError(ValueError):
+    """An order the operator cannot send as given; the message says why."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    x_m: float
+    y_m: float
+    z_m: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+    @classmethod
+    def from_reply(cls, r: Reply) -> "Pose":
+        return cls(r.x_cm / 100, r.y_cm / 100, r.z_cm / 100, r.roll_cdeg / 100, r.pitch_cdeg / 100,
+                   r.yaw_cdeg / 100)
+
+    def as_dict(self) -> dict:
+        return {"x_m": self.x_m, "y_m": self.y_m, "z_m": self.z_m, "roll_deg": self.roll_deg,
+                "pitch_deg": self.pitch_deg, "yaw_deg": self.yaw_deg}
+
+
+@dataclass
+class ImageView:
+    img: int | None = None
+    received_bytes: int = 0
+    total_bytes: int | None = None
+    complete: bool = False
+    stream: bytes = b""  # the DEBT stream prefix held
+    picture: np.ndarray | None = None  # decoded from `decoded_bytes` of it
+    decoded_bytes: int = 0
+    decoded_at: float | None = None
+    started_at: float | None = None
+    settings: ImageSettings | None = None
+    images_completed: int = 0
+
+
+@dataclass
+class History:
+    """Bounded series for the live plots and the session summary."""
+
+    trail: collections.deque = field(default_factory=lambda: collections.deque(maxlen=2000))  # (t, x, y, z)
+    commanded: collections.deque = field(default_factory=lambda: collections.deque(maxlen=4000))  # (t, vx..vyaw)
+    received: collections.deque = field(default_factory=lambda: collections.deque(maxlen=4000))  # (t, vx..vyaw)
+    link_events: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, kind, n)
+    log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=200))  # (t, text)
+    round_trips: collections.deque = field(default_factory=lambda: collections.deque(maxlen=50))
+
+
+class Recorder:
+    """JSON lines: one record per frame (hex), order, wish and pose, with its time."""
+
+    def __init__(self, path: str | Path | None, meta: dict) -> None:
+        self.path = Path(path) if path else None
+        self._file = None
+        self._lock = threading.Lock()
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "w", buffering=1, encoding="utf-8")
+            self.write({"k": "meta", "t": 0.0, **meta})
+
+    def write(self, record: dict) -> None:
+        if self._file is None:
+            return
+        line = json.dumps(record, separators=(",", ":"))
+        with self._lock:
+            if self._file is not None:
+                self._file.write(line + "\n")
+
+    def close(self) -> None:
+        with self._lock:
+            if self._file is not None:
+                self._file.close()
+                self._file = None
+
+
+def _protocol_to_sub_mode(mode: int):
+    from rov.autopilot import PROTOCOL_TO_SUB
+    from rov.vehicle import SubMode
+
+    return PROTOCOL_TO_SUB.get(mode, SubMode.MANUAL)
+
+
+class Operator:
+    def __init__(
+        self,
+        endpoint: Endpoint | None,
+        *,
+        bitrate_bps: float = 1900.0,
+        delay_s: float = 0.085,
+        record: str | Path | None = None,
+        image_settings: ImageSettings | None = None,
+        master: Master | None = None,
+    ) -> None:
+        self.endpoint = endpoint
+        max_frame = (endpoint.max_frame if endpoint is not None else None) or 259
+        self.master = master or Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame)
+        self.bitrate_bps = bitrate_bps
+        self.delay_s = delay_s
+        self.history = History()
+        self.image = ImageView(settings=image_settings or ImageSettings(mono=True, budget_bytes=2000))
+        self.requested_settings = self.image.settings
+        self._lock = threading.RLock()
+        self._subscribers: list[Callable[[str, Any], None]] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._t0 = time.monotonic()
+        self._reply: Reply | None = None
+        self._reply_at: float | None = None  # monotonic time the reply arrived
+        self._odometry_at: float | None = None  # estimated time it was sampled on the ROV
+        self._velocity_est = (0.0, 0.0, 0.0, 0.0)  # NED m/s and yaw deg/s, from successive poses
+        self._wish = (0.0, 0.0, 0.0, 0.0)  # fractions -1..1
+        self._orders: dict[int, dict] = {}
+        self._pending_decode: tuple[int, bytes] | None = None
+        self._decoder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-decode")
+        self._decode_busy = False
+        self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
+                                          "started": time.strftime("%Y-%m-%dT%H:%M:%S")})
+        self._last_poll_at: float | None = None
+        self._last_poll_velocity: tuple | None = None
+        self.replaying = False
+
+    # ------------------------------------------------------------------
+    # Time and subscribers
+    # ------------------------------------------------------------------
+
+    def now(self) -> float:
+        """Session time in seconds (monotonic, 0 at start)."""
+        return time.monotonic() - self._t0
+
+    def subscribe(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
+        with self._lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+
+        return unsubscribe
+
+    def _publish(self, topic: str, payload: Any) -> None:
+        for callback in list(self._subscribers):
+            try:
+                callback(topic, payload)
+            except Exception:
+                log.exception("subscriber failed on %s", topic)
+
+    def note(self, text: str) -> None:
+        t = self.now()
+        self.history.log.append((t, text))
+        self._publish("log", {"t": t, "text": text})
+
+    # ------------------------------------------------------------------
+    # The link loop
+    # ------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Drive the link until cancelled."""
+        if self.endpoint is None:
+            raise RuntimeError("no link endpoint: this operator only replays")
+        self._loop = asyncio.get_running_loop()
+        endpoint = self.endpoint
+        try:
+            while True:
+                t = self.now()
+                with self._lock:
+                    frame = self.master.next_poll(t)
+                    events = self.master.take_events()
+                self._on_events(events, t)
+                if frame is not None:
+                    endpoint.send(frame)
+                    self._frame_sent(frame, t)
+                with self._lock:
+                    deadline = self.master.deadline()
+                wait = 0.05 if deadline is None else max(0.0, deadline - self.now())
+                try:
+                    async with asyncio.timeout(wait):
+                        data = await endpoint.recv()
+                except TimeoutError:
+                    continue
+                while data is not None:
+                    t = self.now()
+                    self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
+                    self.history.link_events.append((t, "rx", len(data)))
+                    with self._lock:
+                        events = self.master.receive_bytes(data, t)
+                    self._on_events(events, t)
+                    data = endpoint.recv_nowait()
+        finally:
+            self._decoder.shutdown(wait=False, cancel_futures=True)
+
+    def _frame_sent(self, frame: bytes, t: float) -> None:
+        self.recorder.write({"k": "tx", "t": round(t, 4), "hex": frame.hex()})
+        self.history.link_events.append((t, "tx", len(frame)))
+        self._last_poll_at = t
+        self._last_poll_velocity = None
+        try:
+            poll = Poll.decode(frame[2:-2])
+        except ProtocolError:
+            return
+        order = poll.order
+        if hasattr(order, "vyaw"):
+            arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
+            self._last_poll_velocity = (arrival, order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)
+
+    def close(self) -> None:
+        self.recorder.close()
+        self._decoder.shutdown(wait=False, cancel_futures=True)
+
+    # ------------------------------------------------------------------
+    # Events from the master (or a replay)
+    # ------------------------------------------------------------------
+
+    def _on_events(self, events: list, t: float) -> None:
+        for event in events:
+            if isinstance(event, PoseReceived):
+                self._pose(event.reply, t, event.round_trip_s)
+            elif isinstance(event, ImageProgress):
+                self._image_progress(event, t)
+            elif isinstance(event, ImageComplete):
+                self._image_complete(event, t)
+            elif isinstance(event, ImageAbandoned):
+                self.note(f"image {event.img} abandoned after {event.received_bytes} bytes: {event.reason}")
+            elif isinstance(event, OrderAcknowledged):
+                self._order_state(event.order_id, "acknowledged", t)
+            elif isinstance(event, OrderCancelled):
+                self._order_state(event.order_id, f"cancelled: {event.reason}", t)
+            elif isinstance(event, ReplyLost):
+                self.history.link_events.append((t, "lost", 0))
+                self._publish("link", {"t": t, "lost": True})
+            elif isinstance(event, RequestExpired):
+                self.note(f"{event.what} request not confirmed by the ROV within its time; dropped")
+
+    def _pose(self, reply: Reply, t: float, round_trip_s: float | None) -> None:
+        # The ROV sampled its odometry when the poll arrived: the reply's own
+        # transmission and the intrinsic delay ago.
+        sampled = t - (8.0 * (len(reply.encode()) + OVERHEAD) / self.bitrate_bps) - self.delay_s
+        pose = Pose.from_reply(reply)
+        with self._lock:
+            previous, previous_at = self._reply, self._odometry_at
+            self._reply, self._reply_at, self._odometry_at = reply, t, sampled
+            if previous is not None and previous_at is not None and sampled - previous_at > 0.05:
+                dt = sampled - previous_at
+                old = Pose.from_reply(previous)
+                dyaw = (pose.yaw_deg - old.yaw_deg + 180) % 360 - 180
+                new = ((pose.x_m - old.x_m) / dt, (pose.y_m - old.y_m) / dt, (pose.z_m - old.z_m) / dt, dyaw / dt)
+                a = 0.5  # smooth the finite difference of quantised odometry
+                self._velocity_est = tuple(a * n + (1 - a) * o for n, o in zip(new, self._velocity_est))
+            if round_trip_s is not None:
+                self.history.round_trips.append(round_trip_s)
+            self.history.trail.append((t, pose.x_m, pose.y_m, pose.z_m))
+            # A reply proves its poll arrived intact: the velocity it carried
+            # is what the ROV received (Fig. 5), at send time + transmission + delay.
+            if self._last_poll_velocity is not None:
+                self.history.received.append(self._last_poll_velocity)
+                self._last_poll_velocity = None
+        self.recorder.write({"k": "pose", "t": round(t, 4), **{k: round(v, 3) for k, v in pose.as_dict().items()},
+                             "armed": reply.armed, "mode": reply.mode, "failsafe": reply.failsafe,
+                             "autopilot": reply.autopilot})
+        self._publish("pose", self.pose_state())
+
+    def _image_progress(self, event: ImageProgress, t: float) -> None:
+        with self._lock:
+            view = self.image
+            if view.img != event.img:
+                view.img = event.img
+                view.started_at = t
+                view.picture = None
+                view.decoded_bytes = 0
+                view.complete = False
+                view.settings = self.requested_settings
+            view.received_bytes = event.received_bytes
+            view.total_bytes = event.total_bytes
+            view.stream = event.prefix
+        self._publish("image_progress", self.image_state())
+        self._decode_later(event.img, event.prefix)
+
+    def _image_complete(self, event: ImageComplete, t: float) -> None:
+        with self._lock:
+            self.image.complete = True
+            self.image.images_completed += 1
+            self.image.stream = event.data
+        self.recorder.write({"k": "image", "t": round(t, 4), "img": event.img, "bytes": len(event.data),
+                             "seconds": round(event.at - event.started_at, 3)})
+        self.note(f"image {event.img} complete: {len(event.data)} bytes in {event.at - event.started_at:.1f} s")
+
+    def _decode_later(self, img: int, prefix: bytes) -> None:
+        with self._lock:
+            self._pending_decode = (img, prefix)
+            if self._decode_busy:
+                return
+            self._decode_busy = True
+        try:
+            self._decoder.submit(self._decode_loop)
+        except RuntimeError:  # shut down
+            self._decode_busy = False
+
+    def _decode_loop(self) -> None:
+        import debt
+
+        while True:
+            with self._lock:
+                job, self._pending_decode = self._pending_decode, None
+                if job is None:
+                    self._decode_busy = False
+                    return
+            img, prefix = job
+            try:
+                picture = debt.decode(prefix)
+            except ValueError:
+                continue  # not even the header yet
+            with self._lock:
+                if self.image.img != img or len(prefix) < self.image.decoded_bytes:
+                    continue
+                self.image.picture = picture
+                self.image.decoded_bytes = len(prefix)
+                self.image.decoded_at = self.now()
+            self._publish("image", self.image_state())
+
+    def _order_state(self, order_id: int, state: str, t: float) -> None:
+        with self._lock:
+            info = self._orders.get(order_id)
+            if info is None:
+                return
+            info["state"] = state
+            info["t_" + state.split(":")[0]] = t
+        self.recorder.write({"k": "order_state", "t": round(t, 4), "id": order_id, "state": state})
+        self._publish("order", dict(info))
+        if state == "acknowledged" and info["kind"] == "IMAGE":
+            with self._lock:
+                self.image.settings = self.requested_settings
+
+    # ------------------------------------------------------------------
+    # Commands (any thread)
+    # ------------------------------------------------------------------
+
+    def set_velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
+        """Velocity wish, fractions -1..1 of the maximum (body frame, z down)."""
+        values = (vx, vy, vz, vyaw)
+        for name, v in zip(("vx", "vy", "vz", "vyaw"), values):
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or not -1.0 <= v <= 1.0:
+                raise OrderError(f"{name} must be a number in -1..1, got {v!r}")
+        ints = tuple(int(round(v * 127)) for v in values)
+        t = self.now()
+        with self._lock:
+            self.master.set_velocity(*ints, t)
+            changed = values != self._wish
+            self._wish = tuple(float(v) for v in values)
+            self.history.commanded.append((t, *self._wish))
+        if changed:
+            self.recorder.write({"k": "wish", "t": round(t, 4), "v": list(ints)})
+
+    def arm(self, armed: bool) -> None:
+        with self._lock:
+            self.master.request_arm(bool(armed), self.now())
+        self.recorder.write({"k": "order", "t": round(self.now(), 4), "kind": "ARM" if armed else "DISARM"})
+        self.note("arm requested" if armed else "disarm requested")
+
+    def set_mode(self, mode: str | int) -> None:
+        if isinstance(mode, str):
+            if mode.upper() not in MODE_NAMES:
+                raise OrderError(f"unknown mode {mode!r}; one of {', '.join(MODE_NAMES)}")
+            value = MODE_NAMES[mode.upper()]
+        else:
+            if mode not in MODE_NAMES.values():
+                raise OrderError(f"mode must be 1..6, got {mode!r}")
+            value = Mode(mode)
+        with self._lock:
+            self.master.request_mode(value, self.now())
+        self.recorder.write({"k": "order", "t": round(self.now(), 4), "kind": "MODE", "mode": value.name})
+        self.note(f"mode {value.name} requested")
+
+    def _queue(self, order, kind: str, detail: dict) -> int:
+        t = self.now()
+        with self._lock:
+            order_id = self.master.send_order(order)
+            info = {"id": order_id, "kind": kind, "state": "queued", "t_queued": t, **detail}
+            self._orders[order_id] = info
+            if len(self._orders) > 200:
+                for old in sorted(self._orders)[:-200]:
+                    del self._orders[old]
+        self.recorder.write({"k": "order", "t": round(t, 4), "id": order_id, "kind": kind, **detail})
+        self._publish("order", dict(info))
+        return order_id
+
+    def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
+                      body: bool = False) -> int:
+        for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m), ("yaw_deg", yaw_deg)):
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise OrderError(f"{name} must be a finite number, got {v!r}")
+        yaw = (yaw_deg + 180.0) % 360.0 - 180.0
+        try:
+            order = Position(int(round(x_m * 100)), int(round(y_m * 100)), int(round(z_m * 100)),
+                             int(round(yaw * 100)), bool(relative), bool(body))
+        except ProtocolError as exc:
+            raise OrderError(str(exc)) from None
+        return self._queue(order, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
+                                               "relative": relative, "body": body})
+
+    def stop(self) -> int:
+        """STOP: neutral velocity now, cancel queued targets, hold depth."""
+        with self._lock:
+            self.master.set_velocity(0, 0, 0, 0, self.now())
+            self._wish = (0.0, 0.0, 0.0, 0.0)
+        return self._queue(Stop(), "STOP", {})
+
+    def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,
+                           budget_bytes: int | None = None) -> int:
+        current = self.requested_settings
+        try:
+            settings = ImageSettings(
+                roi=tuple(int(v) for v in roi) if roi is not None else None,
+                shift=current.shift if shift is None else shift,
+                mono=current.mono if mono is None else mono,
+                budget_bytes=current.budget_bytes if budget_bytes is None else budget_bytes,
+            )
+        except (ProtocolError, TypeError, ValueError) as exc:
+            raise OrderError(str(exc)) from None
+        with self._lock:
+            self.requested_settings = settings
+        return self._queue(settings, "IMAGE", {"roi": list(settings.roi) if settings.roi else None,
+                                               "shift": settings.shift, "mono": settings.mono,
+                                               "budget_bytes": settings.budget_bytes})
+
+    def next_image(self) -> None:
+        with self._lock:
+            self.master.abandon_image()
+
+    # ------------------------------------------------------------------
+    # State (any thread)
+    # ------------------------------------------------------------------
+
+    @property
+    def last_reply(self) -> Reply | None:
+        return self._reply
+
+    def odometry_age_s(self) -> float | None:
+        return None if self._odometry_at is None else self.now() - self._odometry_at
+
+    def predicted_pose(self, at: float | None = None) -> Pose | None:
+        """Dead reckoning from the last odometry to `at` (session time; now by default)."""
+        with self._lock:
+            reply, sampled, wish, vel = self._reply, self._odometry_at, self._wish, self._velocity_est
+        if reply is None or sampled is None:
+            return None
+        horizon = max(0.0, min((self.now() if at is None else at) - sampled, 10.0))
+        pose = Pose.from_reply(reply)
+        if horizon <= 0.0:
+            return pose
+        from rov.vehicle import Controls, PilotInput, VehicleModel, VehicleState
+
+        state = VehicleState(x_m=pose.x_m, y_m=pose.y_m, z_m=pose.z_m, yaw_rad=math.radians(pose.yaw_deg),
+                             vn_mps=vel[0], ve_mps=vel[1], vd_mps=vel[2], yaw_rate_radps=math.radians(vel[3]))
+        model = VehicleModel(state=state)
+        controls = Controls(pilot=PilotInput.from_velocity(*wish), mode=_protocol_to_sub_mode(reply.mode),
+                            armed=reply.armed, target=None)
+        s = model.step(horizon, controls)
+        return Pose(s.x_m, s.y_m, s.z_m, pose.roll_deg, pose.pitch_deg, math.degrees(s.yaw_rad))
+
+    def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
+                     step_s: float = 0.5) -> list[tuple[float, float, float]]:
+        """Where a POSITION order would take the vehicle (GUIDED, from the predicted pose)."""
+        from rov.vehicle import Controls, PilotInput, PositionTarget, SubMode, VehicleModel, VehicleState
+
+        start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
+        model = VehicleModel(state=VehicleState(x_m=start.x_m, y_m=start.y_m, z_m=start.z_m,
+                                                yaw_rad=math.radians(start.yaw_deg)))
+        target = PositionTarget(x_m=x_m, y_m=y_m, z_m=z_m, yaw_rad=math.radians(yaw_deg))
+        controls = Controls(pilot=PilotInput(), mode=SubMode.GUIDED, armed=True, target=target)
+        points = [(start.x_m, start.y_m, start.z_m)]
+        t = 0.0
+        while t < seconds:
+            s = model.step(step_s, controls)
+            points.append((s.x_m, s.y_m, s.z_m))
+            t += step_s
+            if math.dist(points[-1], (x_m, y_m, z_m)) < 0.05:
+                break
+        return points
+
+    def pose_state(self) -> dict:
+        reply = self._reply
+        out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
+        if reply is not None:
+            out["received"] = Pose.from_reply(reply).as_dict()
+            out.update(armed=reply.armed, mode=REPORTED_MODE_NAMES.get(reply.mode, "OTHER"), failsafe=reply.failsafe,
+                       autopilot=reply.autopilot, position_valid=reply.position_valid,
+                       odometry_age_s=self.odometry_age_s())
+            predicted = self.predicted_pose()
+            out["predicted"] = predicted.as_dict() if predicted else None
+        return out
+
+    def image_state(self) -> dict:
+        v = self.image
+        s = v.settings
+        return {
+            "img": v.img, "received_bytes": v.received_bytes, "total_bytes": v.total_bytes, "complete": v.complete,
+            "decoded_bytes": v.decoded_bytes, "started_at": v.started_at, "decoded_at": v.decoded_at,
+            "images_completed": v.images_completed,
+            "settings": None if s is None else {"roi": list(s.roi) if s.roi else None, "shift": s.shift,
+                                                 "mono": s.mono, "budget_bytes": s.budget_bytes},
+        }
+
+    def link_state(self) -> dict:
+        t = self.now()
+        m = self.master.stats
+        recent = [e for e in list(self.history.link_events) if t - e[0] <= 10.0]
+        polls = sum(1 for e in recent if e[1] == "tx")
+        span = min(10.0, max(t, 1e-6))
+        rtts = sorted(self.history.round_trips)
+        return {
+            "t": t,
+            "poll_rate_hz": polls / span,
+            "round_trip_s": rtts[len(rtts) // 2] if rtts else None,
+            "last_round_trip_s": m.last_round_trip_s,
+            "polls_sent": m.polls_sent,
+            "replies": m.replies,
+            "replies_lost": m.replies_lost,
+            "crc_errors": self.master.decoder.crc_errors,
+            "protocol_errors": m.protocol_errors,
+            "bytes_per_s": sum(e[2] for e in recent) / span,
+            "bytes_sent": m.bytes_sent,
+            "bytes_received": m.bytes_received,
+            "odometry_age_s": self.odometry_age_s(),
+            "failsafe": bool(self._reply and self._reply.failsafe),
+            "autopilot": bool(self._reply and self._reply.autopilot),
+            "estimated_ber": self.master.estimated_ber(),
+            "images_completed": m.images_completed,
+            "images_abandoned": m.images_abandoned,
+            "link_up": self.endpoint.is_up if self.endpoint is not None else False,
+        }
+
+    def orders_state(self) -> list[dict]:
+        with self._lock:
+            return [dict(v) for _, v in sorted(self._orders.items())][-50:]
+
+    def state(self) -> dict:
+        wish = self._wish
+        return {
+            "pose": self.pose_state(),
+            "image": self.image_state(),
+            "link": self.link_state(),
+            "velocity_wish": {"vx": wish[0], "vy": wish[1], "vz": wish[2], "vyaw": wish[3]},
+            "orders": self.orders_state(),
+            "log": [{"t": t, "text": text} for t, text in list(self.history.log)[-20:]],
+            "replaying": self.replaying,
+        }
+
+    def picture(self) -> np.ndarray | None:
+        return self.image.picture

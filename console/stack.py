@@ -1,0 +1,111 @@
+"""The whole system on one machine: simulated ArduSub, ROV node, emulated
+channel and the operator's session, in one asyncio loop.
+
+Goals: `rovlink demo`, the console's tests and its benchmarks start the very
+same parts a real deployment runs (the node speaks MAVLink to the simulator
+over loopback UDP; the link bytes cross the channel emulator), with nothing
+to set up.  `Stack.start()` brings them up, `Stack.stop()` takes them down in
+reverse order.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+from link.aio import run_channel
+from link.channel import Channel, LinkParams
+from link.messages import ImageSettings
+from link.transport import inproc_pair
+
+from .operator import Operator
+
+log = logging.getLogger("rovlink.console.stack")
+
+
+@dataclass
+class StackConfig:
+    bitrate_bps: float = 1900.0
+    delay_s: float = 0.085
+    ber: float = 7e-6
+    seed: int = 0
+    failsafe_s: float = 3.0
+    camera: str = "sim"
+    record: str | Path | None = None
+    channel_log: str | Path | None = None
+    image_settings: ImageSettings = ImageSettings(mono=False, budget_bytes=2000)
+    start_depth_m: float = 2.0
+
+
+class Stack:
+    def __init__(self, config: StackConfig | None = None) -> None:
+        self.config = config or StackConfig()
+        self.sim = None
+        self.bridge = None
+        self.camera = None
+        self.node = None
+        self.operator: Operator | None = None
+        self.channel: Channel | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._endpoints = []
+        self._channel_log = None
+
+    async def start(self) -> Operator:
+        from rov.autopilot import AutopilotBridge
+        from rov.camera import open_camera
+        from rov.node import RovNode
+        from rov.simulator import SimulatedVehicle
+        from rov.vehicle import VehicleState
+
+        c = self.config
+        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
+        self.bridge = AutopilotBridge(self.sim.bridge_url).start()
+        self.camera = open_camera(c.camera)
+        op_end, chan_a = inproc_pair("operator")
+        chan_b, rov_end = inproc_pair("rov")
+        self._endpoints = [op_end, chan_a, chan_b, rov_end]
+        for ep in self._endpoints:
+            await ep.start()
+        if c.channel_log:
+            Path(c.channel_log).parent.mkdir(parents=True, exist_ok=True)
+            self._channel_log = open(c.channel_log, "w", buffering=1)
+        self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
+                               log=self._channel_log)
+        self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
+                            default_settings=c.image_settings)
+        self.operator = Operator(op_end, bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, record=c.record,
+                                 image_settings=c.image_settings)
+        loop = asyncio.get_running_loop()
+        self._tasks = [
+            loop.create_task(run_channel(self.channel, chan_a, chan_b), name="channel"),
+            loop.create_task(self.node.run(), name="rov node"),
+            loop.create_task(self.operator.run(), name="operator"),
+        ]
+        return self.operator
+
+    async def stop(self) -> None:
+        for task in reversed(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        for ep in self._endpoints:
+            await ep.close()
+        if self.operator:
+            self.operator.close()
+        if self.bridge:
+            self.bridge.stop()
+        if self.camera:
+            self.camera.close()
+        if self.sim:
+            self.sim.stop()
+        if self._channel_log:
+            self._channel_log.close()
+
+    async def __aenter__(self) -> "Stack":
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.stop()
