@@ -112,6 +112,7 @@ MSG_IDS = {"ATTITUDE": 30, "LOCAL_POSITION_NED": 32, "SYS_STATUS": 1}
 
 HEARTBEAT_PERIOD_S = 1.0
 MANUAL_CONTROL_PERIOD_S = 0.1  # 10 Hz: twice the 5 Hz ArduSub needs to feel "fed"
+MANUAL_CONTROL_MIN_GAP_S = 0.02  # a changed wish goes out at once, but not faster than this
 HEARTBEAT_TIMEOUT_S = 3.0
 POSITION_TIMEOUT_S = 2.0
 COMMAND_RESEND_S = 0.5
@@ -273,6 +274,8 @@ class AutopilotBridge:
         self._thread: threading.Thread | None = None
         self._snap = AutopilotSnapshot()
         self._pilot = PilotInput()
+        self._pilot_changed = False
+        self._last_manual_s = -math.inf
         self._failsafe = False
         self._queue: collections.deque = collections.deque()
         # I/O-thread state below (touched only by the thread, or under the lock)
@@ -324,7 +327,7 @@ class AutopilotBridge:
             return
         with self._lock:
             if not self._failsafe:
-                self._pilot = pilot
+                self._set_pilot(pilot)
 
     def request_arm(self, arm: bool) -> Ticket:
         ticket = Ticket("arm" if arm else "disarm")
@@ -361,14 +364,14 @@ class AutopilotBridge:
             bool(relative), bool(body), time.monotonic(),
         )
         with self._lock:
-            self._pilot = PilotInput()  # a position order replaces the velocity wish
+            self._set_pilot(PilotInput())  # a position order replaces the velocity wish
             self._queue.append(("goto", order, ticket))
         return ticket
 
     def stop_motion(self) -> Ticket:
         ticket = Ticket("stop")
         with self._lock:
-            self._pilot = PilotInput()
+            self._set_pilot(PilotInput())
             self._queue.append(("stop", None, ticket))
         return ticket
 
@@ -381,6 +384,13 @@ class AutopilotBridge:
             self.stop_motion()
         elif was and not active:
             log.info("failsafe cleared")
+
+    def _set_pilot(self, pilot: PilotInput) -> None:
+        """Under the lock: a changed wish goes out at once, not at the next 10 Hz slot,
+        so that a stop reaches the autopilot before the mode change that follows it."""
+        if pilot != self._pilot:
+            self._pilot = pilot
+            self._pilot_changed = True
 
     def snapshot(self) -> AutopilotSnapshot:
         now = time.monotonic()
@@ -578,10 +588,16 @@ class AutopilotBridge:
         if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + HEARTBEAT_PERIOD_S
             conn.mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
-        if now >= self._next_manual_s:
-            self._next_manual_s = max(self._next_manual_s + MANUAL_CONTROL_PERIOD_S, now - MANUAL_CONTROL_PERIOD_S)
-            with self._lock:
+        with self._lock:
+            changed = self._pilot_changed and now - self._last_manual_s >= MANUAL_CONTROL_MIN_GAP_S
+            if now >= self._next_manual_s or changed:
                 pilot = PilotInput() if self._failsafe else self._pilot
+                self._pilot_changed = False
+            else:
+                pilot = None
+        if pilot is not None:
+            self._next_manual_s = max(self._next_manual_s + MANUAL_CONTROL_PERIOD_S, now - MANUAL_CONTROL_PERIOD_S)
+            self._last_manual_s = now
             conn.mav.manual_control_send(self._target_system, pilot.x, pilot.y, pilot.z, pilot.r, 0)
             self.manual_controls_sent += 1
         if alive:

@@ -224,3 +224,12 @@ def test_mode_numbers_follow_the_protocol():
     assert sub_mode("depth_hold") == SubMode.ALT_HOLD == 2
     assert protocol_mode(None) == 0 and protocol_mode(19) == 1 and protocol_mode(2) == 3
     assert protocol_mode(16) == 4 and protocol_mode(4) == 5 and protocol_mode(9) == 6 and protocol_mode(1) == 7
+
+
+def test_bridge_over_tcp_like_ardusub_sitl():
+    port = free_udp_port()  # the same number is very likely free for TCP too
+    with SimulatedVehicle(f"tcpin:127.0.0.1:{port}") as sim:
+        with AutopilotBridge(f"tcp:127.0.0.1:{port}") as bridge:
+            assert wait_for(lambda: bridge.snapshot().position_valid, 6.0)
+            assert bridge.request_arm(True).wait(3) == Ticket.ACCEPTED
+            assert sim.truth().armed
