@@ -293,8 +293,18 @@ class SimulatedVehicle:
 
     def _command_long(self, msg, now: float) -> None:
         cmd = int(msg.command)
+        try:
+            self._command(cmd, msg, now)
+        except (TypeError, ValueError, OverflowError) as exc:  # NaN or absurd parameters
+            log.info("refused command %d: %s", cmd, exc)
+            self._ack(cmd, 4)
+
+    def _command(self, cmd: int, msg, now: float) -> None:
         if cmd == CMD_COMPONENT_ARM_DISARM:
-            arm = msg.param1 >= 0.5
+            if msg.param1 not in (0.0, 1.0):
+                self._ack(cmd, 3)  # like ArduPilot: only exactly 1 (arm) or 0 (disarm)
+                return
+            arm = msg.param1 == 1.0
             with self._lock:
                 if arm and not self._armed:
                     # A grace period from arming on: the pilot gets 3 s to start

@@ -233,3 +233,43 @@ def test_bridge_over_tcp_like_ardusub_sitl():
             assert wait_for(lambda: bridge.snapshot().position_valid, 6.0)
             assert bridge.request_arm(True).wait(3) == Ticket.ACCEPTED
             assert sim.truth().armed
+
+
+def test_simulator_shrugs_off_bad_requests():
+    with SimulatedVehicle(initial_state=VehicleState(z_m=3.0)) as sim:
+        gcs = mavutil.mavlink_connection(sim.bridge_url, source_system=255, dialect="ardupilotmega")
+        try:
+            gcs.mav.heartbeat_send(6, 8, 0, 0, 4)
+            assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=3) is not None
+            nan = float("nan")
+
+            def ack_for(command: int, *params: float) -> int:
+                gcs.mav.command_long_send(1, 1, command, 0, *(list(params) + [0.0] * (7 - len(params))))
+                ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=3)
+                assert ack is not None and ack.command == command
+                return ack.result
+
+            assert ack_for(400, nan) == 3  # arm with NaN: refused, not "disarm"
+            assert ack_for(400, 0.5) == 3
+            assert ack_for(176, 1, nan) == 4  # DO_SET_MODE with NaN mode
+            assert ack_for(176, 1, 3) == 4  # AUTO: not simulated
+            assert ack_for(176, 1, 12345) == 4
+            assert ack_for(176, 0, 2) == 4  # without CUSTOM_MODE_ENABLED
+            assert ack_for(511, 999, 1000) == 4  # a stream we do not offer
+            assert ack_for(31000) == 3  # unknown command
+            gcs.mav.set_mode_send(1, 1, 4)  # SET_MODE message: GUIDED
+            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=3)
+            assert ack.command == 11 and ack.result == 0
+            # Targets with NaN, in an unknown frame, or for another system are ignored.
+            gcs.mav.set_position_target_local_ned_send(0, 1, 1, 1, 0b100111111000, nan, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0)
+            gcs.mav.set_position_target_local_ned_send(0, 1, 1, 42, 0b100111111000, 1, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0)
+            gcs.mav.set_position_target_local_ned_send(0, 7, 1, 1, 0b100111111000, 1, 0, 3, 0, 0, 0, 0, 0, 0, 0, 0)
+            gcs.mav.manual_control_send(9, 1000, 0, 500, 0, 0)  # for another vehicle
+            gcs.mav.manual_control_send(1, 32767, -32768, 32767, 0, 0)  # far out of range: clamped
+            time.sleep(0.3)
+            truth = sim.truth()
+            assert truth.target is None and truth.mode == SubMode.GUIDED and not truth.armed
+            assert truth.pilot.x == 1000 and truth.pilot.y == -1000 and truth.pilot.z == 1000
+            assert all(math.isfinite(v) for v in (truth.state.x_m, truth.state.z_m))
+        finally:
+            gcs.close()
