@@ -250,6 +250,7 @@ class _Goto:
     created_s: float
     mode_request: _Request | None = None
     target_sent_s: float = -math.inf
+    seen_guided: bool = False
 
 
 class AutopilotBridge:
@@ -716,6 +717,14 @@ class AutopilotBridge:
             goto.mode_request = self._request_mode(Ticket("mode GUIDED for goto"), SubMode.GUIDED, now)
         if goto.mode_request is not None and goto.mode_request.ticket.status in (Ticket.FAILED, Ticket.CANCELLED):
             ticket._resolve(Ticket.FAILED, f"autopilot refused GUIDED ({goto.mode_request.ticket.reason})")
+            self._goto = None
+            return
+        if snap.custom_mode == SubMode.GUIDED:
+            goto.seen_guided = True
+        elif goto.seen_guided:
+            # The autopilot left GUIDED on its own (a failsafe, another ground
+            # station): the order is over; do not keep sending targets it ignores.
+            log.info("autopilot left GUIDED: position order ended")
             self._goto = None
             return
         guided_acked = goto.mode_request is not None and goto.mode_request.ticket.status == Ticket.ACCEPTED

@@ -273,3 +273,17 @@ def test_simulator_shrugs_off_bad_requests():
             assert all(math.isfinite(v) for v in (truth.state.x_m, truth.state.z_m))
         finally:
             gcs.close()
+
+
+def test_a_position_order_ends_when_the_autopilot_leaves_guided(sim, bridge):
+    ticket = bridge.goto(1.0, 0.0, 3.0, None)
+    assert ticket.wait(4) == Ticket.ACCEPTED
+    assert wait_for(lambda: bridge.snapshot().mode == 5, 2.5)
+    # Another ground station switches the vehicle to MANUAL behind the bridge's back.
+    gcs = mavutil.mavlink_connection(sim.bridge_url, source_system=254, dialect="ardupilotmega")
+    try:
+        gcs.mav.set_mode_send(1, 1, int(SubMode.MANUAL))
+        assert wait_for(lambda: bridge.snapshot().mode == 1, 2.5)
+        assert wait_for(lambda: bridge._goto is None, 1.0)
+    finally:
+        gcs.close()
