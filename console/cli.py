@@ -22,6 +22,9 @@ COMMAND_MODULES = [
     "console.commands.bench",
     "console.commands.rov",
     "console.commands.sim",
+    "console.commands.console",
+    "console.commands.demo",
+    "console.commands.replay",
 ]
 
 

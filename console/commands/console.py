@@ -1,0 +1,69 @@
+"""`rovlink console`: the operator's side against a real modem or a remote ROV."""
+
+from __future__ import annotations
+
+import argparse
+
+from .serve import add_server_arguments
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "console",
+        help="the operator console on a real link (modem or UDP)",
+        description="Poll the ROV over LINK and serve the operator page and 3D scene.",
+        epilog="example: rovlink console --link serial:///dev/ttyUSB0?baud=9600&crlf=1",
+    )
+    p.add_argument("--link", required=True, metavar="URL",
+                   help="udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1][&mtu=N]")
+    add_server_arguments(p)
+    p.add_argument("--bitrate", type=_positive, default=1900.0, metavar="BPS",
+                   help="the link's bit/s, for reply timeouts (default 1900)")
+    p.add_argument("--delay", type=float, default=0.085, metavar="S",
+                   help="the link's intrinsic delay, s, for reply timeouts (default 0.085)")
+    p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
+    p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import asyncio
+
+    from console.cli import CommandError
+    from console.operator import Operator
+    from link.transport import TransportError, open_transport
+
+    from .serve import default_record_path, serve_operator
+
+    if args.delay < 0:
+        raise CommandError("--delay must not be negative")
+    try:
+        endpoint = open_transport(args.link)
+    except TransportError as exc:
+        raise CommandError(str(exc)) from None
+    record = None if args.no_record else (args.record or default_record_path())
+
+    async def main() -> None:
+        try:
+            await endpoint.start()
+        except TransportError as exc:
+            raise CommandError(str(exc)) from None
+        operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        try:
+            await serve_operator(operator, args, banner=f"rovlink console on {args.link}", background=[operator.run()])
+        finally:
+            operator.close()
+            await endpoint.close()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    return 0

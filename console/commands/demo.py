@@ -1,0 +1,81 @@
+"""`rovlink demo`: the whole system on this machine, one command."""
+
+from __future__ import annotations
+
+import argparse
+
+from .serve import add_server_arguments
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value < 1.0:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo",
+        help="run everything here: simulated ROV, ROV node, emulated 1.9 kbit/s channel and the console",
+        description=(
+            "Start the simulated ArduSub vehicle, the ROV node, the emulated narrow channel "
+            "(1.9 kbit/s, 85 ms delay, BER 7e-6 by default) and the operator console, and serve "
+            "the operator page. The session is recorded to runs/ (see rovlink replay, rovlink plot)."
+        ),
+    )
+    add_server_arguments(p)
+    p.add_argument("--bitrate", type=_positive, default=1900.0, metavar="BPS", help="channel bit/s (default 1900)")
+    p.add_argument("--delay", type=float, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
+    p.add_argument("--ber", type=_rate, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")
+    p.add_argument("--seed", type=int, default=0, help="channel random seed (default 0)")
+    p.add_argument("--camera", default="sim", metavar="SPEC", help="camera on the ROV: sim (default), DIR, opencv:N")
+    p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
+    p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import asyncio
+
+    from console.cli import CommandError
+    from console.stack import Stack, StackConfig
+
+    from .serve import default_record_path, serve_operator
+
+    if args.delay < 0:
+        raise CommandError("--delay must not be negative")
+    record = None if args.no_record else (args.record or default_record_path())
+    config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
+                         camera=args.camera, record=record,
+                         channel_log=None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl")
+
+    async def main() -> None:
+        stack = Stack(config)
+        try:
+            operator = await stack.start()
+        except Exception as exc:
+            await stack.stop()
+            raise CommandError(f"could not start the demo: {exc}") from None
+        try:
+            await serve_operator(
+                operator, args,
+                banner=(f"rovlink demo: simulated ROV over an emulated {args.bitrate:g} bit/s link "
+                        f"({args.delay * 1000:g} ms delay, BER {args.ber:g})"
+                        + (f"; recording to {record}" if record else "")),
+            )
+        finally:
+            await stack.stop()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    return 0

@@ -1,0 +1,62 @@
+"""Shared by `rovlink demo`, `rovlink console` and `rovlink replay`: serve an
+Operator through the viser scene and the web app until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+
+
+def port(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port 1..65535, got {text}")
+    return value
+
+
+def add_server_arguments(p) -> None:
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to serve the page on (default 127.0.0.1, this machine only; 0.0.0.0 opens it)")
+    p.add_argument("--port", type=port, default=8000, help="operator page and API port (default 8000)")
+    p.add_argument("--viser-port", type=port, default=8080, help="3D scene (viser) port (default 8080)")
+
+
+def default_record_path() -> Path:
+    import time
+
+    return Path("runs") / f"session-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
+
+
+def browser_host(host: str) -> str:
+    return "127.0.0.1" if host in ("0.0.0.0", "::", "", "localhost") else host
+
+
+async def serve_operator(operator, args, *, banner: str, background=()) -> None:
+    """Start the scene and the web app for `operator`; return when the server stops."""
+    from console.cli import CommandError
+    from console.scene.app import ConsoleScene
+    from console.web.app import create_app, serve
+
+    if args.port == args.viser_port:
+        raise CommandError("--port and --viser-port must differ")
+    try:
+        scene = ConsoleScene(operator, host=args.host, port=args.viser_port).start()
+    except OSError as exc:
+        raise CommandError(f"cannot serve the 3D scene on port {args.viser_port}: {exc}") from None
+    viser_url = f"http://{browser_host(args.host)}:{args.viser_port}"
+    app = create_app(operator, viser_url=viser_url, scene=scene)
+    tasks = [asyncio.create_task(coro) for coro in background]
+    url = f"http://{browser_host(args.host)}:{args.port}"
+    print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url}\n  Ctrl-C stops.", flush=True)
+    try:
+        await serve(app, host=args.host, port=args.port)
+    except OSError as exc:
+        raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
+    finally:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        scene.stop()
+    print("stopped.", file=sys.stderr, flush=True)

@@ -1,0 +1,248 @@
+"""Recorded sessions: reading them, playing them back, plotting them.
+
+A recording (written by `console.operator.Recorder`) is JSON lines, each with
+`k` (kind) and `t` (session seconds): "meta" first, then "tx"/"rx" frames as
+hex, "wish" velocity changes, "order" and "order_state", "pose", "image".
+
+Playback does not need a ROV: the received bytes are parsed again with the
+link's own FrameDecoder and Reply, image trunks reassembled by (IMG, OFFSET)
+exactly as the master did, and the resulting events handed to an Operator,
+which shows them as if live (its scene and web page work unchanged).
+
+Plots: Fig. 4 style time-lapse of the link (each frame a bar from its send to
+its arrival, per direction, height its size; images completed marked) and a
+Fig. 5 style comparison of the velocity commanded on the console with the
+velocity the ROV received (carried by polls that were answered).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from link.frame import FrameDecoder
+from link.master import ImageComplete, ImageProgress, PoseReceived
+from link.messages import Poll, ProtocolError, Reply
+
+
+class RecordingError(ValueError):
+    """A file that is not a readable rovlink recording."""
+
+
+def read_records(path: str | Path) -> Iterator[dict]:
+    path = Path(path)
+    if not path.is_file():
+        raise RecordingError(f"{path}: no such file")
+    with open(path, encoding="utf-8") as f:
+        first = True
+        for lineno, line in enumerate(f, 1):
+            line = line.strip()
+            if not line:
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                if first:
+                    raise RecordingError(f"{path}: not a rovlink recording (line {lineno} is not JSON)") from None
+                continue  # a line cut short when the session was killed
+            if first:
+                if record.get("k") != "meta":
+                    raise RecordingError(f"{path}: not a rovlink recording (no meta record first)")
+                first = False
+            yield record
+    if first:
+        raise RecordingError(f"{path}: empty recording")
+
+
+@dataclass
+class _Assembly:
+    img: int | None = None
+    data: bytearray = field(default_factory=bytearray)
+    started_at: float = 0.0
+
+
+class ReplyReplayer:
+    """Turns received bytes back into the master's events, without a master."""
+
+    def __init__(self) -> None:
+        self.decoder = FrameDecoder()
+        self.image = _Assembly()
+
+    def feed(self, data: bytes, t: float) -> list:
+        events: list = []
+        for payload in self.decoder.feed(data):
+            try:
+                reply = Reply.decode(payload)
+            except ProtocolError:
+                continue
+            events.append(PoseReceived(reply, t, None))
+            if not reply.has_trunk:
+                continue
+            img = self.image
+            if reply.img != img.img:
+                if reply.offset != 0:
+                    continue
+                self.image = img = _Assembly(reply.img, bytearray(), t)
+            if reply.offset > len(img.data):
+                continue
+            img.data[reply.offset:] = reply.trunk
+            total = 2 + int.from_bytes(img.data[:2], "big") if len(img.data) >= 2 else None
+            events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
+            if total is not None and len(img.data) >= total:
+                events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
+                self.image = _Assembly()
+        return events
+
+
+async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None) -> dict:
+    """Play a recording into `operator` in (scaled) real time; returns counts."""
+    if speed <= 0:
+        raise ValueError("speed must be positive")
+    records = list(read_records(path))
+    meta = records[0]
+    operator.bitrate_bps = meta.get("bitrate_bps", operator.bitrate_bps)
+    operator.delay_s = meta.get("delay_s", operator.delay_s)
+    operator.replaying = True
+    replayer = ReplyReplayer()
+    loop = asyncio.get_running_loop()
+    start = loop.time()
+    counts = {"rx": 0, "tx": 0, "wish": 0, "orders": 0}
+    for record in records[1:]:
+        t = float(record.get("t", 0.0))
+        delay = start + t / speed - loop.time()
+        if delay > 0:
+            await asyncio.sleep(delay)
+        kind = record.get("k")
+        if kind == "rx":
+            counts["rx"] += 1
+            operator.history.link_events.append((operator.now(), "rx", len(record["hex"]) // 2))
+            operator._on_events(replayer.feed(bytes.fromhex(record["hex"]), operator.now()), operator.now())
+        elif kind == "tx":
+            counts["tx"] += 1
+            operator._frame_sent(bytes.fromhex(record["hex"]), operator.now())
+        elif kind == "wish":
+            counts["wish"] += 1
+            operator.history.commanded.append((operator.now(), *(v / 127 for v in record["v"])))
+        elif kind in ("order", "order_state"):
+            counts["orders"] += 1
+            operator.note(f"(replay) {kind}: " + ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("k", "t")))
+    operator.note(f"replay finished: {counts['rx']} frames received, {counts['tx']} sent")
+    if on_done:
+        on_done(counts)
+    return counts
+
+
+# ---------------------------------------------------------------------------
+# Plots
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class Series:
+    bitrate_bps: float
+    delay_s: float
+    frames: list[tuple[float, str, int]]  # (t, "tx"/"rx", bytes)
+    commanded: list[tuple[float, tuple[float, ...]]]  # (t, (vx, vy, vz, vyaw)) in fractions
+    received: list[tuple[float, tuple[float, ...]]]
+    images: list[tuple[float, float]]  # (completed at, seconds it took)
+    duration_s: float
+
+
+def series(path: str | Path) -> Series:
+    records = list(read_records(path))
+    meta = records[0]
+    bitrate = float(meta.get("bitrate_bps", 1900.0))
+    delay = float(meta.get("delay_s", 0.085))
+    frames, received, images = [], [], []
+    commanded: list = [(0.0, (0.0, 0.0, 0.0, 0.0))]  # the wish is neutral until the pilot moves
+    last_poll = None
+    replies = FrameDecoder()
+    for r in records[1:]:
+        k, t = r.get("k"), float(r.get("t", 0.0))
+        if k == "tx":
+            data = bytes.fromhex(r["hex"])
+            frames.append((t, "tx", len(data)))
+            try:
+                poll = Poll.decode(data[2:-2])
+                order = poll.order
+                last_poll = (t + 8 * len(data) / bitrate + delay,
+                             (order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)) \
+                    if hasattr(order, "vyaw") else None
+            except ProtocolError:
+                last_poll = None
+        elif k == "rx":
+            data = bytes.fromhex(r["hex"])
+            frames.append((t, "rx", len(data)))
+            if replies.feed(data) and last_poll is not None:
+                received.append(last_poll)
+                last_poll = None
+        elif k == "wish":
+            commanded.append((t, tuple(v / 127 for v in r["v"])))
+        elif k == "image":
+            images.append((t, float(r.get("seconds", 0.0))))
+    duration = max([f[0] for f in frames] + [0.0])
+    return Series(bitrate, delay, frames, commanded, received, images, duration)
+
+
+def plot(path: str | Path, out_dir: str | Path, *, window_s: float | None = None) -> list[Path]:
+    """Write fig4_link_timelapse.png and fig5_velocity.png; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = series(path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_end = s.duration_s if window_s is None else min(s.duration_s, window_s)
+
+    fig, ax = plt.subplots(figsize=(12, 3.6))
+    for t, kind, n in s.frames:
+        if t > t_end:
+            break
+        length = 8 * n / s.bitrate_bps
+        if kind == "tx":  # operator -> ROV: drawn from send to arrival
+            ax.broken_barh([(t, length + s.delay_s)], (1.0, n / 259 * 0.8), color="tab:blue", alpha=0.8)
+        else:  # ROV -> operator: drawn ending at its arrival
+            ax.broken_barh([(t - length - s.delay_s, length + s.delay_s)], (0.0, n / 259 * 0.8), color="tab:orange",
+                           alpha=0.8)
+    for t, took in s.images:
+        if t <= t_end:
+            ax.axvline(t, color="tab:green", lw=1, ls="--")
+            ax.axvline(t - took, color="tab:gray", lw=0.8, ls=":")
+    ax.set_yticks([0.4, 1.4], ["ROV → operator", "operator → ROV"])
+    ax.set_xlabel("session time (s)")
+    ax.set_xlim(0, max(t_end, 1.0))
+    ax.set_title(f"Link time-lapse ({s.bitrate_bps:g} bit/s, {s.delay_s * 1000:g} ms delay): bar height = frame "
+                 f"size; green = image received, grey = image requested")
+    fig.tight_layout()
+    fig4 = out / "fig4_link_timelapse.png"
+    fig.savefig(fig4, dpi=110)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
+    names = ["x (surge)", "y (sway)", "z (heave)", "yaw"]
+    for i, ax in enumerate(axes):
+        if s.commanded:
+            ts = [t for t, _ in s.commanded] + [t_end]
+            vs = [v[i] for _, v in s.commanded] + [s.commanded[-1][1][i]]
+            ax.step(ts, vs, where="post", label="commanded (operator)", color="tab:blue")
+        if s.received:
+            ts = [t for t, _ in s.received]
+            vs = [v[i] for _, v in s.received]
+            ax.step(ts, vs, where="post", label="received (ROV)", color="tab:red", alpha=0.8)
+        ax.set_ylabel(names[i])
+        ax.set_ylim(-1.1, 1.1)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right")
+    axes[-1].set_xlabel("session time (s)")
+    axes[-1].set_xlim(0, max(t_end, 1.0))
+    fig.suptitle("Velocity commanded on the console vs received by the ROV (fraction of maximum)")
+    fig.tight_layout()
+    fig5 = out / "fig5_velocity.png"
+    fig.savefig(fig5, dpi=110)
+    plt.close(fig)
+    return [fig4, fig5]
