@@ -1,0 +1,159 @@
+"""The operator session against the whole in-process stack (real node, real
+simulated ArduSub over MAVLink, real channel emulator), on a faster link so a
+test takes seconds, then its recording replayed and plotted."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import time
+
+import numpy as np
+import pytest
+
+import debt
+from console.operator import Operator, OrderError
+from console.recording import RecordingError, plot, replay, series
+from console.stack import Stack, StackConfig
+
+
+def fast_config(tmp_path, **kw):
+    return StackConfig(bitrate_bps=19200, delay_s=0.02, ber=1e-5, record=tmp_path / "session.jsonl", **kw)
+
+
+async def until(predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        await asyncio.sleep(0.05)
+    return True
+
+
+def test_operator_session_end_to_end(tmp_path):
+    async def main():
+        async with Stack(fast_config(tmp_path)) as stack:
+            op = stack.operator
+            seen = []
+            op.subscribe(lambda topic, payload: seen.append(topic))
+            assert await until(lambda: op.last_reply is not None and op.last_reply.autopilot, 15)
+
+            # An image arrives and refines: decoded prefixes grow, then it completes.
+            decoded = []
+            op.subscribe(lambda topic, p: decoded.append(p["decoded_bytes"]) if topic == "image" else None)
+            assert await until(lambda: op.image.images_completed >= 1, 30)
+            first_image = decoded[: next((i for i in range(1, len(decoded)) if decoded[i] < decoded[i - 1]),
+                                         len(decoded))]
+            assert len(set(first_image)) >= 3 and first_image == sorted(first_image)
+            picture = op.picture()
+            assert picture is not None and picture.dtype == np.uint8 and picture.shape[:2] == (240, 320)
+
+            # Arm and drive forward: the received pose moves, the ghost leads it.
+            op.arm(True)
+            assert await until(lambda: op.last_reply.armed, 15)
+            x0 = op.pose_state()["received"]["x_m"]
+            op.set_velocity(0.8, 0.0, 0.0, 0.0)
+            assert await until(lambda: op.pose_state()["received"]["x_m"] > x0 + 1.0, 20)
+            state = op.pose_state()
+            assert state["predicted"]["x_m"] > state["received"]["x_m"]  # dead reckoning runs ahead
+            op.set_velocity(0, 0, 0, 0)
+
+            # A supervised position order: preview first, nothing moves until sent.
+            target = (state["received"]["x_m"] - 2.0, state["received"]["y_m"] + 1.0, 2.5)
+            path = op.preview_path(*target, 0.0)
+            assert len(path) > 3 and math.dist(path[-1], target) < 0.5
+            assert not any(o["kind"] == "POSITION" for o in op.orders_state())
+            op.send_position(*target, 0.0)
+            assert await until(lambda: any(o["kind"] == "POSITION" and o["state"] == "acknowledged"
+                                           for o in op.orders_state()), 15)
+            def where():
+                t = stack.sim.truth().state
+                return (t.x_m, t.y_m, t.z_m)
+
+            assert await until(lambda: math.dist(where(), target) < 0.4, 40)
+
+            # Image settings with an ROI: acknowledged; the next image carries it.
+            roi = (40, 30, 200, 150)
+            op.set_image_settings(roi=roi, shift=5, budget_bytes=1200)
+            done = op.image.images_completed
+            assert await until(lambda: op.image.images_completed >= done + 2, 40)
+            header = debt.unpack_header(op.image.stream)
+            assert tuple(header.roi) == roi
+            assert len(op.image.stream) <= 1200
+
+            stop_id = op.stop()
+            assert await until(lambda: any(o["id"] == stop_id and o["state"] == "acknowledged"
+                                           for o in op.orders_state()), 15)
+            link = op.link_state()
+            assert link["polls_sent"] > 20 and link["autopilot"] and not link["failsafe"]
+            assert {"pose", "image", "order"} <= set(seen)
+            return op
+
+    op = asyncio.run(asyncio.wait_for(main(), 150))
+    rec = tmp_path / "session.jsonl"
+    kinds = {json.loads(line)["k"] for line in rec.read_text().splitlines()}
+    assert {"meta", "tx", "rx", "wish", "order", "order_state", "pose", "image"} <= kinds
+
+    # The recording replays into a fresh console and gives the same images.
+    async def play():
+        fresh = Operator(None)
+        counts = await replay(fresh, rec, speed=50.0)
+        return fresh, counts
+
+    fresh, counts = asyncio.run(asyncio.wait_for(play(), 60))
+    assert counts["rx"] > 20
+    assert fresh.image.images_completed == op.image.images_completed
+    assert fresh.last_reply.x_cm == pytest.approx(op.last_reply.x_cm, abs=30)
+
+    s = series(rec)
+    assert s.received and len(s.commanded) >= 3
+    for png in plot(rec, tmp_path / "plots"):
+        assert png.stat().st_size > 10_000
+
+
+def test_bad_orders_are_refused_with_a_reason():
+    op = Operator(None)
+    with pytest.raises(OrderError, match="vx"):
+        op.set_velocity(1.5, 0, 0, 0)
+    with pytest.raises(OrderError, match="vyaw"):
+        op.set_velocity(0, 0, 0, float("nan"))
+    with pytest.raises(OrderError, match="unknown mode"):
+        op.set_mode("TURBO")
+    with pytest.raises(OrderError, match="finite"):
+        op.send_position(float("inf"), 0, 0)
+    with pytest.raises(OrderError):
+        op.send_position(400.0, 0, 0)  # beyond the int16 centimetres of the wire
+    with pytest.raises(OrderError, match="ROI"):
+        op.set_image_settings(roi=(10, 10, 5, 5))
+    with pytest.raises(OrderError, match="BUDGET"):
+        op.set_image_settings(budget_bytes=9000)
+    assert op.orders_state() == []  # nothing was queued
+
+
+def test_failsafe_is_shown_when_the_link_drops(tmp_path):
+    async def main():
+        cfg = fast_config(tmp_path, failsafe_s=1.0)
+        async with Stack(cfg) as stack:
+            op = stack.operator
+            assert await until(lambda: op.last_reply is not None, 15)
+            stack.channel.params["a"] = type(stack.channel.params["a"])(  # the channel goes deaf
+                bitrate_bps=19200, delay_s=0.02, loss=1.0)
+            assert await until(lambda: stack.node.slave.failsafe, 10)
+            assert op.link_state()["replies_lost"] > 0
+            flagged = []
+            op.subscribe(lambda topic, p: flagged.append(p["failsafe"]) if topic == "pose" else None)
+            stack.channel.params["a"] = type(stack.channel.params["a"])(bitrate_bps=19200, delay_s=0.02)
+            assert await until(lambda: True in flagged, 10)  # the first reply back says FAILSAFE
+            assert await until(lambda: not stack.node.slave.failsafe and flagged[-1] is False, 10)
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_replay_refuses_files_that_are_not_recordings(tmp_path):
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("hello\n")
+    with pytest.raises(RecordingError, match="not a rovlink recording"):
+        series(bad)
+    with pytest.raises(RecordingError, match="no such file"):
+        series(tmp_path / "missing.jsonl")
