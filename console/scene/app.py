@@ -1,0 +1,521 @@
+"""The operator's 3-D scene in viser: what UWSim was to the published system.
+
+Goals
+- Show the pilot, in one scene, where the vehicle was when it last spoke (the
+  solid ROV with its trail), where it probably is now (a translucent ghost placed
+  by dead reckoning), what its camera covers (a frustum and its footprint on the
+  seabed), and the latest picture as it refines trunk after trunk.
+- Let the pilot act through the scene as well as the panel: drag a rectangle on
+  the picture to choose the next image's region of interest; move a target with a
+  gizmo, see the ghost and the predicted path there, and only then Send it.
+  Nothing moves until the pilot confirms.
+- Never slow the link: the scene reads the operator's state, it does not drive
+  it.  Poses are pushed at `update_hz` (20 Hz) from one background thread; the
+  picture only when a new decode arrives; the panel's numbers and plots at 2 Hz.
+
+Plan
+- `ConsoleScene(operator, host=, port=)`; `.start()` builds every node once and
+  keeps its handle, then updates the handles in place; `.stop()`.
+- Frames are those of `console.scene.frames` (world ENU, z up; see there).
+- viser callbacks are one-liners that delegate to plain methods, which the tests
+  call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
+  `move_target` (the gizmo), `send_target`, `stop_vehicle`, `reset_target`.
+  The drag callback is `async def`, so its start/update/end phases run in order
+  on viser's loop; the methods it reaches only take the operator's lock briefly.
+- The panel (`console.scene.panel`) holds every GUI control and the plots.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import viser
+from PIL import Image
+from viser import transforms as tf
+
+from console.operator import Operator, Pose
+
+from . import frames
+from .panel import ControlPanel
+from .roi import draw_roi, roi_from_world, roi_outline
+from .rov_model import load_rov_mesh
+
+log = logging.getLogger("rovlink.console.scene")
+
+ASSETS_DIR = Path(__file__).resolve().parents[2] / "assets"
+
+# The simulated camera of rov/camera.py (SimulatedCamera's defaults); a test
+# checks they agree.
+CAMERA_HFOV_DEG = 80.0
+CAMERA_TILT_DEG = 35.0
+CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electronics tube
+DEFAULT_IMAGE_PX = (320, 240)
+
+# The screen showing the latest picture: a board standing above the water north
+# of the start point, facing south, towards the initial view.
+SCREEN_WIDTH_M = 6.4
+SCREEN_CENTRE = (0.0, 6.0, 2.6)
+SCREEN_WXYZ = tf.SO3.from_matrix(np.column_stack([(1.0, 0, 0), (0, 0, -1.0), (0, 1.0, 0)])).wxyz
+
+TRAIL_POINTS = 600
+FOOTPRINT_RANGE_M = 14.0
+
+ROV_RGB = (232, 96, 30)
+GHOST_RGB = (120, 200, 255)
+TARGET_RGB = (80, 230, 120)
+
+
+@dataclass(frozen=True)
+class SeabedAsset:
+    texture: np.ndarray  # H x W x 3, row 0 north, column 0 west
+    depth_m: float
+    x_min_m: float
+    x_max_m: float
+    y_min_m: float
+    y_max_m: float
+
+    @classmethod
+    def load(cls, meta_path: Path = ASSETS_DIR / "seabed.json") -> "SeabedAsset":
+        meta = json.loads(meta_path.read_text())
+        with Image.open(meta_path.parent / meta["texture"]) as image:
+            texture = np.asarray(image.convert("RGB"), dtype=np.uint8)
+        return cls(texture, float(meta["depth_m"]), float(meta["x_min_m"]), float(meta["x_max_m"]),
+                   float(meta["y_min_m"]), float(meta["y_max_m"]))
+
+    @property
+    def floor_z(self) -> float:
+        """The seabed's height in the world frame (z up)."""
+        return -self.depth_m
+
+
+def as_rgb(picture: np.ndarray) -> np.ndarray:
+    """Decoded pictures are H x W (grey) or H x W x 3; viser wants RGB uint8."""
+    p = np.asarray(picture)
+    if p.dtype != np.uint8:
+        p = np.clip(p, 0, 255).astype(np.uint8)
+    if p.ndim == 2:
+        p = np.repeat(p[:, :, None], 3, axis=2)
+    return np.ascontiguousarray(p[:, :, :3])
+
+
+class ConsoleScene:
+    def __init__(self, operator: Operator, *, host: str = "127.0.0.1", port: int = 8080,
+                 update_hz: float = 20.0, hfov_deg: float = CAMERA_HFOV_DEG, tilt_deg: float = CAMERA_TILT_DEG,
+                 verbose: bool = False) -> None:
+        self.operator = operator
+        self.host = host
+        self.port = port
+        self.update_hz = float(update_hz)
+        self.hfov_deg = float(hfov_deg)
+        self.tilt_deg = float(tilt_deg)
+        self.verbose = verbose
+        self.seabed = SeabedAsset.load()
+        self.rov_mesh = load_rov_mesh()
+        self.server: viser.ViserServer | None = None
+        self.panel: ControlPanel | None = None
+        self.image_px = DEFAULT_IMAGE_PX  # (width, height) of the picture shown
+        self.target: tuple[float, float, float, float] | None = None  # NED x, y, z, yaw_deg
+        self.target_order_id: int | None = None
+        self.preview_points: list[tuple[float, float, float]] = []
+        self.frames_pushed = 0  # pose updates pushed; the tests watch it move
+        self.images_shown = 0
+        self._image_dirty = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._unsubscribe = None
+        self._last_received: Pose | None = None
+        self._trail_len = None
+        self._last_preview_at = 0.0
+        self._lock = threading.RLock()
+
+    # ------------------------------------------------------------------
+    # Life cycle
+    # ------------------------------------------------------------------
+
+    @property
+    def url(self) -> str:
+        port = self.server.get_port() if self.server is not None else self.port
+        return f"http://{self.host}:{port}"
+
+    def start(self) -> "ConsoleScene":
+        self.server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
+        self.server.gui.configure_theme(control_width="large", dark_mode=True, show_logo=False)
+        self._build_environment()
+        self._build_seabed()
+        self._build_vehicle()
+        self._build_ghost()
+        self._build_camera()
+        self._build_screen()
+        self._build_trail()
+        self._build_target()
+        self.panel = ControlPanel(self.server.gui, self.operator, self)
+        self._unsubscribe = self.operator.subscribe(self._on_operator_event)
+        if self.operator.picture() is not None:
+            self._image_dirty.set()
+        self._thread = threading.Thread(target=self._run, name="viser-scene", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+            self._unsubscribe = None
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self.server is not None:
+            self.server.stop()
+
+    def __enter__(self) -> "ConsoleScene":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------
+    # Building the scene (once)
+    # ------------------------------------------------------------------
+
+    def _build_environment(self) -> None:
+        scene = self.server.scene
+        scene.set_up_direction("+z")
+        # No HDRI: software rendering (no GPU) stays fast; plain lights instead.
+        scene.configure_environment_map(hdri=None)
+        scene.configure_default_lights(enabled=True, cast_shadow=False)
+        # Deep water above, darker below: a gradient instead of viser's white.
+        rows = np.linspace(0.0, 1.0, 64)[:, None]
+        top, bottom = np.array([40, 110, 140]), np.array([6, 28, 44])
+        gradient = (top * (1 - rows) + bottom * rows).astype(np.uint8)
+        scene.set_background_image(np.repeat(gradient[:, None, :], 4, axis=1), format="png")
+        camera = self.server.initial_camera
+        camera.position = (4.0, -9.5, 3.0)
+        camera.look_at = (0.0, 1.5, -3.0)
+        camera.up = (0.0, 0.0, 1.0)
+
+    def _build_seabed(self) -> None:
+        """The simulated camera's texture, where the simulated camera sees it;
+        the texture repeats beyond its extent there, so a ring of coarser copies
+        here."""
+        s = self.seabed
+        width_m, height_m = s.y_max_m - s.y_min_m, s.x_max_m - s.x_min_m
+        centre = frames.ned_to_world((s.x_min_m + s.x_max_m) / 2, (s.y_min_m + s.y_max_m) / 2, s.depth_m)
+        # Image x (columns) runs east, image y (rows) south: seen from above,
+        # which is the image node's -z side after a half turn about x.
+        down = (0.0, 1.0, 0.0, 0.0)
+        self.seabed_node = self.server.scene.add_image(
+            "/seabed", s.texture, width_m, height_m, format="jpeg", jpeg_quality=85,
+            position=centre, wxyz=down, cast_shadow=False, receive_shadow=False)
+        coarse = np.asarray(Image.fromarray(s.texture).resize((256, 256), Image.BILINEAR))
+        self.seabed_ring = []
+        for i in (-1, 0, 1):
+            for j in (-1, 0, 1):
+                if i == j == 0:
+                    continue
+                offset = np.array([i * width_m, j * height_m, -0.01])
+                self.seabed_ring.append(self.server.scene.add_image(
+                    f"/seabed_ring/{i + 1}{j + 1}", coarse, width_m, height_m, format="jpeg", jpeg_quality=80,
+                    position=centre + offset, wxyz=down, cast_shadow=False, receive_shadow=False))
+
+    def _build_vehicle(self) -> None:
+        self.rov_node = self.server.scene.add_frame("/rov", show_axes=False, position=(0.0, 0.0, 0.0))
+        self.rov_mesh_node = self.server.scene.add_mesh_trimesh("/rov/mesh", self.rov_mesh, cast_shadow=False,
+                                                                receive_shadow=False)
+        self.rov_node.visible = False  # until the first odometry
+
+    def _build_ghost(self) -> None:
+        self.ghost_node = self.server.scene.add_frame("/ghost", show_axes=False, visible=False)
+        self.ghost_mesh_node = self.server.scene.add_mesh_simple(
+            "/ghost/mesh", self.rov_mesh.vertices, self.rov_mesh.faces, color=GHOST_RGB, opacity=0.35,
+            cast_shadow=False, receive_shadow=False)
+
+    def _build_camera(self) -> None:
+        w, h = self.image_px
+        r_flu_cam = frames.camera_rotation_in_body(self.tilt_deg)
+        self.frustum_node = self.server.scene.add_camera_frustum(
+            "/rov/camera", fov=frames.vertical_fov_rad(self.hfov_deg, w, h), aspect=w / h, scale=0.45,
+            color=(255, 230, 120), thickness=0.012, position=CAMERA_IN_BODY_FLU,
+            wxyz=tf.SO3.from_matrix(r_flu_cam).wxyz)
+        self.footprint_node = self.server.scene.add_line_segments(
+            "/footprint", np.zeros((8, 2, 3), np.float32), (255, 230, 120), thickness=0.03, visible=False)
+
+    def _build_screen(self) -> None:
+        w, h = self.image_px
+        blank = np.full((h, w, 3), 30, np.uint8)
+        self.screen_node = self.server.scene.add_image(
+            "/screen", blank, SCREEN_WIDTH_M, SCREEN_WIDTH_M * h / w, format="jpeg", jpeg_quality=90,
+            position=SCREEN_CENTRE, wxyz=SCREEN_WXYZ, cast_shadow=False, receive_shadow=False)
+        self.roi_node = self.server.scene.add_line_segments(
+            "/screen/roi", np.zeros((4, 2, 3), np.float32), (255, 210, 0), thickness=0.05, visible=False)
+
+        @self.screen_node.on_drag("left")
+        async def _(event: viser.SceneNodeDragEvent) -> None:
+            self._on_screen_drag(event)
+
+    def _build_trail(self) -> None:
+        self.trail_node = self.server.scene.add_line_segments(
+            "/trail", np.zeros((1, 2, 3), np.float32), ROV_RGB, thickness=0.04, visible=False)
+
+    def _build_target(self) -> None:
+        s = self.seabed
+        limits = ((s.y_min_m, s.y_max_m), (s.x_min_m, s.x_max_m), (s.floor_z + 0.3, 0.0))
+        self.gizmo = self.server.scene.add_transform_controls(
+            "/target", scale=1.2, translation_limits=limits, disable_sliders=False, depth_test=False,
+            opacity=0.9, position=(0.0, 0.0, -2.0))
+        self.target_ghost_node = self.server.scene.add_frame("/target_ghost", show_axes=False, visible=False)
+        self.server.scene.add_mesh_simple(
+            "/target_ghost/mesh", self.rov_mesh.vertices, self.rov_mesh.faces, color=TARGET_RGB, opacity=0.4,
+            cast_shadow=False, receive_shadow=False)
+        self.preview_node = self.server.scene.add_line_segments(
+            "/preview", np.zeros((1, 2, 3), np.float32), TARGET_RGB, thickness=0.05, visible=False)
+
+        @self.gizmo.on_update
+        async def _(event: viser.TransformControlsEvent) -> None:
+            self._on_gizmo(event)
+
+    # ------------------------------------------------------------------
+    # Callbacks: short, delegating
+    # ------------------------------------------------------------------
+
+    def _on_operator_event(self, topic: str, payload) -> None:
+        # Called from the link's loop or the decoder thread: only flag work.
+        if topic == "image":
+            self._image_dirty.set()
+
+    def _on_screen_drag(self, event) -> None:
+        start = np.asarray(event.start_position, float)
+        end = self._pointer_on_screen(event)
+        if event.phase == "end":
+            self.select_roi_world(start, end)
+        else:
+            self.preview_roi_world(start, end)
+
+    def _pointer_on_screen(self, event) -> np.ndarray:
+        """viser gives the pointer on a camera-facing plane through the grab
+        point; the ROI wants it on the screen itself: cast the client's view ray
+        through it onto the screen's plane."""
+        end = np.asarray(event.end_position, float)
+        normal = tf.SO3(np.asarray(self.screen_node.wxyz)).as_matrix()[:, 2]
+        try:
+            eye = np.asarray(event.client.camera.position, float)
+        except Exception:  # no camera state yet: fall back to the drag plane
+            return end
+        hit = frames.ray_plane_hit(eye, end, self.screen_node.position, normal)
+        return end if hit is None else hit
+
+    def _on_gizmo(self, event) -> None:
+        # The path costs ~10 ms of model time: at most ten a second while dragging.
+        now = time.monotonic()
+        preview = event.phase != "update" or now - self._last_preview_at >= 0.1
+        if preview:
+            self._last_preview_at = now
+        self.move_target(event.target.position, event.target.wxyz, preview=preview)
+        if event.phase == "end":
+            # The order carries yaw only: square the gizmo up again.
+            event.target.wxyz = frames.body_wxyz(0.0, 0.0, self.target[3])
+
+    # ------------------------------------------------------------------
+    # Region of interest
+    # ------------------------------------------------------------------
+
+    def screen_size_m(self) -> tuple[float, float]:
+        return float(self.screen_node.render_width), float(self.screen_node.render_height)
+
+    def roi_from_world(self, point_a, point_b) -> tuple[int, int, int, int] | None:
+        return roi_from_world(point_a, point_b, position=self.screen_node.position, wxyz=self.screen_node.wxyz,
+                              size_m=self.screen_size_m(), size_px=self.image_px)
+
+    def preview_roi_world(self, point_a, point_b) -> tuple[int, int, int, int] | None:
+        """While dragging: draw the rectangle, send nothing."""
+        roi = self.roi_from_world(point_a, point_b)
+        self.show_roi(roi)
+        return roi
+
+    def select_roi_world(self, point_a, point_b) -> tuple[int, int, int, int] | None:
+        """Drag released: the IMAGE order for the next image, with the panel's
+        shift; a click (no rectangle) leaves the settings alone."""
+        roi = self.roi_from_world(point_a, point_b)
+        if roi is None:
+            self.show_roi(self.operator.requested_settings.roi)
+            return None
+        shift = self.panel.shift if self.panel is not None else None
+        self.operator.set_image_settings(roi=roi, shift=shift)
+        self.show_roi(roi)
+        self._image_dirty.set()  # redraw the panel's copy with the new box
+        return roi
+
+    def clear_roi(self) -> None:
+        self.operator.set_image_settings(roi=None)
+        self.show_roi(None)
+        self._image_dirty.set()
+
+    def show_roi(self, roi) -> None:
+        if roi is None:
+            self.roi_node.visible = False
+            return
+        self.roi_node.points = roi_outline(roi, self.screen_size_m(), self.image_px, lift_m=0.02)
+        self.roi_node.visible = True
+
+    # ------------------------------------------------------------------
+    # Supervised control: target, preview, Send, Stop
+    # ------------------------------------------------------------------
+
+    def move_target(self, position_world, wxyz, *, preview: bool = True) -> list[tuple[float, float, float]]:
+        """The gizmo moved: the ghost at the target and (with `preview`) the path
+        the vehicle would take (GUIDED, from the predicted pose).  Sends nothing."""
+        s = self.seabed
+        x, y, z = frames.world_to_ned(np.asarray(position_world, float))
+        x = min(max(float(x), s.x_min_m), s.x_max_m)
+        y = min(max(float(y), s.y_min_m), s.y_max_m)
+        z = min(max(float(z), 0.0), s.depth_m - 0.3)
+        yaw = frames.yaw_deg_from_wxyz(wxyz)
+        path = self.operator.preview_path(x, y, z, yaw) if preview else None
+        with self._lock:
+            self.target = (x, y, z, yaw)
+            self.target_order_id = None
+            if path is not None:
+                self.preview_points = path
+        self.target_ghost_node.position = frames.ned_to_world(x, y, z)
+        self.target_ghost_node.wxyz = frames.body_wxyz(0.0, 0.0, yaw)
+        self.target_ghost_node.visible = True
+        if path is not None:
+            self._show_path(path)
+        if self.panel is not None:
+            self.panel.show_target(self.target, None)
+        return self.preview_points
+
+    def _show_path(self, path) -> None:
+        pts = frames.ned_to_world(*np.asarray(path, float).T).astype(np.float32)
+        if len(pts) < 2:
+            pts = np.vstack([pts, pts])
+        self.preview_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
+        self.preview_node.visible = True
+
+    def send_target(self) -> int | None:
+        """The pilot confirmed: the POSITION order goes out."""
+        with self._lock:
+            target = self.target
+        if target is None:
+            return None
+        order_id = self.operator.send_position(*target)
+        with self._lock:
+            self.target_order_id = order_id
+        if self.panel is not None:
+            self.panel.show_target(target, order_id)
+        return order_id
+
+    def stop_vehicle(self) -> int:
+        """STOP: neutral velocity, targets cancelled on the ROV; the preview goes."""
+        order_id = self.operator.stop()
+        self.reset_target()
+        if self.panel is not None:
+            self.panel.zero_velocity_controls()
+        return order_id
+
+    def reset_target(self) -> None:
+        with self._lock:
+            self.target = None
+            self.target_order_id = None
+            self.preview_points = []
+        self.target_ghost_node.visible = False
+        self.preview_node.visible = False
+        pose = self.operator.predicted_pose()
+        if pose is not None:
+            self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
+                Pose(pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg))
+        if self.panel is not None:
+            self.panel.show_target(None, None)
+
+    # ------------------------------------------------------------------
+    # Updates (background thread)
+    # ------------------------------------------------------------------
+
+    def _run(self) -> None:
+        period = 1.0 / self.update_hz
+        next_panel = 0.0
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            try:
+                self.update_poses()
+                if self._image_dirty.is_set():
+                    self._image_dirty.clear()
+                    self.update_image()
+                if t0 >= next_panel:
+                    next_panel = t0 + 0.5
+                    self.update_trail()
+                    if self.panel is not None:
+                        self.panel.refresh()
+            except Exception:  # a bad frame must not end the scene
+                log.exception("scene update failed")
+            self._stop.wait(max(0.0, period - (time.monotonic() - t0)))
+
+    def update_poses(self) -> None:
+        reply = self.operator.last_reply
+        if reply is None:
+            return
+        received = Pose.from_reply(reply)
+        predicted = self.operator.predicted_pose() or received
+        with self.server.atomic():
+            if received != self._last_received:
+                self._last_received = received
+                self.rov_node.position, self.rov_node.wxyz = frames.pose_to_world(received)
+                self.rov_node.visible = True
+                self._update_footprint(received)
+                if self.target is None:
+                    # No target yet: the gizmo waits on the vehicle.
+                    self.gizmo.position = frames.ned_to_world(received.x_m, received.y_m, received.z_m)
+                    self.gizmo.wxyz = frames.body_wxyz(0.0, 0.0, received.yaw_deg)
+            self.ghost_node.position, self.ghost_node.wxyz = frames.pose_to_world(predicted)
+            self.ghost_node.visible = True
+        self.frames_pushed += 1
+
+    def _update_footprint(self, pose: Pose) -> None:
+        r_world_flu = frames.body_rotation(pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
+        position = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
+        cam = position + r_world_flu @ np.asarray(CAMERA_IN_BODY_FLU)
+        r_world_cam = r_world_flu @ frames.camera_rotation_in_body(self.tilt_deg)
+        corners = frames.seabed_footprint(cam, r_world_cam, frames.image_corner_rays(self.hfov_deg, *self.image_px),
+                                          self.seabed.floor_z + 0.02, FOOTPRINT_RANGE_M)
+        rays = np.stack([np.repeat(cam[None], 4, axis=0), corners], axis=1)
+        edges = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
+        self.footprint_node.points = np.concatenate([rays, edges]).astype(np.float32)
+        self.footprint_node.visible = True
+
+    def update_trail(self) -> None:
+        trail = list(self.operator.history.trail)[-TRAIL_POINTS:]
+        if len(trail) < 2 or (len(trail), trail[-1]) == self._trail_len:
+            return
+        self._trail_len = (len(trail), trail[-1])
+        t = np.asarray(trail, float)
+        pts = frames.ned_to_world(t[:, 1], t[:, 2], t[:, 3]).astype(np.float32)
+        self.trail_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
+        self.trail_node.visible = True
+
+    def update_image(self) -> None:
+        picture = self.operator.picture()
+        if picture is None:
+            return
+        rgb = as_rgb(picture)
+        h, w = rgb.shape[:2]
+        if (w, h) != self.image_px:
+            self._resize_image(w, h)
+        self.screen_node.image = rgb
+        self.frustum_node.image = rgb
+        roi = self.operator.requested_settings.roi
+        if self.panel is not None:
+            self.panel.show_picture(draw_roi(rgb, roi) if roi else rgb)
+        self.images_shown += 1
+
+    def _resize_image(self, w: int, h: int) -> None:
+        """A camera of another size: the screen and frustum follow its aspect."""
+        self.image_px = (w, h)
+        self.screen_node.render_height = SCREEN_WIDTH_M * h / w
+        self.frustum_node.fov = frames.vertical_fov_rad(self.hfov_deg, w, h)
+        self.frustum_node.aspect = w / h
