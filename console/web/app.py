@@ -1,0 +1,141 @@
+"""The operator's web console: the page at /, the REST API under /api, the
+telemetry WebSocket at /ws, the OpenAPI schema at /openapi.json.
+
+Goals: a pilot with a browser (keyboard or gamepad) and a script with an
+HTTP client drive the ROV through the same API, one at a time; everything
+the console knows can be read by anyone watching.  The app never owns the
+session: the caller creates the Operator, runs `operator.run()` in the loop
+uvicorn runs in, and hands both to us.
+
+Plan: FastAPI's "bigger applications" layout.  `create_app` puts the
+Operator, the control desk (`control.ControlDesk`), the shared snapshot and
+the page's configuration on `app.state`; the routers (state, orders, image,
+link, control, ws) reach them through the dependencies in `deps`.  A
+lifespan task ticks the desk's timers (script leases, the velocity dead man)
+even when no page is connected.  `serve` binds the socket itself, so that a
+port in use is an OSError the CLI can report (uvicorn would exit the
+process), and stops gracefully when cancelled.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
+
+from console.operator import Operator
+
+from . import errors
+from .control import ControlDesk
+from .routers import control, image, link, orders, state, ws
+from .routers.image import PngCache
+from .telemetry import SharedSnapshot
+
+log = logging.getLogger("rovlink.console.web")
+
+STATIC = Path(__file__).with_name("static")
+
+
+def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, telemetry_hz: float = 10.0,
+               lease_s: float = 30.0, velocity_deadman_s: float = 1.0) -> FastAPI:
+    """The web console for `operator` (which the caller runs).
+
+    `viser_url` is the 3D scene the page embeds (none shown if None); `scene`
+    is kept on `app.state.scene` for whoever needs it.  `lease_s`: a script
+    holding control and silent that long loses it.  `velocity_deadman_s`: a
+    velocity streamed over a WebSocket goes neutral when not repeated within it.
+    """
+    desk = ControlDesk(operator, lease_s=lease_s, deadman_s=velocity_deadman_s)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        async def tick() -> None:
+            while True:
+                await asyncio.sleep(0.25)
+                try:
+                    desk.tick()
+                except Exception:  # a timer must outlive one bad tick
+                    log.exception("control desk tick failed")
+
+        task = asyncio.create_task(tick(), name="control desk")
+        try:
+            yield
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    app = FastAPI(
+        title="rovlink console",
+        summary="Teleoperate an underwater ROV over a ~1.9 kbit/s link",
+        description=(
+            "Read the session (pose, link health, image) freely; orders need control: "
+            "`POST /api/control/take`, then send the returned id as `X-Rovlink-Client`. "
+            "STOP is accepted from anyone. Telemetry streams on the WebSocket `/ws`."
+        ),
+        version="1",
+        lifespan=lifespan,
+    )
+    app.state.operator = operator
+    app.state.scene = scene
+    app.state.desk = desk
+    app.state.snapshot = SharedSnapshot(operator, desk)
+    app.state.png_cache = PngCache()
+    app.state.config = {"viser_url": viser_url, "telemetry_hz": float(telemetry_hz),
+                        "velocity_deadman_s": float(velocity_deadman_s), "lease_s": float(lease_s)}
+    errors.install(app)
+    for module in (state, orders, image, link, control, ws):
+        app.include_router(module.router)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.get("/", include_in_schema=False)
+    def operator_page() -> FileResponse:
+        return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
+
+    return app
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(128)
+    except OSError:
+        sock.close()
+        raise
+    sock.set_inheritable(True)
+    return sock
+
+
+async def serve(app: FastAPI, host: str = "127.0.0.1", port: int = 8000, *,
+                sock: socket.socket | None = None, log_level: str = "warning") -> None:
+    """Serve `app` with uvicorn in the running loop until cancelled (or a signal).
+
+    OSError if the address cannot be bound.  `sock`: an already bound,
+    listening socket to serve on instead (tests bind port 0 and read it back).
+    """
+    import uvicorn
+
+    if sock is None:
+        sock = _bind(host, port)
+    config = uvicorn.Config(app, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2,
+                            ws_ping_interval=10, ws_ping_timeout=10)
+    server = uvicorn.Server(config)
+    task = asyncio.ensure_future(server.serve(sockets=[sock]))
+    try:
+        await asyncio.shield(task)
+    except asyncio.CancelledError:
+        # Let uvicorn close its connections and run the lifespan's end.
+        server.should_exit = True
+        with contextlib.suppress(Exception, asyncio.CancelledError):
+            await asyncio.wait_for(task, 5.0)
+        raise
+    finally:
+        sock.close()

@@ -1,0 +1,54 @@
+"""Errors as the API answers them: every error body has `detail` (FastAPI's
+own) and `message`, one line saying what is wrong.
+
+OrderError (the Operator refusing a value) and UnknownClient are 422, like
+any malformed request; NotHolder is 409: the request was fine, the caller
+is not the one who may make it."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException
+
+from console.operator import OrderError
+
+from .control import NotHolder, UnknownClient
+
+
+def describe(errors) -> str:
+    """Pydantic's error list as one line: 'body.vx: Input should be ...; ...'."""
+    parts = []
+    for e in errors:
+        where = ".".join(str(p) for p in e.get("loc", ()))
+        parts.append(f"{where}: {e.get('msg', 'invalid')}" if where else str(e.get("msg", "invalid")))
+    return "; ".join(parts) or "invalid request"
+
+
+def _error(status: int, detail, message: str, headers=None) -> JSONResponse:
+    return JSONResponse({"detail": detail, "message": message}, status_code=status, headers=headers)
+
+
+def install(app: FastAPI) -> None:
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = exc.errors()
+        detail = [{k: v for k, v in e.items() if k in ("type", "loc", "msg")} for e in errors]
+        return _error(422, detail, describe(errors))
+
+    @app.exception_handler(OrderError)
+    async def refused_order(request: Request, exc: OrderError) -> JSONResponse:
+        return _error(422, str(exc), str(exc))
+
+    @app.exception_handler(UnknownClient)
+    async def unknown_client(request: Request, exc: UnknownClient) -> JSONResponse:
+        return _error(422, str(exc), str(exc))
+
+    @app.exception_handler(NotHolder)
+    async def not_holder(request: Request, exc: NotHolder) -> JSONResponse:
+        return _error(409, str(exc), str(exc))
+
+    @app.exception_handler(HTTPException)
+    async def http_error(request: Request, exc: HTTPException) -> JSONResponse:
+        return _error(exc.status_code, exc.detail, str(exc.detail), getattr(exc, "headers", None))

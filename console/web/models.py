@@ -1,0 +1,222 @@
+"""Pydantic models for every body the web API reads or writes.
+
+Goals: the OpenAPI schema at /openapi.json is the API's documentation, so
+every request and response has a model with units in its field names; a
+request that is wrong in any way (a typo in a field name, a number out of
+range, a string where a number belongs) is refused with 422 before it
+reaches the Operator.
+
+Plan: request models forbid unknown fields and take numbers strictly (no
+"0.5" strings, no booleans as numbers, no NaN); response models mirror the
+dicts of `Operator.state()` and its parts.  Orders keep their kind-specific
+details as extra fields, so `OrderInfo` allows them.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictInt
+
+from link.messages import MAX_BUDGET
+
+ModeName = Literal["MANUAL", "STABILIZE", "DEPTH_HOLD", "POS_HOLD", "GUIDED", "SURFACE"]
+
+
+class Request(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def fraction(description: str):
+    return Field(0.0, ge=-1.0, le=1.0, description=description)
+
+
+# ----------------------------------------------------------------------
+# Requests
+# ----------------------------------------------------------------------
+
+
+class VelocityOrder(Request):
+    """Velocity wish in fractions of the maximum, body frame, z down."""
+
+    vx: float = fraction("surge, forward positive, -1..1")
+    vy: float = fraction("sway, right positive, -1..1")
+    vz: float = fraction("heave, down positive, -1..1")
+    vyaw: float = fraction("yaw rate, clockwise positive, -1..1")
+
+
+class PositionOrder(Request):
+    """A position target (local NED, metres and degrees); GUIDED on the ROV."""
+
+    x_m: float = Field(description="north (or forward with body=true), metres")
+    y_m: float = Field(description="east (or right with body=true), metres")
+    z_m: float = Field(description="down, metres")
+    yaw_deg: float = Field(0.0, description="heading, degrees, clockwise from north")
+    relative: bool = Field(False, description="relative to the current position")
+    body: bool = Field(False, description="x/y in the vehicle's frame; needs relative=true")
+
+
+class ArmOrder(Request):
+    armed: bool = Field(description="true to arm the thrusters, false to disarm")
+
+
+class ModeOrder(Request):
+    mode: ModeName
+
+
+class ImageSettingsOrder(Request):
+    """DEBT settings for the next image; a field left out keeps its value."""
+
+    # Strict ints inside, but a JSON array must still make a tuple.
+    roi: tuple[StrictInt, StrictInt, StrictInt, StrictInt] | None = Field(
+        None, strict=False, description="region of interest (x0, y0, x1, y1) in pixels, x0 < x1, y0 < y1; null for none")
+    shift: int | None = Field(None, ge=0, le=15, description="bit planes the ROI is raised by, 0..15")
+    mono: bool | None = Field(None, description="grey instead of colour")
+    budget_bytes: int | None = Field(None, ge=0, le=MAX_BUDGET, description=f"image size, bytes, 0..{MAX_BUDGET}")
+
+
+class TakeControl(Request):
+    name: str = Field("", max_length=40, description="shown to the other clients, e.g. 'pilot laptop'")
+
+
+# ----------------------------------------------------------------------
+# Responses
+# ----------------------------------------------------------------------
+
+
+class ErrorBody(BaseModel):
+    detail: object = Field(description="FastAPI's detail: a string, or a list of field errors for a 422")
+    message: str = Field(description="one line saying what is wrong")
+
+
+class Pose(BaseModel):
+    x_m: float
+    y_m: float
+    z_m: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
+class PoseState(BaseModel):
+    t: float = Field(description="session time, seconds")
+    received: Pose | None = Field(description="the last odometry the ROV sent")
+    predicted: Pose | None = Field(description="dead reckoning from it to now, under the velocity wish")
+    armed: bool | None = None
+    mode: str | None = None
+    failsafe: bool | None = None
+    autopilot: bool | None = None
+    position_valid: bool | None = None
+    odometry_age_s: float | None = None
+
+
+class ImageSettingsState(BaseModel):
+    roi: list[int] | None
+    shift: int
+    mono: bool
+    budget_bytes: int
+
+
+class ImageState(BaseModel):
+    img: int | None = Field(description="image object number on the link")
+    received_bytes: int
+    total_bytes: int | None
+    complete: bool
+    decoded_bytes: int = Field(description="length of the prefix the latest picture was decoded from")
+    started_at: float | None
+    decoded_at: float | None
+    images_completed: int
+    settings: ImageSettingsState | None
+
+
+class LinkState(BaseModel):
+    t: float
+    poll_rate_hz: float
+    round_trip_s: float | None = Field(description="median of recent round trips")
+    last_round_trip_s: float | None
+    polls_sent: int
+    replies: int
+    replies_lost: int
+    crc_errors: int
+    protocol_errors: int
+    bytes_per_s: float = Field(description="both directions, last 10 s")
+    bytes_sent: int
+    bytes_received: int
+    odometry_age_s: float | None
+    failsafe: bool
+    autopilot: bool
+    estimated_ber: float | None
+    images_completed: int
+    images_abandoned: int
+    link_up: bool
+
+
+class VelocityWish(BaseModel):
+    vx: float
+    vy: float
+    vz: float
+    vyaw: float
+
+
+class OrderInfo(BaseModel):
+    """An order's progress; its kind-specific details ride along as extra fields."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: int
+    kind: str
+    state: str = Field(description="queued, acknowledged, or 'cancelled: <reason>'")
+    t_queued: float
+
+
+class LogEntry(BaseModel):
+    t: float
+    text: str
+
+
+class ControlStatus(BaseModel):
+    held: bool
+    holder: str | None = Field(description="the holder's name, or null")
+    holder_kind: Literal["browser", "script"] | None
+    held_for_s: float | None
+    you: bool = Field(description="whether the client asking (X-Rovlink-Client) holds control")
+    lease_s: float = Field(description="a script holder silent this long loses control")
+
+
+class State(BaseModel):
+    pose: PoseState
+    image: ImageState
+    link: LinkState
+    velocity_wish: VelocityWish
+    orders: list[OrderInfo]
+    log: list[LogEntry]
+    replaying: bool
+    control: ControlStatus
+
+
+class OrderQueued(BaseModel):
+    id: int = Field(description="order id; follow it in /api/orders")
+    kind: str
+
+
+class Requested(BaseModel):
+    """A request the link repeats until the ROV confirms it (arm, mode)."""
+
+    kind: Literal["ARM", "DISARM", "MODE"]
+    mode: ModeName | None = None
+
+
+class TakeResult(BaseModel):
+    client_id: str = Field(description="send it as X-Rovlink-Client with every order")
+    control: ControlStatus
+
+
+class PathPreview(BaseModel):
+    points: list[tuple[float, float, float]] = Field(description="(x_m, y_m, z_m) every 0.5 s, from the predicted pose")
+
+
+class Config(BaseModel):
+    viser_url: str | None
+    telemetry_hz: float
+    velocity_deadman_s: float
+    lease_s: float

@@ -1,0 +1,1 @@
+"""One APIRouter per concern: state, orders, image, link, control, ws."""

@@ -1,0 +1,97 @@
+"""The image being received: progress, the latest decoded picture as PNG, the
+raw DEBT prefix, and the settings and skip orders.
+
+The PNG is encoded once per decoded picture (a page refreshes it at every
+decode, and several pages may watch), so the last one is kept with the
+picture array it was made from: the Operator replaces that array, never
+changes it in place."""
+
+from __future__ import annotations
+
+import io
+import threading
+
+from fastapi import APIRouter, HTTPException, Request, Response
+
+from ..deps import HolderDep, OperatorDep
+from ..models import ErrorBody, ImageSettingsOrder, ImageState, OrderQueued
+
+router = APIRouter(prefix="/api/image", tags=["image"])
+
+NO_STORE = {"Cache-Control": "no-store"}
+NOT_YET = {404: {"model": ErrorBody, "description": "no image has arrived yet"}}
+
+
+class PngCache:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._picture = None
+        self._png = b""
+
+    def get(self, picture) -> bytes:
+        with self._lock:
+            if picture is self._picture:
+                return self._png
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(picture).save(buf, format="PNG", compress_level=1)
+        png = buf.getvalue()
+        with self._lock:
+            self._picture, self._png = picture, png
+        return png
+
+
+def _headers(state: dict, nbytes: int) -> dict:
+    return {**NO_STORE, "X-Rovlink-Image": str(state["img"]), "X-Rovlink-Decoded-Bytes": str(nbytes),
+            "X-Rovlink-Total-Bytes": str(state["total_bytes"] or 0),
+            "X-Rovlink-Complete": "1" if state["complete"] else "0"}
+
+
+@router.get("", response_model=ImageState, summary="Progress of the image being received")
+def get_image(operator: OperatorDep) -> dict:
+    return operator.image_state()
+
+
+@router.get("/latest.png", response_class=Response, responses={
+    200: {"content": {"image/png": {}}, "description": "the picture decoded from the longest prefix so far"},
+    **NOT_YET}, summary="The latest decoded picture")
+def get_png(request: Request, operator: OperatorDep) -> Response:
+    # Counters first: the picture read after them is at least as new.
+    state = operator.image_state()
+    picture = operator.picture()
+    if picture is None:
+        raise HTTPException(404, "no image decoded yet")
+    png = request.app.state.png_cache.get(picture)
+    return Response(png, media_type="image/png", headers=_headers(state, state["decoded_bytes"]))
+
+
+@router.get("/latest.debt", response_class=Response, responses={
+    200: {"content": {"application/octet-stream": {}}, "description": "the DEBT stream prefix received so far"},
+    **NOT_YET}, summary="The raw DEBT bytes of the latest image (decode with debt.decode)")
+def get_debt(operator: OperatorDep) -> Response:
+    state = operator.image_state()
+    stream = operator.image.stream
+    if not stream:
+        raise HTTPException(404, "no image bytes received yet")
+    return Response(stream, media_type="application/octet-stream",
+                    headers={**_headers(state, len(stream)),
+                             "Content-Disposition": f'attachment; filename="image-{state["img"]}.debt"'})
+
+
+@router.post("/settings", response_model=OrderQueued, responses={
+    409: {"model": ErrorBody, "description": "the caller does not hold control"},
+    422: {"model": ErrorBody, "description": "a setting is malformed or out of range"}},
+    summary="ROI, shift, mono and budget for the next images")
+def post_settings(order: ImageSettingsOrder, operator: OperatorDep, _: HolderDep) -> dict:
+    order_id = operator.set_image_settings(roi=order.roi, shift=order.shift, mono=order.mono,
+                                           budget_bytes=order.budget_bytes)
+    return {"id": order_id, "kind": "IMAGE"}
+
+
+@router.post("/next", status_code=204, response_class=Response, responses={
+    409: {"model": ErrorBody, "description": "the caller does not hold control"}},
+    summary="Abandon the image being received and start the next one")
+def post_next(operator: OperatorDep, _: HolderDep) -> Response:
+    operator.next_image()
+    return Response(status_code=204)

@@ -1,0 +1,135 @@
+"""The WebSocket at /ws: telemetry out, the holder's velocity in.
+
+Server to client (JSON text messages, each with a "type"):
+  hello      {client_id, config}: once, first; the page's id for REST and take
+  telemetry  {t, pose, link, image, velocity_wish, orders, log, replaying, control}
+             at `telemetry_hz`; `control.you` says whether this client drives
+  image      {image: <image state>}: a new picture was decoded (fetch the PNG)
+  log        {entry: {t, text}}
+  order      {order: <order info>}: an order was queued or changed state
+  control    {control}: the holder changed (also in every telemetry)
+  error      {message}: a message of ours was refused
+Client to server:
+  velocity   {vx, vy, vz, vyaw} fractions -1..1, from the holder only; repeat it
+             while it is not neutral, it falls back to neutral after
+             `velocity_deadman_s` without one
+  stop       STOP, from anyone
+
+Plan: one task sends, the receive loop only reads: a socket has one writer.
+Operator events arrive on any thread and reach the sender through a bounded
+queue fed with call_soon_threadsafe; when a slow page lets it fill, the
+oldest event goes (the next telemetry carries the truth anyway).  Closing
+the socket releases control if this client held it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from pydantic import ValidationError
+
+from console.operator import OrderError
+
+from ..control import NotHolder
+from ..deps import DeskDep, OperatorDep
+from ..errors import describe
+from ..models import VelocityOrder
+from ..telemetry import finite
+
+log = logging.getLogger("rovlink.console.web.ws")
+
+router = APIRouter(tags=["ws"])
+
+EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order"}
+
+
+@router.websocket("/ws")
+async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: DeskDep) -> None:
+    app = websocket.app
+    config = app.state.config
+    await websocket.accept()
+    client = desk.connect(websocket.query_params.get("name", "")[:40])
+    loop = asyncio.get_running_loop()
+    outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
+
+    def post(message: dict) -> None:  # in the loop
+        if outbox.full():
+            outbox.get_nowait()
+        outbox.put_nowait(message)
+
+    def on_event(topic: str, payload) -> None:  # any thread
+        key = EVENT_TOPICS.get(topic)
+        if key is not None:
+            try:
+                loop.call_soon_threadsafe(post, {"type": topic, key: finite(payload)})
+            except RuntimeError:  # loop closed
+                pass
+
+    async def send_loop() -> None:
+        period = 1.0 / config["telemetry_hz"]
+        control_version = desk.version
+        await websocket.send_text(json.dumps({"type": "hello", "client_id": client.id, "config": config}))
+        next_at = loop.time()
+        while True:
+            try:
+                async with asyncio.timeout(max(0.0, next_at - loop.time())):
+                    message = await outbox.get()
+                await websocket.send_text(json.dumps(message))
+                continue
+            except TimeoutError:
+                pass
+            desk.tick()
+            if desk.version != control_version:
+                control_version = desk.version
+                await websocket.send_text(json.dumps({"type": "control", "control": desk.status(client.id)}))
+            state = app.state.snapshot.get(client.id)
+            await websocket.send_text(json.dumps({"type": "telemetry", **state}))
+            next_at = max(next_at + period, loop.time())
+
+    async def send_or_close() -> None:
+        try:
+            await send_loop()
+        except (WebSocketDisconnect, RuntimeError, OSError):
+            pass  # the page is gone; the receive loop learns it too
+        except Exception:
+            # A page without telemetry must not look alive.
+            log.exception("telemetry to %s failed", client.name)
+            await websocket.close(1011)
+
+    unsubscribe = operator.subscribe(on_event)
+    sender = asyncio.create_task(send_or_close(), name=f"ws sender {client.name}")
+    try:
+        while True:
+            # A page gone while the sender writes also ends this receive.
+            _handle(await websocket.receive_text(), client.id, operator, desk, post)
+    except WebSocketDisconnect:
+        pass
+    finally:
+        unsubscribe()
+        sender.cancel()
+        await asyncio.gather(sender, return_exceptions=True)
+        desk.disconnect(client.id)
+
+
+def _handle(text: str, client_id: str, operator, desk, post) -> None:
+    try:
+        message = json.loads(text)
+    except ValueError:
+        post({"type": "error", "message": "messages must be JSON objects"})
+        return
+    kind = message.get("type") if isinstance(message, dict) else None
+    if kind == "velocity":
+        try:
+            v = VelocityOrder.model_validate({k: x for k, x in message.items() if k != "type"})
+            desk.stream_velocity(client_id, v.vx, v.vy, v.vz, v.vyaw)
+        except ValidationError as exc:
+            post({"type": "error", "message": f"velocity refused: {describe(exc.errors())}"})
+        except (NotHolder, OrderError) as exc:
+            post({"type": "error", "message": f"velocity refused: {exc}"})
+    elif kind == "stop":
+        operator.stop()
+    else:
+        post({"type": "error", "message": f"unknown message type {kind!r}; expected 'velocity' or 'stop'"})

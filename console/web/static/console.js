@@ -1,0 +1,386 @@
+// rovlink operator page: telemetry from the WebSocket /ws, orders over REST,
+// velocity from keys and gamepad over the same WebSocket while we hold control.
+//
+// Safety rules this page keeps: velocity is sent only while a key or stick is
+// off neutral, repeated every TICK_MS (the server falls back to neutral when
+// the repeats stop); neutral is sent at once when the last key is released,
+// when the window loses focus or is hidden, and when control is lost.
+"use strict";
+
+const TICK_MS = 100;
+const CLIENT_HEADER = "X-Rovlink-Client";
+const NEUTRAL = { vx: 0, vy: 0, vz: 0, vyaw: 0 };
+// KeyboardEvent.code names physical keys, so the mapping holds on any layout.
+const KEYMAP = {
+  KeyW: ["vx", +1], KeyS: ["vx", -1],
+  KeyD: ["vy", +1], KeyA: ["vy", -1],
+  KeyE: ["vyaw", +1], KeyQ: ["vyaw", -1],
+  KeyF: ["vz", +1], KeyR: ["vz", -1],   // z is down: F dives, R rises
+};
+const GAMEPAD_DEADZONE = 0.12;
+
+const page = {
+  ws: null,
+  clientId: null,
+  config: null,
+  holder: false,
+  held: new Set(),
+  lastSent: NEUTRAL,
+  gamepadIndex: null,
+  shownImage: null,      // "img:decoded_bytes" on screen
+  loadingImage: false,
+  wantedImage: null,
+};
+
+const $ = (id) => document.getElementById(id);
+
+// ---------------------------------------------------------------------------
+// WebSocket
+// ---------------------------------------------------------------------------
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  const ws = new WebSocket(`${scheme}://${location.host}/ws?name=${encodeURIComponent(pageName())}`);
+  page.ws = ws;
+  ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
+  ws.onopen = () => setBadge($("connection"), "online", "good");
+  ws.onclose = () => {
+    // Our id and any control we held died with the socket.
+    page.clientId = null;
+    setHolder(false);
+    setBadge($("connection"), "offline", "bad");
+    $("control-text").textContent = "reconnecting…";
+    setTimeout(connect, 1000);
+  };
+}
+
+function pageName() {
+  return `browser ${navigator.platform || ""}`.trim().slice(0, 40);
+}
+
+function onMessage(msg) {
+  switch (msg.type) {
+    case "hello":
+      page.clientId = msg.client_id;
+      document.body.dataset.clientId = msg.client_id;
+      if (!page.config) setupScene(msg.config);
+      page.config = msg.config;
+      break;
+    case "telemetry":
+      render(msg);
+      break;
+    case "control":
+      renderControl(msg.control);
+      break;
+    case "image":
+      showImage(msg.image);
+      break;
+    case "error":
+      showError(msg.message);
+      break;
+  }
+}
+
+function send(obj) {
+  if (page.ws && page.ws.readyState === WebSocket.OPEN) page.ws.send(JSON.stringify(obj));
+}
+
+// ---------------------------------------------------------------------------
+// REST
+// ---------------------------------------------------------------------------
+
+async function api(path, body) {
+  const headers = { "Content-Type": "application/json" };
+  if (page.clientId) headers[CLIENT_HEADER] = page.clientId;
+  try {
+    const resp = await fetch(path, { method: "POST", headers, body: JSON.stringify(body ?? {}) });
+    const text = await resp.text();
+    const data = text ? JSON.parse(text) : null;
+    if (!resp.ok) {
+      showError(`${path}: ${(data && data.message) || resp.status}`);
+      return null;
+    }
+    return data;
+  } catch (err) {
+    showError(`${path}: ${err}`);
+    return null;
+  }
+}
+
+function showError(text) {
+  const box = $("error");
+  box.textContent = text;
+  box.hidden = false;
+  clearTimeout(showError.timer);
+  showError.timer = setTimeout(() => { box.hidden = true; }, 5000);
+}
+
+// ---------------------------------------------------------------------------
+// Control
+// ---------------------------------------------------------------------------
+
+function setHolder(holder) {
+  if (page.holder && !holder) {
+    page.held.clear();
+    page.lastSent = NEUTRAL;
+  }
+  page.holder = holder;
+  document.body.classList.toggle("holder", holder);
+  $("take").hidden = holder;
+  $("release").hidden = !holder;
+  for (const el of document.querySelectorAll(".needs-control")) el.disabled = !holder;
+}
+
+function renderControl(c) {
+  setHolder(!!c.you);
+  let text;
+  if (c.you) text = "You have control.";
+  else if (c.held) text = `Watching: ${c.holder} has control.`;
+  else text = "Watching: nobody has control.";
+  $("control-text").textContent = text;
+}
+
+// ---------------------------------------------------------------------------
+// Velocity from keys and gamepad
+// ---------------------------------------------------------------------------
+
+function wish() {
+  const gain = parseFloat($("gain").value);
+  const v = { vx: 0, vy: 0, vz: 0, vyaw: 0 };
+  for (const code of page.held) {
+    const [axis, sign] = KEYMAP[code];
+    v[axis] += sign * gain;
+  }
+  const pad = gamepad();
+  if (pad) {
+    const ax = (i) => (Math.abs(pad.axes[i] || 0) < GAMEPAD_DEADZONE ? 0 : pad.axes[i]);
+    v.vx += -ax(1); v.vy += ax(0); v.vyaw += ax(2); v.vz += ax(3);
+  }
+  for (const k of Object.keys(v)) v[k] = Math.round(Math.max(-1, Math.min(1, v[k])) * 1000) / 1000;
+  return v;
+}
+
+function isNeutral(v) { return v.vx === 0 && v.vy === 0 && v.vz === 0 && v.vyaw === 0; }
+function same(a, b) { return a.vx === b.vx && a.vy === b.vy && a.vz === b.vz && a.vyaw === b.vyaw; }
+
+function sendVelocity(force) {
+  if (!page.holder) return;
+  const v = wish();
+  // Repeat while off neutral (the dead man); neutral once, on the change.
+  if (!isNeutral(v) || !same(v, page.lastSent) || force) {
+    send({ type: "velocity", ...v });
+    page.lastSent = v;
+  }
+}
+
+function typing(ev) {
+  const t = ev.target;
+  return t && (t.tagName === "INPUT" && t.type !== "range" && t.type !== "checkbox" || t.tagName === "SELECT"
+    || t.tagName === "TEXTAREA");
+}
+
+function onKeyDown(ev) {
+  if (typing(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  if (ev.code === "Space") {
+    ev.preventDefault();
+    if (!ev.repeat) stop();
+    return;
+  }
+  if (!(ev.code in KEYMAP)) return;
+  ev.preventDefault();
+  if (!page.holder) {
+    if (!ev.repeat) showError("Take control to drive.");
+    return;
+  }
+  if (!page.held.has(ev.code)) {
+    page.held.add(ev.code);
+    sendVelocity();
+  }
+}
+
+function onKeyUp(ev) {
+  if (page.held.delete(ev.code)) sendVelocity(true);
+}
+
+function letGo() {
+  page.held.clear();
+  sendVelocity(true);
+}
+
+function gamepad() {
+  if (page.gamepadIndex === null || !navigator.getGamepads) return null;
+  const pad = navigator.getGamepads()[page.gamepadIndex];
+  return pad && pad.connected ? pad : null;
+}
+
+let padStopWasDown = false;
+function pollGamepadButtons() {
+  const pad = gamepad();
+  const down = !!(pad && pad.buttons[1] && pad.buttons[1].pressed);
+  if (down && !padStopWasDown) stop();
+  padStopWasDown = down;
+}
+
+function stop() {
+  page.held.clear();
+  page.lastSent = NEUTRAL;
+  send({ type: "stop" });
+}
+
+// ---------------------------------------------------------------------------
+// Rendering
+// ---------------------------------------------------------------------------
+
+const fmt = (x, digits = 2) => (x === null || x === undefined ? "—" : Number(x).toFixed(digits));
+
+function poseText(p) {
+  if (!p) return "—";
+  return `x ${fmt(p.x_m)} y ${fmt(p.y_m)} z ${fmt(p.z_m)} m, yaw ${fmt(p.yaw_deg, 0)}°`;
+}
+
+function setBadge(el, text, cls) {
+  el.textContent = text;
+  el.className = `badge ${cls || ""}`;
+}
+
+function render(s) {
+  renderControl(s.control);
+  const pose = s.pose;
+  $("pose-received").textContent = poseText(pose.received);
+  $("pose-predicted").textContent = poseText(pose.predicted);
+  if (pose.received) {
+    setBadge($("armed"), pose.armed ? "ARMED" : "DISARMED", pose.armed ? "warn" : "");
+    setBadge($("mode"), pose.mode, "");
+  }
+  const w = s.velocity_wish;
+  $("wish").textContent = `vx ${fmt(w.vx)} vy ${fmt(w.vy)} vz ${fmt(w.vz)} vyaw ${fmt(w.vyaw)}`;
+  document.body.dataset.wish = JSON.stringify(w);
+
+  const l = s.link;
+  $("link-poll-rate").textContent = `${fmt(l.poll_rate_hz, 1)} Hz`;
+  $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
+  $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
+  $("link-crc").textContent = `${l.crc_errors}`;
+  $("link-bps").textContent = `${fmt(l.bytes_per_s, 0)} B/s`;
+  $("link-odo-age").textContent = l.odometry_age_s === null ? "—" : `${fmt(l.odometry_age_s, 2)} s`;
+  $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
+  const fs = $("failsafe");
+  fs.hidden = !l.failsafe;
+  fs.className = "badge bad";
+  setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
+  setBadge($("link-up"), l.link_up ? "link up" : "link down", l.link_up ? "good" : "bad");
+
+  renderImageProgress(s.image);
+  renderList($("orders"), s.orders.slice(-6).reverse(), (o) => `#${o.id} ${o.kind}: ${o.state}`);
+  renderList($("log"), s.log.slice(-6).reverse(), (e) => `${fmt(e.t, 1)} s ${e.text}`);
+}
+
+function renderList(ul, items, text) {
+  const lines = items.map(text);
+  if (ul.dataset.lines === JSON.stringify(lines)) return;
+  ul.dataset.lines = JSON.stringify(lines);
+  ul.replaceChildren(...lines.map((t) => Object.assign(document.createElement("li"), { textContent: t })));
+}
+
+function renderImageProgress(im) {
+  const bar = $("image-progress");
+  bar.max = im.total_bytes || 1;
+  bar.value = im.received_bytes;
+  $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
+  $("image-id").textContent = im.img === null ? "" : `#${im.img}${im.complete ? " complete" : ""}`;
+  const card = $("image-card");
+  card.dataset.receivedBytes = im.received_bytes;
+  card.dataset.totalBytes = im.total_bytes ?? "";
+  showImage(im);
+}
+
+function showImage(im) {
+  if (!im || !im.decoded_bytes) return;
+  lastImageState = im;
+  const key = `${im.img}:${im.decoded_bytes}`;
+  if (key === page.shownImage) return;
+  page.wantedImage = key;
+  if (page.loadingImage) return;   // the load in flight fetches again when done
+  page.loadingImage = true;
+  // Load off screen, then swap: the old picture stays until the new one is ready.
+  const next = new Image();
+  const done = () => {
+    page.loadingImage = false;
+    if (page.wantedImage !== page.shownImage) showImage(lastImageState);
+  };
+  next.onload = () => {
+    const img = $("image");
+    img.src = next.src;
+    img.dataset.key = key;
+    page.shownImage = key;
+    $("no-image").hidden = true;
+    const [id, bytes] = key.split(":");
+    img.dataset.img = id;
+    img.dataset.decodedBytes = bytes;
+    $("image-decoded").textContent = `showing ${bytes} bytes`;
+    done();
+  };
+  next.onerror = done;
+  next.src = `/api/image/latest.png?img=${encodeURIComponent(im.img)}&bytes=${im.decoded_bytes}`;
+}
+let lastImageState = null;
+
+function setupScene(config) {
+  const frame = $("scene");
+  if (!config || !config.viser_url) {
+    $("no-scene").hidden = false;
+    return;
+  }
+  // A scene on this machine's loopback is reached through the host that
+  // served this page when the page is opened from elsewhere (--host).
+  const url = new URL(config.viser_url, location.href);
+  const loopback = ["127.0.0.1", "localhost", "[::1]", "0.0.0.0"];
+  if (loopback.includes(url.hostname) && !loopback.includes(location.hostname)) url.hostname = location.hostname;
+  frame.src = url.href;
+  frame.hidden = false;
+}
+
+// ---------------------------------------------------------------------------
+// Wiring
+// ---------------------------------------------------------------------------
+
+function wire() {
+  $("take").onclick = async () => {
+    const r = await api("/api/control/take", { name: pageName() });
+    if (r) renderControl(r.control);
+  };
+  $("release").onclick = async () => {
+    letGo();
+    const r = await api("/api/control/release");
+    if (r) renderControl(r);
+  };
+  $("stop").onclick = stop;
+  $("arm").onclick = () => api("/api/orders/arm", { armed: true });
+  $("disarm").onclick = () => api("/api/orders/arm", { armed: false });
+  $("set-mode").onclick = () => api("/api/orders/mode", { mode: $("mode-select").value });
+  $("apply-image").onclick = () => api("/api/image/settings",
+    { mono: $("mono").checked, budget_bytes: parseInt($("budget").value, 10) });
+  $("next-image").onclick = () => api("/api/image/next");
+  $("gain").oninput = () => { $("gain-value").textContent = `${Math.round($("gain").value * 100)} %`; };
+
+  window.addEventListener("keydown", onKeyDown);
+  window.addEventListener("keyup", onKeyUp);
+  window.addEventListener("blur", letGo);
+  document.addEventListener("visibilitychange", () => { if (document.hidden) letGo(); });
+  window.addEventListener("gamepadconnected", (ev) => {
+    page.gamepadIndex = ev.gamepad.index;
+    $("gamepad").textContent = `Gamepad: ${ev.gamepad.id}.`;
+  });
+  window.addEventListener("gamepaddisconnected", (ev) => {
+    if (ev.gamepad.index === page.gamepadIndex) {
+      page.gamepadIndex = null;
+      $("gamepad").textContent = "No gamepad.";
+      letGo();
+    }
+  });
+  setInterval(() => { pollGamepadButtons(); sendVelocity(); }, TICK_MS);
+  setHolder(false);
+  connect();
+}
+
+wire();

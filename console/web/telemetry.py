@@ -1,0 +1,53 @@
+"""The state snapshot the REST API returns and the WebSocket pushes.
+
+A snapshot costs a dead-reckoning step and a pass over the link history, so
+the WebSockets share one, remade at most every `max_age_s`: ten pages
+watching cost what one does."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from console.operator import Operator
+
+from .control import ControlDesk
+
+
+def snapshot(operator: Operator, desk: ControlDesk, client_id: str | None, *, orders: int, log: int) -> dict:
+    state = operator.state()
+    state["orders"] = state["orders"][-orders:] if orders else []
+    state["log"] = state["log"][-log:] if log else []
+    state["control"] = desk.status(client_id)
+    return state
+
+
+def finite(value):
+    """The value with NaN and infinities as None: browsers' JSON.parse refuses them."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite(v) for v in value]
+    return value
+
+
+class SharedSnapshot:
+    def __init__(self, operator: Operator, desk: ControlDesk, *, max_age_s: float = 0.04) -> None:
+        self.operator = operator
+        self.desk = desk
+        self.max_age_s = max_age_s
+        self._lock = threading.Lock()
+        self._state: dict | None = None
+        self._at = -math.inf
+
+    def get(self, client_id: str | None) -> dict:
+        """The shared state with this client's own view of control."""
+        with self._lock:
+            if time.monotonic() - self._at > self.max_age_s:
+                self._state = finite(snapshot(self.operator, self.desk, None, orders=10, log=10))
+                self._at = time.monotonic()
+            state = self._state
+        return {**state, "control": self.desk.status(client_id)}
