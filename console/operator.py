@@ -101,9 +101,9 @@ class ImageView:
 class History:
     """Bounded series for the live plots and the session summary."""
 
-    trail: collections.deque = field(default_factory=lambda: collections.deque(maxlen=2000))  # (t, x, y, z)
-    commanded: collections.deque = field(default_factory=lambda: collections.deque(maxlen=4000))  # (t, vx..vyaw)
-    received: collections.deque = field(default_factory=lambda: collections.deque(maxlen=4000))  # (t, vx..vyaw)
+    trail: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, x, y, z)
+    commanded: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, vx..vyaw)
+    received: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, vx..vyaw)
     link_events: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, kind, n)
     log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=200))  # (t, text)
     round_trips: collections.deque = field(default_factory=lambda: collections.deque(maxlen=50))
@@ -153,8 +153,10 @@ class Operator:
         record: str | Path | None = None,
         image_settings: ImageSettings | None = None,
         master: Master | None = None,
+        clock: Callable[[], float] | None = None,
     ) -> None:
         self.endpoint = endpoint
+        self._clock = clock or time.monotonic
         max_frame = (endpoint.max_frame if endpoint is not None else None) or 259
         self.master = master or Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame)
         self.bitrate_bps = bitrate_bps
@@ -165,7 +167,7 @@ class Operator:
         self._lock = threading.RLock()
         self._subscribers: list[Callable[[str, Any], None]] = []
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._t0 = time.monotonic()
+        self._t0 = self._clock()
         self._reply: Reply | None = None
         self._reply_at: float | None = None  # monotonic time the reply arrived
         self._odometry_at: float | None = None  # estimated time it was sampled on the ROV
@@ -186,8 +188,8 @@ class Operator:
     # ------------------------------------------------------------------
 
     def now(self) -> float:
-        """Session time in seconds (monotonic, 0 at start)."""
-        return time.monotonic() - self._t0
+        """Session time in seconds (monotonic, 0 at start; simulated in benchmarks)."""
+        return self._clock() - self._t0
 
     def subscribe(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
         with self._lock:

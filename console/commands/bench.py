@@ -10,6 +10,7 @@ import importlib
 
 BENCH_MODULES = [
     "console.bench.link",
+    "console.bench.console",
 ]
 
 

@@ -157,3 +157,18 @@ def test_replay_refuses_files_that_are_not_recordings(tmp_path):
         series(bad)
     with pytest.raises(RecordingError, match="no such file"):
         series(tmp_path / "missing.jsonl")
+
+
+def test_bench_console_reports_the_heap_over_a_session():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "console", "bench", "console", "--duration", "240",
+                          "--sample-every", "60", "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    samples = doc["memory"]["samples_mb"]
+    assert [s["t_s"] for s in samples] == [60.0, 120.0, 180.0, 240.0]
+    assert all(s["heap_mb"] > 0 for s in samples)
+    assert doc["memory"]["polls"] > 200 and doc["memory"]["images_completed"] >= 5
+    assert "memory_flat_over_one_hour" in doc["targets"]

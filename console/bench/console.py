@@ -1,0 +1,192 @@
+"""`rovlink bench console`: the console's own costs.
+
+- memory: a one-hour session on the emulated 1.9 kbit/s link, run in
+  simulated time (the real Master, Slave, Channel and Operator, real DEBT
+  images of the simulated camera, the pilot steering and sending orders all
+  along, the session recorded to a file), with the Python heap measured by
+  tracemalloc every five simulated minutes.  Flat means: the heap's peak in
+  the second half is within `--flat-mb` of its peak in the first half.
+- page: with `--page`, the real demo stack at 1.9 kbit/s, the web app and
+  headless Chromium on the operator page: how often the page receives a new
+  predicted pose, and how long a received trunk takes to show in the page
+  (operator receipt to the page's handling of it, both on this machine's
+  wall clock).  Needs Debian's chromium.
+"""
+
+from __future__ import annotations
+
+import gc
+import random
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+from .table import emit, format_table
+
+
+def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict:
+    import debt
+    from console.operator import Operator
+    from link.channel import Channel, LinkParams
+    from link.master import Master
+    from link.sim import SimLink
+    from link.slave import Slave
+    from rov.camera import SimulatedCamera
+
+    camera = SimulatedCamera()
+    rng = random.Random(seed)
+    streams = {}
+
+    def source(img, settings):
+        key = (img, settings)
+        if key not in streams:
+            if len(streams) > 16:
+                streams.clear()
+            picture = camera.capture((rng.uniform(-5, 5), rng.uniform(-5, 5), 3.0, rng.uniform(-3, 3)))
+            streams[key] = debt.encode(picture, settings.budget_bytes, roi=settings.roi,
+                                       shift=settings.shift if settings.roi else 0, mono=settings.mono)
+        return streams[key]
+
+    master = Master(rng=random.Random(seed))
+    slave = Slave(image_source=source)
+    channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=7e-6), seed=seed)
+    sim: SimLink | None = None
+    record = Path(tempfile.mkdtemp(prefix="rovlink-bench-")) / "session.jsonl"
+    operator = Operator(None, master=master, clock=lambda: sim.now if sim else 0.0, record=record)
+
+    def on_master(event, now):
+        operator._on_events([event], now)
+
+    sim = SimLink(master, slave, channel, on_master_event=on_master)
+    # The operator's loop records frames both ways; the simulated link
+    # does the same through these two taps.
+    next_poll = master.next_poll
+    receive_bytes = master.receive_bytes
+
+    def tapped_next_poll(now):
+        frame = next_poll(now)
+        if frame is not None:
+            operator._frame_sent(frame, now)
+        return frame
+
+    def tapped_receive(data, now):
+        operator.recorder.write({"k": "rx", "t": round(now, 4), "hex": data.hex()})
+        operator.history.link_events.append((now, "rx", len(data)))
+        return receive_bytes(data, now)
+
+    master.next_poll = tapped_next_poll  # type: ignore[method-assign]
+    master.receive_bytes = tapped_receive  # type: ignore[method-assign]
+
+    def pilot(now):
+        if rng.random() < 0.6:
+            operator.set_velocity(*(round(rng.uniform(-1, 1), 2) for _ in range(4)))
+        else:
+            operator.set_velocity(0, 0, 0, 0)
+        sim.at(now + rng.uniform(0.5, 3.0), pilot)
+
+    def orders(now):
+        choice = rng.random()
+        if choice < 0.4:
+            operator.send_position(rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(1, 6), rng.uniform(-180, 180))
+        elif choice < 0.8:
+            x0, y0 = rng.randrange(0, 200), rng.randrange(0, 150)
+            operator.set_image_settings(roi=(x0, y0, x0 + 100, y0 + 80), shift=rng.randrange(0, 8),
+                                        budget_bytes=rng.choice((1000, 2000, 3000)))
+        else:
+            operator.stop()
+        operator.state()  # what the web page and the scene ask for, all the time
+        operator.preview_path(1.0, 1.0, 2.0)
+        sim.at(now + 60.0, orders)
+
+    sim.at(0.0, pilot)
+    sim.at(5.0, orders)
+    gc.collect()
+    tracemalloc.start()
+    samples = []
+    wall0 = time.perf_counter()
+    t = 0.0
+    while t < duration_s:
+        t = min(duration_s, t + sample_every_s)
+        sim.run_until(t)
+        operator.predicted_pose()
+        gc.collect()
+        current, _ = tracemalloc.get_traced_memory()
+        samples.append((t, current / 2**20))
+    wall = time.perf_counter() - wall0
+    tracemalloc.stop()
+    operator.close()
+    size = record.stat().st_size
+    record.unlink()
+    return {
+        "simulated_s": duration_s,
+        "wall_s": wall,
+        "samples_mb": [{"t_s": t, "heap_mb": round(mb, 3)} for t, mb in samples],
+        "polls": master.stats.polls_sent,
+        "images_completed": master.stats.images_completed,
+        "recording_bytes": size,
+    }
+
+
+def run(args) -> int:
+    mem = _memory_session(args.duration, args.sample_every, args.seed)
+    samples = mem["samples_mb"]
+    # The heap swings by a few MB with the image being decoded; a leak shows
+    # as peaks that keep rising, so compare the peak of the second half with
+    # the peak of the first (after a warm-up of a sixth of the session).
+    half = args.duration / 2
+    early = [s["heap_mb"] for s in samples if args.duration / 6 <= s["t_s"] <= half] or [samples[0]["heap_mb"]]
+    late = [s["heap_mb"] for s in samples if s["t_s"] > half] or [samples[-1]["heap_mb"]]
+    growth = max(late) - max(early)
+    doc = {"memory": mem, "targets": {
+        "memory_flat_over_one_hour": {"peak_first_half_mb": max(early), "peak_second_half_mb": max(late),
+                                      "growth_mb": growth, "limit_mb": args.flat_mb, "met": growth <= args.flat_mb},
+    }}
+    lines = [
+        f"rovlink bench console: {args.duration / 60:g}-minute session at 1900 bit/s, 85 ms, BER 7e-6, in simulated "
+        f"time ({mem['wall_s']:.1f} s of wall time); {mem['polls']} polls, {mem['images_completed']} images, "
+        f"recording {mem['recording_bytes'] / 1e6:.2f} MB on disk",
+        "",
+        format_table(["minute", "Python heap MB"], [[round(s["t_s"] / 60, 1), s["heap_mb"]] for s in samples]),
+    ]
+    if args.page:
+        page = _page_latency(args.page_seconds)
+        doc["page"] = page
+        doc["targets"]["predicted_pose_updates_ge_20hz"] = {"value_hz": page["pose_updates_hz"], "limit_hz": 20.0,
+                                                            "met": page["pose_updates_hz"] >= 20.0}
+        doc["targets"]["trunk_shown_within_100ms"] = {
+            "median_ms": page["trunk_latency_ms_median"], "max_ms": page["trunk_latency_ms_max"], "limit_ms": 100.0,
+            "met": page["trunk_latency_ms_max"] is not None and page["trunk_latency_ms_max"] <= 100.0}
+        lines += ["", format_table(["page measure", "value"], [
+            ["predicted pose updates /s", page["pose_updates_hz"]],
+            ["trunks observed", page["trunks"]],
+            ["trunk -> page ms, median", page["trunk_latency_ms_median"]],
+            ["trunk -> page ms, max", page["trunk_latency_ms_max"]],
+        ])]
+    lines += ["", "targets:"]
+    for name, t in doc["targets"].items():
+        lines.append(f"  {'MET ' if t['met'] else 'MISSED'} {name}: "
+                     + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in t.items()
+                                 if k != "met"))
+    emit(doc, "\n".join(lines), args.json)
+    return 0
+
+
+def _page_latency(seconds: float) -> dict:
+    from console.bench.page import measure_page
+
+    return measure_page(seconds)
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("console", help="console memory over a one-hour session, page update rate and latency",
+                              description=__doc__.split("\n\n")[0] if __doc__ else None)
+    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.add_argument("--duration", type=float, default=3600.0, metavar="S", help="simulated session seconds (3600)")
+    p.add_argument("--sample-every", type=float, default=300.0, metavar="S", help="heap sample period (300)")
+    p.add_argument("--flat-mb", type=float, default=2.0, metavar="MB",
+                   help="largest rise of the heap peak from the first half to the second that counts as flat (2)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--page", action="store_true", help="also measure the operator page in headless Chromium")
+    p.add_argument("--page-seconds", type=float, default=40.0, metavar="S", help="page measurement time (40)")
+    p.set_defaults(func=run)
