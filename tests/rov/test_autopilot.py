@@ -176,9 +176,9 @@ def test_lost_heartbeat_clears_autopilot_and_the_bridge_reconnects():
         assert wait_for(lambda: not bridge.snapshot().autopilot_alive, 4.5)
         snap = bridge.snapshot()
         assert snap.mode == 0 and not snap.armed and not snap.position_valid
+        assert wait_for(lambda: bridge.reconnects >= 1, 1.0)  # the connection is closed, to be reopened
         sim = SimulatedVehicle(f"udpout:127.0.0.1:{port}").start()
         assert wait_for(lambda: bridge.snapshot().position_valid, 8.0)
-        assert bridge.reconnects >= 1
     finally:
         bridge.stop()
         sim.stop()
