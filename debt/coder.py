@@ -73,6 +73,8 @@ PROB_ONE = 1 << PROB_BITS
 # decisions at low budgets), then steadier.
 RATE = np.array([1, 2, 2, 3, 3, 3, 3] + [4] * 9 + [5] * 48, dtype=np.int64)
 RATE_LAST = RATE.shape[0] - 1
+REF_GROUP = 32
+SIG_GROUP = 8
 
 
 @_jit
@@ -202,6 +204,19 @@ def _new_significant(mode, st, buf, probs, counts, c, p, cls, neg, sig, sgn, rec
 
 
 @_jit
+def _drop_unfinished(lsp, nbefore, nlsp, rec, pk):
+    # The decoder stopped inside a sorting pass.  Coefficients found
+    # significant are shown in groups: a single one can, through the overlap
+    # of non-orthogonal basis functions, make the picture a hair worse; a few
+    # together practically never do.  So forget the unfinished group.
+    for m in range(nlsp - (nlsp - nbefore) % SIG_GROUP, nlsp):
+        c = lsp[m]
+        rec[c] = 0
+        pk[c] = -1
+    return 0
+
+
+@_jit
 def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
         kmax, top, buf, st, rec, pk, sgn):
     """Traverse the bit planes from `top` down to 0, coding every decision.
@@ -259,20 +274,21 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                         nbr = 3
                     r = _code(mode, st, buf, probs, counts, CTX_SIG + cls * 4 + nbr, bit)
                     if r < 0:
-                        return 0
+                        return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                     if r == 0:
                         lis[base + j] = e
                         j += 1
                         continue
-                    nlsp = _new_significant(mode, st, buf, probs, counts, c, p, cls, neg,
-                                            sig, sgn, rec, pk, sigplane, lsp, nlsp)
-                    if nlsp < 0:
-                        return 0
+                    r = _new_significant(mode, st, buf, probs, counts, c, p, cls, neg,
+                                         sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                    if r < 0:
+                        return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                    nlsp = r
                     continue
                 kk = k if k < 7 else 7
                 r = _code(mode, st, buf, probs, counts, CTX_SET + cls * 8 + kk, bit)
                 if r < 0:
-                    return 0
+                    return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                 if r == 0:
                     lis[base + j] = e
                     j += 1
@@ -325,7 +341,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                                 ctx = CTX_SET + cls * 8 + kk
                             r = _code(mode, st, buf, probs, counts, ctx, cbit)
                             if r < 0:
-                                return 0
+                                return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                         if r == 0:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
@@ -333,10 +349,11 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                         any_sig = True
                         if ck == 0:
                             c = off + yy * w + xx
-                            nlsp = _new_significant(mode, st, buf, probs, counts, c, p, cls,
-                                                    neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
-                            if nlsp < 0:
-                                return 0
+                            r = _new_significant(mode, st, buf, probs, counts, c, p, cls,
+                                                 neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                            if r < 0:
+                                return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                            nlsp = r
                         else:
                             stack[depth, 0] = ck
                             stack[depth, 1] = yy
@@ -356,6 +373,14 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
             first = 1 if sigplane[c] == p + 1 else 0
             r = _code(mode, st, buf, probs, counts, CTX_REF + ccls[c] * 2 + first, bit)
             if r < 0:
+                # One refinement can move a value away from the truth; a group
+                # of them almost never does.  Drop the unfinished group so that
+                # a longer prefix never shows a worse picture.
+                for m in range(i - i % REF_GROUP, i):
+                    c = lsp[m]
+                    if cfloor[c] <= p:
+                        rec[c] &= ~(np.int64(1) << p)
+                        pk[c] = p + 1
                 return 0
             rec[c] |= r << p
             pk[c] = p

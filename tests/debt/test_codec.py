@@ -1,0 +1,309 @@
+"""DEBT's public behaviour: round trips, budgets, prefixes, ROI, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import debt
+from debt import samples
+from debt.codec import Header, header_size, pack_header, unpack_header
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+@pytest.fixture(scope="module")
+def grey():
+    return samples.sample("grey-scene")
+
+
+@pytest.fixture(scope="module")
+def seabed():
+    return samples.sample("seabed")
+
+
+def random_image(rng, h, w, colour):
+    # Smooth-ish content plus noise: compresses like a picture, not like noise.
+    shape = (h, w, 3) if colour else (h, w)
+    coarse = rng.integers(0, 256, size=(h // 8 + 1, w // 8 + 1) + shape[2:])
+    base = np.repeat(np.repeat(coarse, 8, axis=0), 8, axis=1)[:h, :w]
+    img = base + rng.integers(-12, 13, size=shape)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+# ------------------------------------------------------------- round trips
+
+SHAPES = [(1, 1), (1, 2), (2, 1), (3, 3), (1, 37), (37, 1), (5, 200), (200, 5),
+          (17, 23), (64, 64), (63, 65), (240, 320)]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("colour", [False, True])
+def test_round_trip_is_lossless_when_budget_allows(shape, colour):
+    rng = np.random.default_rng(hash(shape) % 1000)
+    img = random_image(rng, *shape, colour)
+    budget = img.size + 100          # 8 bits a sample: always enough
+    data = debt.encode(img, budget)
+    assert len(data) < budget
+    out = debt.decode(data)
+    assert out.shape == img.shape and out.dtype == np.uint8
+    np.testing.assert_array_equal(out, img)
+
+
+@pytest.mark.parametrize("budget", [10, 11, 20, 50, 100, 300, 1000, 3000])
+@pytest.mark.parametrize("shape", [(1, 1), (7, 9), (33, 47), (120, 160)])
+@pytest.mark.parametrize("colour", [False, True])
+def test_stream_fills_budget_unless_lossless(budget, shape, colour):
+    rng = np.random.default_rng(budget)
+    img = random_image(rng, *shape, colour)
+    data = debt.encode(img, budget)
+    assert len(data) <= budget
+    out = debt.decode(data)
+    assert out.shape == img.shape and out.dtype == np.uint8
+    if len(data) < budget:
+        np.testing.assert_array_equal(out, img)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(h=st.integers(1, 40), w=st.integers(1, 40), colour=st.booleans(),
+       budget=st.integers(5, 2000), seed=st.integers(0, 2 ** 16))
+def test_any_size_and_budget(h, w, colour, budget, seed):
+    img = random_image(np.random.default_rng(seed), h, w, colour)
+    data = debt.encode(img, budget)
+    assert len(data) <= budget
+    out = debt.decode(data)
+    assert out.shape == img.shape
+    if len(data) < budget:
+        np.testing.assert_array_equal(out, img)
+
+
+def test_constant_image_is_lossless_in_a_few_bytes():
+    img = np.full((48, 64), 77, dtype=np.uint8)
+    data = debt.encode(img, 100)
+    assert len(data) < 30
+    np.testing.assert_array_equal(debt.decode(data), img)
+
+
+def test_quality_grows_with_budget(grey):
+    values = [psnr(grey, debt.decode(debt.encode(grey, b))) for b in (250, 500, 1000, 2000, 4000)]
+    assert values == sorted(values)
+    assert values[-1] > values[0] + 8
+
+
+def test_mono_codes_luminance_of_colour(seabed):
+    data = debt.encode(seabed, 1500, mono=True)
+    out = debt.decode(data)
+    assert out.shape == seabed.shape[:2]
+    luma = np.rint(seabed.astype(float) @ [0.299, 0.587, 0.114])
+    assert psnr(luma, out) > 28
+
+
+def test_colour_stream_gives_chroma_fewer_bits(seabed):
+    out = debt.decode(debt.encode(seabed, 2000))
+    assert out.shape == seabed.shape
+    assert psnr(seabed, out) > 27
+
+
+def test_grey_input_stays_grey_even_with_mono_false(grey):
+    out = debt.decode(debt.encode(grey[:50, :60], 300, mono=False))
+    assert out.shape == (50, 60)
+
+
+# ------------------------------------------------------------- prefixes
+
+def test_every_prefix_decodes_small_image():
+    img = random_image(np.random.default_rng(5), 21, 34, True)
+    data = debt.encode(img, 600)
+    hsize = unpack_header(data).size
+    for n in range(hsize, len(data) + 1):
+        out = debt.decode(data[:n])
+        assert out.shape == img.shape and out.dtype == np.uint8
+
+
+@pytest.mark.parametrize("name", ["grey-scene", "colour-still-life", "seabed"])
+def test_psnr_never_drops_along_64_byte_prefixes(name):
+    img = samples.sample(name)
+    data = debt.encode(img, 4000)
+    curve = [psnr(img, debt.decode(data[:n])) for n in range(64, 4001, 64)]
+    drops = [(64 * (i + 1), a, b) for i, (a, b) in enumerate(zip(curve, curve[1:])) if b < a]
+    assert not drops
+    assert curve[-1] > curve[0] + 6
+
+
+def test_psnr_never_drops_byte_by_byte_on_a_small_image():
+    img = samples.sample("grey-scene", 60, 80)
+    data = debt.encode(img, 1200)
+    curve = [psnr(img, debt.decode(data[:n])) for n in range(5, len(data) + 1)]
+    worst = max(a - b for a, b in zip(curve, curve[1:]))
+    assert worst <= 0.0
+
+
+def test_header_only_prefix_is_a_flat_picture(grey):
+    data = debt.encode(grey, 500)
+    out = debt.decode(data[:unpack_header(data).size])
+    assert out.shape == grey.shape
+    assert out.min() == out.max()
+
+
+def test_prefix_equals_stream_encoded_at_that_budget_closely(grey):
+    # Cutting a long stream is nearly as good as asking for the short one.
+    long = debt.encode(grey, 4000)
+    for budget in (500, 1000, 2000):
+        cut = psnr(grey, debt.decode(long[:budget]))
+        direct = psnr(grey, debt.decode(debt.encode(grey, budget)))
+        assert abs(cut - direct) < 0.05
+
+
+# ------------------------------------------------------------- ROI
+
+@pytest.mark.parametrize("shift", [4, 6])
+def test_roi_raises_roi_psnr(grey, shift):
+    roi = (107, 80, 213, 160)
+    x0, y0, x1, y1 = roi
+    plain = debt.decode(debt.encode(grey, 1000))
+    raised = debt.decode(debt.encode(grey, 1000, roi=roi, shift=shift))
+    inside = np.s_[y0:y1, x0:x1]
+    assert psnr(grey[inside], raised[inside]) > psnr(grey[inside], plain[inside]) + 3
+    # The rest still gets a picture.
+    assert psnr(grey, raised) > 18
+
+
+def test_roi_at_image_corner_and_full_image(grey):
+    for roi in [(0, 0, 1, 1), (319, 239, 320, 240), (0, 0, 320, 240)]:
+        data = debt.encode(grey, 800, roi=roi, shift=15)
+        assert len(data) == 800
+        assert unpack_header(data).roi == roi
+        assert debt.decode(data).shape == grey.shape
+
+
+def test_roi_lossless_round_trip():
+    img = random_image(np.random.default_rng(9), 30, 40, True)
+    data = debt.encode(img, 20000, roi=(3, 4, 20, 25), shift=5)
+    np.testing.assert_array_equal(debt.decode(data), img)
+
+
+def test_zero_roi_or_zero_shift_means_no_roi(grey):
+    assert debt.encode(grey, 300, roi=(0, 0, 0, 0), shift=6) == debt.encode(grey, 300)
+    assert debt.encode(grey, 300, roi=(1, 2, 30, 40), shift=0) == debt.encode(grey, 300)
+
+
+# ------------------------------------------------------------- header
+
+def test_header_is_compact_and_round_trips():
+    h = Header(1023, 1, True, False, 33, (1, 0, 1023, 1), 15)
+    raw = pack_header(h)
+    assert len(raw) == header_size(True) <= 10
+    assert unpack_header(raw) == h
+    h2 = Header(320, 240, False, True, 20)
+    assert len(pack_header(h2)) == 5
+    assert unpack_header(pack_header(h2)) == h2
+
+
+# ------------------------------------------------------------- bad input
+
+@pytest.mark.parametrize("image, match", [
+    (np.zeros((10, 10), dtype=np.float32), "uint8"),
+    (np.zeros((10, 10), dtype=np.uint16), "uint8"),
+    (np.zeros((10, 10, 4), dtype=np.uint8), "shape"),
+    (np.zeros((10,), dtype=np.uint8), "shape"),
+    (np.zeros((2, 10, 10, 3), dtype=np.uint8), "shape"),
+    (np.zeros((0, 10), dtype=np.uint8), "empty"),
+    (np.zeros((10, 0, 3), dtype=np.uint8), "empty"),
+    (np.zeros((1024, 8), dtype=np.uint8), "1023"),
+    ([[1, 2], [3, 4]], "numpy"),
+])
+def test_bad_image_raises(image, match):
+    with pytest.raises(ValueError, match=match):
+        debt.encode(image, 100)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(budget=4), "header"),
+    (dict(budget=9, roi=(1, 1, 5, 5), shift=3), "header"),
+    (dict(budget=-1), "header"),
+    (dict(budget=10.5), "integer"),
+    (dict(budget=100, roi=(0, 0, 50, 5)), "inside"),
+    (dict(budget=100, roi=(5, 5, 5, 8)), "inside"),
+    (dict(budget=100, roi=(-1, 0, 5, 5)), "inside"),
+    (dict(budget=100, roi=(0, 0, 5)), "four"),
+    (dict(budget=100, roi="abcd"), "four"),
+    (dict(budget=100, shift=16), "shift"),
+    (dict(budget=100, shift=-1), "shift"),
+    (dict(budget=100, shift=2.5), "shift"),
+    (dict(budget=100, mono="yes"), "mono"),
+])
+def test_bad_arguments_raise(kwargs, match):
+    img = np.zeros((20, 30), dtype=np.uint8)
+    budget = kwargs.pop("budget")
+    with pytest.raises(ValueError, match=match):
+        debt.encode(img, budget, **kwargs)
+
+
+def test_budget_equal_to_header_gives_header_only():
+    img = np.zeros((20, 30), dtype=np.uint8)
+    data = debt.encode(img, 5)
+    assert len(data) == 5
+    assert debt.decode(data).shape == (20, 30)
+
+
+@pytest.mark.parametrize("cut", [0, 1, 4])
+def test_truncated_header_raises(grey, cut):
+    data = debt.encode(grey, 200)
+    with pytest.raises(ValueError):
+        debt.decode(data[:cut])
+
+
+def test_truncated_roi_header_raises(grey):
+    data = debt.encode(grey, 200, roi=(1, 2, 3, 4), shift=2)
+    with pytest.raises(ValueError, match="header"):
+        debt.decode(data[:9])
+
+
+def test_corrupted_header_raises(grey):
+    data = debt.encode(grey, 200, roi=(10, 20, 30, 40), shift=5)
+    caught = 0
+    for byte in range(10):
+        for bit in range(8):
+            bad = bytearray(data)
+            bad[byte] ^= 1 << bit
+            try:
+                out = debt.decode(bytes(bad))
+            except ValueError:
+                caught += 1
+            else:
+                assert out.dtype == np.uint8
+    # Magic, CRC and range checks catch nearly every single-bit header error.
+    assert caught >= 70
+
+
+def test_not_bytes_raises():
+    with pytest.raises(ValueError, match="bytes"):
+        debt.decode("DEBT")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(min_size=0, max_size=200))
+def test_garbage_never_crashes(blob):
+    try:
+        out = debt.decode(blob)
+    except ValueError:
+        return
+    assert out.dtype == np.uint8 and out.ndim in (2, 3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.binary(min_size=1, max_size=300), st.integers(0, 2 ** 16))
+def test_corrupted_payload_decodes_to_a_picture(payload, seed):
+    # The payload has no redundancy to check (every prefix must decode), so a
+    # corrupted payload gives a wrong picture of the right shape, never a
+    # crash; the link's frame CRC is what keeps corrupt bytes out.
+    img = random_image(np.random.default_rng(seed), 40, 50, bool(seed % 2))
+    data = debt.encode(img, 400)
+    hsize = unpack_header(data).size
+    out = debt.decode(data[:hsize] + payload)
+    assert out.shape == img.shape and out.dtype == np.uint8
