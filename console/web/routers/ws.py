@@ -108,10 +108,11 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
     except WebSocketDisconnect:
         pass
     finally:
+        # Release before any await: a cancelled handler must still let go.
+        desk.disconnect(client.id)
         unsubscribe()
         sender.cancel()
         await asyncio.gather(sender, return_exceptions=True)
-        desk.disconnect(client.id)
 
 
 def _handle(text: str, client_id: str, operator, desk, post) -> None:

@@ -1,0 +1,95 @@
+"""Fixtures for the console: the whole system (simulated ArduSub, ROV node,
+emulated channel, Operator) and the web app served by uvicorn on a free
+loopback port, all in one event loop on a background thread, the way
+`rovlink demo` runs them.  Tests talk to it over real sockets.
+
+The link runs at 19.2 kbit/s with 20 ms delay so that an image arrives in a
+second or two instead of eleven; nothing in the web layer depends on the rate.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+import pytest
+
+from console.operator import Operator
+from console.stack import Stack, StackConfig
+
+
+def wait_for(predicate, timeout_s: float, period_s: float = 0.05):
+    """Poll until predicate() is truthy; return its last value."""
+    deadline = time.monotonic() + timeout_s
+    value = predicate()
+    while not value and time.monotonic() < deadline:
+        time.sleep(period_s)
+        value = predicate()
+    return value
+
+
+@dataclass
+class LiveConsole:
+    operator: Operator
+    app: object
+    url: str  # http://127.0.0.1:PORT
+    loop: asyncio.AbstractEventLoop
+
+    @property
+    def ws_url(self) -> str:
+        return "ws" + self.url[len("http"):] + "/ws"
+
+
+def _listening_socket() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(64)
+    return sock
+
+
+@pytest.fixture(scope="module")
+def live():
+    from console.web.app import create_app, serve
+
+    ready = threading.Event()
+    holder: dict = {}
+
+    async def main() -> None:
+        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02)) as stack:
+            app = create_app(stack.operator, viser_url=None)
+            sock = _listening_socket()
+            port = sock.getsockname()[1]
+            holder["console"] = LiveConsole(stack.operator, app, f"http://127.0.0.1:{port}",
+                                            asyncio.get_running_loop())
+            server = asyncio.create_task(serve(app, sock=sock))
+            holder["task"] = asyncio.current_task()
+            ready.set()
+            await server
+
+    def run() -> None:
+        try:
+            asyncio.run(main())
+        except asyncio.CancelledError:
+            pass
+        except BaseException as exc:  # shown by the fixture, not lost in the thread
+            holder["error"] = exc
+        finally:
+            ready.set()
+
+    thread = threading.Thread(target=run, name="live console", daemon=True)
+    thread.start()
+    assert ready.wait(30), "the stack did not start"
+    if "error" in holder:
+        raise holder["error"]
+    console: LiveConsole = holder["console"]
+    # The ROV has answered once: pose and link are live.
+    assert wait_for(lambda: console.operator.last_reply is not None, 15), "no reply from the ROV"
+    yield console
+    console.loop.call_soon_threadsafe(holder["task"].cancel)
+    thread.join(15)
+    assert not thread.is_alive(), "the stack did not stop"
+    if "error" in holder:
+        raise holder["error"]

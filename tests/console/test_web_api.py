@@ -1,0 +1,404 @@
+"""The web API: schema, state, orders, control ownership, errors, WebSocket.
+
+Most tests use an Operator with no link (its commands still reach the link
+master, and its state is real) through FastAPI's TestClient; the `live`
+tests talk over real sockets to the whole system served by uvicorn.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import math
+import socket
+import time
+
+import httpx
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from PIL import Image
+
+import debt
+from console.operator import Operator
+from console.web.app import create_app, serve
+
+from .conftest import wait_for
+
+HEADER = "X-Rovlink-Client"
+
+
+@pytest.fixture
+def operator():
+    op = Operator(None)
+    yield op
+    op.close()
+
+
+@pytest.fixture
+def client(operator):
+    with TestClient(create_app(operator)) as c:
+        yield c
+
+
+def take(client, name: str = "test") -> dict:
+    r = client.post("/api/control/take", json={"name": name})
+    assert r.status_code == 200, r.text
+    return {HEADER: r.json()["client_id"]}
+
+
+def wish(operator) -> tuple:
+    v = operator.state()["velocity_wish"]
+    return v["vx"], v["vy"], v["vz"], v["vyaw"]
+
+
+# ----------------------------------------------------------------------
+# Schema, page, state
+# ----------------------------------------------------------------------
+
+
+def test_openapi_schema_documents_every_endpoint_and_body(client):
+    schema = client.get("/openapi.json").json()
+    assert set(schema["paths"]) >= {
+        "/api/state", "/api/pose", "/api/orders", "/api/config", "/api/link", "/api/image", "/api/image/latest.png",
+        "/api/image/latest.debt", "/api/image/settings", "/api/image/next", "/api/orders/velocity",
+        "/api/orders/position", "/api/orders/stop", "/api/orders/arm", "/api/orders/mode", "/api/control",
+        "/api/control/take", "/api/control/release"}
+    models = schema["components"]["schemas"]
+    assert {"VelocityOrder", "PositionOrder", "ArmOrder", "ModeOrder", "ImageSettingsOrder", "State", "LinkState",
+            "ImageState", "ControlStatus", "ErrorBody"} <= set(models)
+    velocity = schema["paths"]["/api/orders/velocity"]["post"]
+    assert {"409", "422"} <= set(velocity["responses"])
+    assert any(p["name"].lower() == "x-rovlink-client" for p in velocity["parameters"])
+    assert models["VelocityOrder"]["properties"]["vx"]["maximum"] == 1.0
+
+
+def test_page_embeds_scene_url_and_documents_the_keys(operator):
+    with TestClient(create_app(operator, viser_url="http://127.0.0.1:8080")) as c:
+        page = c.get("/")
+        assert page.status_code == 200 and "text/html" in page.headers["content-type"]
+        for text in ("<kbd>W</kbd>", "<kbd>Space</kbd>", "STOP", "Link health", "/static/console.js"):
+            assert text in page.text
+        assert c.get("/static/console.js").status_code == 200
+        assert c.get("/static/console.css").status_code == 200
+        assert c.get("/api/config").json()["viser_url"] == "http://127.0.0.1:8080"
+
+
+def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
+    state = client.get("/api/state").json()
+    assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "log", "replaying", "control"}
+    assert state["control"] == {"held": False, "holder": None, "holder_kind": None, "held_for_s": None,
+                                "you": False, "lease_s": 30.0}
+    assert state["pose"]["received"] is None  # no link, no odometry
+    assert client.get("/api/link").json()["polls_sent"] == 0
+    assert client.get("/api/image").json()["received_bytes"] == 0
+
+
+def test_no_picture_yet_is_404_with_a_message(client):
+    for path in ("/api/image/latest.png", "/api/image/latest.debt"):
+        r = client.get(path)
+        assert r.status_code == 404
+        assert "no image" in r.json()["message"]
+
+
+# ----------------------------------------------------------------------
+# Control ownership
+# ----------------------------------------------------------------------
+
+ORDERS = [
+    ("/api/orders/velocity", {"vx": 0.5}),
+    ("/api/orders/position", {"x_m": 1, "y_m": 2, "z_m": 3}),
+    ("/api/orders/arm", {"armed": True}),
+    ("/api/orders/mode", {"mode": "DEPTH_HOLD"}),
+    ("/api/image/settings", {"mono": True}),
+    ("/api/image/next", None),
+]
+
+
+@pytest.mark.parametrize("path,body", ORDERS)
+def test_orders_without_control_get_409_saying_how_to_take_it(client, path, body):
+    r = client.post(path, json=body)
+    assert r.status_code == 409
+    assert "POST /api/control/take" in r.json()["message"]
+
+
+@pytest.mark.parametrize("path,body", ORDERS)
+def test_the_holder_orders(client, operator, path, body):
+    r = client.post(path, json=body, headers=take(client))
+    assert r.status_code in (200, 204), r.text
+
+
+def test_take_over_is_explicit_and_the_old_holder_gets_409(client, operator):
+    pilot = take(client, "pilot")
+    assert client.post("/api/orders/velocity", json={"vx": 0.4, "vyaw": -0.2}, headers=pilot).status_code == 200
+    assert wish(operator) == (0.4, 0.0, 0.0, -0.2)
+    watcher = take(client, "watcher")
+    # Taking over never inherits the previous pilot's motion.
+    assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+    r = client.post("/api/orders/velocity", json={"vx": 0.4}, headers=pilot)
+    assert r.status_code == 409 and "held by watcher" in r.json()["message"]
+    assert client.get("/api/control", headers=pilot).json()["you"] is False
+    status = client.get("/api/control", headers=watcher).json()
+    assert status["you"] is True and status["holder"] == "watcher" and status["holder_kind"] == "script"
+
+
+def test_release_sets_velocity_neutral_and_only_the_holder_may(client, operator):
+    pilot = take(client, "pilot")
+    client.post("/api/orders/velocity", json={"vz": 0.3}, headers=pilot)
+    other = {HEADER: client.post("/api/control/take").json()["client_id"]}
+    take_back = client.post("/api/control/take", headers=pilot)
+    assert take_back.json()["client_id"] == pilot[HEADER]
+    assert client.post("/api/control/release", headers=other).status_code == 409
+    client.post("/api/orders/velocity", json={"vz": 0.3}, headers=pilot)
+    r = client.post("/api/control/release", headers=pilot)
+    assert r.status_code == 200 and r.json()["held"] is False
+    assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+    assert any("control released by pilot" in e["text"] for e in client.get("/api/state").json()["log"])
+
+
+def test_stop_is_accepted_from_anyone_and_stops_the_pilot(client, operator):
+    pilot = take(client)
+    client.post("/api/orders/velocity", json={"vx": 1.0}, headers=pilot)
+    r = client.post("/api/orders/stop")
+    assert r.status_code == 200 and r.json()["kind"] == "STOP"
+    assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+    assert client.get("/api/orders").json()[-1]["kind"] == "STOP"
+    assert client.get("/api/control", headers=pilot).json()["you"] is True  # STOP does not take control
+
+
+def test_unknown_client_id_is_422(client):
+    r = client.post("/api/control/take", headers={HEADER: "not-a-client"})
+    assert r.status_code == 422
+    assert "unknown client id" in r.json()["message"]
+
+
+def test_a_silent_script_loses_control_and_its_velocity(operator):
+    with TestClient(create_app(operator, lease_s=0.3)) as c:
+        script = take(c, "script")
+        c.post("/api/orders/velocity", json={"vx": 0.7}, headers=script)
+        assert wish(operator) == (0.7, 0.0, 0.0, 0.0)
+        assert wait_for(lambda: not c.get("/api/control").json()["held"], 5.0)
+        assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+        assert any("silent" in e["text"] for e in c.get("/api/state").json()["log"])
+
+
+# ----------------------------------------------------------------------
+# Bad requests
+# ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path,body,says", [
+    ("/api/orders/velocity", {"vx": 1.5}, "body.vx: Input should be less than or equal to 1"),
+    ("/api/orders/velocity", {"vy": -2}, "body.vy: Input should be greater than or equal to -1"),
+    ("/api/orders/velocity", {"vx": "0.5"}, "body.vx: Input should be a valid number"),
+    ("/api/orders/velocity", {"vx": True}, "body.vx: Input should be a valid number"),
+    ("/api/orders/velocity", {"forward": 0.5}, "body.forward: Extra inputs are not permitted"),
+    ("/api/orders/velocity", [0.1, 0, 0, 0], "body"),
+    ("/api/orders/position", {"x_m": 1, "y_m": 2}, "body.z_m: Field required"),
+    ("/api/orders/position", {"x_m": 400, "y_m": 0, "z_m": 1}, "POSITION x_cm must be in -32768..32767"),
+    ("/api/orders/position", {"x_m": 1, "y_m": 0, "z_m": 1, "body": True}, "BODY is only allowed with RELATIVE"),
+    ("/api/orders/arm", {"armed": "yes"}, "body.armed: Input should be a valid boolean"),
+    ("/api/orders/arm", {}, "body.armed: Field required"),
+    ("/api/orders/mode", {"mode": "ACRO"}, "body.mode: Input should be 'MANUAL'"),
+    ("/api/image/settings", {"roi": [100, 100, 10, 10]}, "IMAGE ROI needs X0 < X1 and Y0 < Y1"),
+    ("/api/image/settings", {"roi": [1, 2, 3]}, "body.roi.3: Field required"),
+    ("/api/image/settings", {"budget_bytes": 100000}, "body.budget_bytes: Input should be less than or equal to"),
+    ("/api/image/settings", {"shift": -1}, "body.shift: Input should be greater than or equal to 0"),
+])
+def test_invalid_orders_get_422_saying_what_is_wrong(client, operator, path, body, says):
+    before = (wish(operator), len(client.get("/api/orders").json()))
+    r = client.post(path, json=body, headers=take(client))
+    assert r.status_code == 422, r.text
+    assert says in r.json()["message"]
+    assert (wish(operator), len(client.get("/api/orders").json())) == before  # nothing was sent
+
+
+def test_not_a_number_and_broken_json_are_422(client):
+    holder = take(client)
+    r = client.post("/api/orders/velocity", content=b'{"vx": NaN}',
+                    headers={**holder, "Content-Type": "application/json"})
+    assert r.status_code == 422 and "finite number" in r.json()["message"]
+    r = client.post("/api/orders/velocity", content=b'{"vx": 0.5', headers={**holder, "Content-Type": "application/json"})
+    assert r.status_code == 422 and "JSON" in r.json()["message"]
+
+
+# ----------------------------------------------------------------------
+# WebSocket (in process)
+# ----------------------------------------------------------------------
+
+
+def next_of(ws, kind: str, limit: int = 50) -> dict:
+    for _ in range(limit):
+        message = ws.receive_json()
+        if message["type"] == kind:
+            return message
+    raise AssertionError(f"no {kind!r} message in {limit}")
+
+
+def test_websocket_says_hello_then_streams_telemetry(client):
+    with client.websocket_connect("/ws") as ws:
+        hello = ws.receive_json()
+        assert hello["type"] == "hello" and len(hello["client_id"]) >= 16
+        assert hello["config"]["telemetry_hz"] == 10.0
+        first, second = next_of(ws, "telemetry"), next_of(ws, "telemetry")
+        for message in (first, second):
+            assert {"pose", "link", "image", "velocity_wish", "orders", "log", "control"} <= set(message)
+            assert message["control"]["you"] is False
+        assert second["link"]["t"] > first["link"]["t"]
+
+
+def test_websocket_velocity_only_from_the_holder_and_released_on_disconnect(client, operator):
+    with client.websocket_connect("/ws?name=pilot page") as ws:
+        me = {HEADER: ws.receive_json()["client_id"]}
+        ws.send_json({"type": "velocity", "vx": 0.5})
+        assert "nobody holds control" in next_of(ws, "error")["message"]
+        assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+
+        r = client.post("/api/control/take", headers=me)
+        assert r.status_code == 200 and r.json()["control"]["holder_kind"] == "browser"
+        assert next_of(ws, "control")["control"]["you"] is True
+        ws.send_json({"type": "velocity", "vx": 0.5, "vyaw": -0.25})
+        assert wait_for(lambda: wish(operator) == (0.5, 0.0, 0.0, -0.25), 2.0)
+        # REST orders with the page's id work too.
+        assert client.post("/api/orders/mode", json={"mode": "MANUAL"}, headers=me).status_code == 200
+    assert wait_for(lambda: not client.get("/api/control").json()["held"], 2.0)
+    assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
+    assert any("pilot page left" in e["text"] for e in client.get("/api/state").json()["log"])
+
+
+def test_websocket_velocity_falls_back_to_neutral_when_its_repeats_stop(operator):
+    with TestClient(create_app(operator, velocity_deadman_s=0.3)) as c:
+        with c.websocket_connect("/ws") as ws:
+            me = {HEADER: ws.receive_json()["client_id"]}
+            c.post("/api/control/take", headers=me)
+            ws.send_json({"type": "velocity", "vz": -0.8})
+            assert wait_for(lambda: wish(operator) == (0.0, 0.0, -0.8, 0.0), 2.0)
+            # No repeat: the dead man sets neutral, control stays.
+            assert wait_for(lambda: wish(operator) == (0.0, 0.0, 0.0, 0.0), 3.0)
+            assert c.get("/api/control", headers=me).json()["you"] is True
+            assert any("stopped arriving" in e["text"] for e in c.get("/api/state").json()["log"])
+
+
+def test_websocket_refuses_bad_messages_with_a_reason(client, operator):
+    with client.websocket_connect("/ws") as ws:
+        client.post("/api/control/take", headers={HEADER: ws.receive_json()["client_id"]})
+        ws.send_text("not json")
+        assert "JSON" in next_of(ws, "error")["message"]
+        ws.send_json({"type": "dance"})
+        assert "unknown message type 'dance'" in next_of(ws, "error")["message"]
+        ws.send_json({"type": "velocity", "vx": 3})
+        assert "vx: Input should be less than or equal to 1" in next_of(ws, "error")["message"]
+        ws.send_json({"type": "stop"})
+        assert wait_for(lambda: any(o["kind"] == "STOP" for o in operator.orders_state()), 2.0)
+
+
+def test_a_taken_over_page_is_told_at_once(client, operator):
+    with client.websocket_connect("/ws") as pilot_ws:
+        client.post("/api/control/take", headers={HEADER: pilot_ws.receive_json()["client_id"]})
+        assert next_of(pilot_ws, "control")["control"]["you"] is True
+        take(client, "co-pilot")
+        told = next_of(pilot_ws, "control")["control"]
+        assert told["you"] is False and told["holder"] == "co-pilot"
+
+
+# ----------------------------------------------------------------------
+# serve()
+# ----------------------------------------------------------------------
+
+
+def test_serve_reports_a_port_in_use_as_oserror(operator):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        with pytest.raises(OSError):
+            asyncio.run(serve(create_app(operator), "127.0.0.1", port))
+
+
+def test_serve_answers_on_its_port_and_stops_when_cancelled(operator):
+    async def main() -> int:
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        task = asyncio.create_task(serve(create_app(operator), "127.0.0.1", port))
+        async with httpx.AsyncClient() as http:
+            for _ in range(100):
+                try:
+                    status = (await http.get(f"http://127.0.0.1:{port}/api/link")).status_code
+                    break
+                except httpx.ConnectError:
+                    await asyncio.sleep(0.05)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        with socket.socket() as again:  # the port is free again
+            again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            again.bind(("127.0.0.1", port))
+        return status
+
+    assert asyncio.run(main()) == 200
+
+
+# ----------------------------------------------------------------------
+# The whole system, over real sockets
+# ----------------------------------------------------------------------
+
+
+def test_live_image_as_png_and_as_debt(live):
+    with httpx.Client(base_url=live.url) as http:
+        assert wait_for(lambda: http.get("/api/image").json()["decoded_bytes"] > 0, 20), "no picture decoded"
+        png = http.get("/api/image/latest.png")
+        assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+        picture = np.asarray(Image.open(io.BytesIO(png.content)))
+        assert picture.size > 0 and picture.std() > 0  # a scene, not a blank
+        raw = http.get("/api/image/latest.debt")
+        assert raw.status_code == 200 and raw.headers["content-type"] == "application/octet-stream"
+        assert int(raw.headers["X-Rovlink-Decoded-Bytes"]) == len(raw.content)
+        decoded = debt.decode(raw.content)
+        assert decoded.shape == picture.shape
+
+
+def test_live_orders_reach_the_rov(live):
+    with httpx.Client(base_url=live.url) as http:
+        me = {HEADER: http.post("/api/control/take", json={"name": "api test"}).json()["client_id"]}
+        assert http.post("/api/orders/arm", json={"armed": True}, headers=me).status_code == 200
+        assert wait_for(lambda: http.get("/api/pose").json()["armed"], 10), "never armed"
+        start = http.get("/api/pose").json()["received"]
+        assert http.post("/api/orders/velocity", json={"vx": 0.8}, headers=me).status_code == 200
+        assert wait_for(lambda: http.get("/api/pose").json()["received"]["x_m"] > start["x_m"] + 0.3, 10)
+        stop = http.post("/api/orders/stop", headers=me).json()
+        assert wait_for(lambda: next(o for o in http.get("/api/orders").json() if o["id"] == stop["id"])["state"]
+                        == "acknowledged", 10)
+        http.post("/api/orders/arm", json={"armed": False}, headers=me)
+        assert wait_for(lambda: not http.get("/api/pose").json()["armed"], 10)
+        http.post("/api/control/release", headers=me)
+
+
+def test_live_websocket_streams_link_health_and_pictures(live):
+    from websockets.sync.client import connect
+
+    with connect(live.ws_url, open_timeout=10) as ws:
+        hello = json.loads(ws.recv(timeout=5))
+        assert hello["type"] == "hello"
+        telemetry, images = [], []
+        deadline = time.monotonic() + 20
+        while (len(telemetry) < 5 or not images) and time.monotonic() < deadline:
+            message = json.loads(ws.recv(timeout=5))
+            if message["type"] == "telemetry":
+                telemetry.append(message)
+            elif message["type"] == "image":
+                images.append(message["image"])
+        assert len(telemetry) >= 5 and images, "telemetry or image events missing"
+        first, last = telemetry[0]["link"], telemetry[-1]["link"]
+        assert last["polls_sent"] > first["polls_sent"] and last["link_up"]
+        assert math.isfinite(last["poll_rate_hz"]) and last["poll_rate_hz"] > 0
+        assert telemetry[-1]["pose"]["received"] is not None and telemetry[-1]["pose"]["predicted"] is not None
+        assert images[-1]["decoded_bytes"] > 0
+
+        with httpx.Client(base_url=live.url) as http:
+            http.post("/api/control/take", headers={HEADER: hello["client_id"]})
+            assert http.get("/api/control").json()["holder_kind"] == "browser"
+    # Leaving released control.
+    with httpx.Client(base_url=live.url) as http:
+        assert wait_for(lambda: not http.get("/api/control").json()["held"], 5)
