@@ -363,6 +363,8 @@ function wire() {
   $("next-image").onclick = () => api("/api/image/next");
   $("gain").oninput = () => { $("gain-value").textContent = `${Math.round($("gain").value * 100)} %`; };
 
+  // A clicked button keeps no focus: Space is STOP, never "press the last button".
+  document.addEventListener("click", (ev) => { if (ev.target.tagName === "BUTTON") ev.target.blur(); });
   window.addEventListener("keydown", onKeyDown);
   window.addEventListener("keyup", onKeyUp);
   window.addEventListener("blur", letGo);

@@ -1,0 +1,176 @@
+"""The operator page in headless Chromium against the whole running system:
+the page renders, link health updates, an image arrives and refines, a held
+key moves the simulated ROV and letting go (or leaving the window) stops it,
+and control passes between two pages only when asked.
+
+Debian's /usr/bin/chromium driven by Playwright (no browser download).
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from .conftest import wait_for
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not os.path.exists(CHROMIUM),
+                       reason=f"Chromium is not installed at {CHROMIUM} (Debian package 'chromium'); "
+                              "the browser tests drive it and download no browser"),
+]
+
+NEUTRAL = {"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}
+
+# Pixels of the shown <img>, summed with position weights: changes when the picture does.
+PIXEL_CHECKSUM = """() => {
+  const img = document.getElementById('image');
+  const c = document.createElement('canvas');
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext('2d');
+  g.drawImage(img, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let sum = 0;
+  for (let i = 0; i < d.length; i += 1) sum = (sum * 31 + d[i]) % 1000000007;
+  return sum;
+}"""
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def open_page(browser, live):
+    contexts = []
+
+    def open_():
+        context = browser.new_context()
+        contexts.append(context)
+        page = context.new_page()
+        page.goto(live.url)
+        page.wait_for_function("document.body.dataset.clientId !== undefined")
+        return page
+
+    yield open_
+    for context in contexts:
+        context.close()
+
+
+def wish(live) -> dict:
+    return live.operator.state()["velocity_wish"]
+
+
+def x_m(live) -> float:
+    return live.operator.state()["pose"]["received"]["x_m"]
+
+
+def take_control(page) -> None:
+    page.click("#take")
+    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
+
+
+def test_page_renders_with_link_health_that_updates(open_page, live):
+    page = open_page()
+    assert page.title() == "rovlink console"
+    assert page.is_visible("#no-scene")  # no viser_url given
+    assert page.is_visible("text=surge forward / back")
+    page.wait_for_function("document.getElementById('link-poll-rate').textContent.endsWith('Hz')")
+    assert page.text_content("#link-up") == "link up"
+    assert page.text_content("#autopilot") == "AUTOPILOT"
+    sent = page.text_content("#link-bytes")
+    # Bytes sent / received keep counting as the link runs.
+    page.wait_for_function(f"document.getElementById('link-bytes').textContent !== {sent!r}")
+    assert page.text_content("#link-rtt").endswith(" ms")
+    assert float(page.text_content("#link-odo-age").split()[0]) >= 0.0
+    assert "Watching" in page.text_content("#control-text")
+
+
+def test_an_image_arrives_and_visibly_refines(open_page, live):
+    page = open_page()
+    page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=20000)
+    samples = []
+
+    def refined() -> bool:
+        shown = page.evaluate("""() => { const i = document.getElementById('image');
+            const c = document.getElementById('image-card');
+            return [i.dataset.img, +i.dataset.decodedBytes, +c.dataset.receivedBytes, +c.dataset.totalBytes]; }""")
+        samples.append((*shown, page.evaluate(PIXEL_CHECKSUM)))
+        # Two pictures of one image, the later from more bytes, and different.
+        return any(a[0] == b[0] and b[1] > a[1] and b[2] > a[2] and b[4] != a[4]
+                   for a, b in zip(samples, samples[1:]))
+
+    assert wait_for(refined, 30, period_s=0.05), f"no refinement seen in {samples[-5:]}"
+    img, decoded, received, total, _ = samples[-1]
+    assert 0 < decoded <= received <= total
+    progress = page.evaluate("[document.getElementById('image-progress').value, "
+                             "document.getElementById('image-progress').max]")
+    assert 0 < progress[0] <= progress[1]
+
+
+def test_a_held_key_moves_the_rov_and_letting_go_stops_it(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.click("#arm")
+    page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=15000)
+    start = x_m(live)
+
+    page.keyboard.down("KeyW")
+    assert wait_for(lambda: wish(live)["vx"] > 0, 5), "W sent no velocity"
+    # Held past the server's 1 s dead man: the page repeats it, so it holds.
+    assert wait_for(lambda: x_m(live) > start + 0.5, 15), "the ROV did not move forward"
+    assert wish(live)["vx"] == pytest.approx(0.5)  # key strength 50 %
+    page.keyboard.up("KeyW")
+    assert wait_for(lambda: wish(live) == NEUTRAL, 3), "letting go did not send neutral"
+
+    # Leaving the window while a key is held is letting go too.
+    page.keyboard.down("KeyE")
+    assert wait_for(lambda: wish(live)["vyaw"] > 0, 5)
+    page.evaluate("window.dispatchEvent(new Event('blur'))")
+    assert wait_for(lambda: wish(live) == NEUTRAL, 3), "blur did not send neutral"
+    page.keyboard.up("KeyE")
+
+    page.keyboard.press("Space")
+    assert wait_for(lambda: any(o["kind"] == "STOP" for o in live.operator.orders_state()), 3), "Space is not STOP"
+    page.click("#disarm")
+    page.wait_for_function("document.getElementById('armed').textContent === 'DISARMED'", timeout=15000)
+
+
+def test_control_passes_between_pages_only_when_taken_and_leaves_with_its_page(open_page, live):
+    pilot, watcher = open_page(), open_page()
+    take_control(pilot)
+    watcher.wait_for_function("document.getElementById('control-text').textContent.startsWith('Watching: browser')")
+    assert watcher.is_disabled("#arm") and not pilot.is_disabled("#arm")
+
+    # A watcher's keys do not drive.
+    watcher.keyboard.down("KeyS")
+    watcher.wait_for_selector("#error:has-text('Take control to drive')")
+    assert wish(live) == NEUTRAL
+    watcher.keyboard.up("KeyS")
+
+    # The pilot drives; the watcher takes over: the pilot's motion ends with it.
+    pilot.keyboard.down("KeyD")
+    assert wait_for(lambda: wish(live)["vy"] > 0, 5)
+    take_control(watcher)
+    assert wait_for(lambda: wish(live) == NEUTRAL, 3)
+    pilot.wait_for_function("document.getElementById('control-text').textContent.startsWith('Watching')")
+    pilot.wait_for_timeout(300)  # the pilot still holds D: its page must not send it any more
+    assert wish(live) == NEUTRAL
+    pilot.keyboard.up("KeyD")
+
+    # The holder leaves: control is free again.
+    watcher.close()
+    pilot.wait_for_function("document.getElementById('control-text').textContent === "
+                            "'Watching: nobody has control.'")
+    assert live.app.state.desk.status()["held"] is False
