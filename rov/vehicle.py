@@ -35,6 +35,11 @@ API
   `.step(dt_s, controls) -> VehicleState` advances by any dt (internally in small
   sub-steps) and returns the new state; `.state` is the current `VehicleState`
   (x, y, z metres local NED, yaw radians, NED velocities, yaw rate).
+  Cost: about 100 sub-steps per simulated second, roughly 1-2 ms of CPU.
+- Measured with this model (tests/rov/test_vehicle_model.py checks them):
+  5.49 m forward in 8 s at x=700; 4.68 m deeper in 8 s at z=150, then held within
+  0.07 m; 147 (MANUAL) / 142 (STABILIZE) degrees in 4 s at r=600; a GUIDED target
+  7.3 m away reached within 0.10 m in 15 s.
 """
 
 from __future__ import annotations

@@ -198,6 +198,11 @@ def test_bridge_survives_garbage_and_unreachable_endpoints(sim, bridge):
         snap = lonely.snapshot()
         assert not snap.autopilot_alive and not snap.connected
         assert lonely.request_arm(True).status == Ticket.PENDING
+    # A serial device that is not there: same story.
+    with AutopilotBridge("/dev/rovlink-no-such-device,57600") as unplugged:
+        time.sleep(0.3)
+        assert not unplugged.snapshot().connected
+        assert unplugged.goto(1, 2, 3, None).wait(0.1) == Ticket.PENDING
 
 
 def test_bad_inputs_are_refused_cleanly(sim, bridge):
