@@ -18,13 +18,17 @@ Plan
   quiet); MANUAL_CONTROL from the current velocity wish at 10 Hz whatever the radio
   does, since ArduSub disarms after 3 s without pilot input.
 - Armed state and mode are read from the autopilot's HEARTBEAT, never assumed.
-  Requests (arm, mode) go out as COMMAND_LONG, are resent until answered by
-  COMMAND_ACK, and resolve a `Ticket` the node can poll.
+  Requests (arm, mode) go out as COMMAND_LONG, are resent every 0.5 s until
+  answered by COMMAND_ACK (or seen in the HEARTBEAT), and resolve a `Ticket` the
+  node can poll; without an answer within 5 s they fail.  A newer request of the
+  same kind cancels the older one.
 - A position order switches to GUIDED (if needed), resolves relative and body-frame
   offsets against the latest pose, and sends SET_POSITION_TARGET_LOCAL_NED
-  (position and yaw) once the HEARTBEAT shows GUIDED.  ArduSub does not acknowledge
-  targets, so "accepted" means: GUIDED confirmed and the target sent; a refused
-  GUIDED (no position estimate) fails the order.
+  (position and yaw, resent every second) once GUIDED is acknowledged.  ArduSub
+  does not acknowledge targets, so "accepted" means: GUIDED confirmed and the
+  target sent; a refused GUIDED (no position estimate) fails the order.  The order
+  ends with STOP, another mode request, a newer order, or when the autopilot leaves
+  GUIDED by itself.
 - No HEARTBEAT for 3 s: AUTOPILOT is reported lost, and the connection is closed
   and reopened with a growing backoff (0.5 s doubling to 8 s), as is any
   connection that fails to open or breaks.
@@ -44,7 +48,8 @@ API (all methods thread-safe and non-blocking, safe to call from asyncio code)
         absolute: local NED; relative: offsets from the current pose (yaw too);
         body (with relative): the x/y offset is in the vehicle's frame, else NED.
         yaw None keeps the heading.
-        Non-finite numbers or a relative order without a position: failed at once.
+        Non-finite numbers: failed at once; a relative order without a valid
+        position: failed by the I/O thread (within ~20 ms).
     bridge.stop_motion() -> Ticket       # the protocol's STOP: neutral velocity,
                                           # cancel any position order, ALT_HOLD.
     bridge.failsafe(active)               # link lost: stop_motion() once, then hold
