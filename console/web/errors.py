@@ -3,9 +3,13 @@ own) and `message`, one line saying what is wrong.
 
 OrderError (the Operator refusing a value) and UnknownClient are 422, like
 any malformed request; NotHolder is 409: the request was fine, the caller
-is not the one who may make it."""
+is not the one who may make it.  A POST a browser sends from another site's
+page is 403: any page the pilot has open could otherwise take control or
+press STOP through the pilot's browser (scripts send no Origin and pass)."""
 
 from __future__ import annotations
+
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -30,7 +34,22 @@ def _error(status: int, detail, message: str, headers=None) -> JSONResponse:
     return JSONResponse({"detail": detail, "message": message}, status_code=status, headers=headers)
 
 
+def same_origin(headers) -> bool:
+    """Whether a request's Origin (if any) is the site it was sent to."""
+    origin = headers.get("origin")
+    if origin is None:
+        return True  # not from a browser page
+    return urlsplit(origin).netloc.lower() == (headers.get("host") or "").lower()
+
+
 def install(app: FastAPI) -> None:
+    @app.middleware("http")
+    async def refuse_other_sites(request: Request, call_next):
+        if request.method not in ("GET", "HEAD", "OPTIONS") and not same_origin(request.headers):
+            message = f"cross-site request from {request.headers['origin']} refused"
+            return _error(403, message, message)
+        return await call_next(request)
+
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = exc.errors()

@@ -18,6 +18,7 @@ import httpx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
 from PIL import Image
 
 import debt
@@ -181,6 +182,22 @@ def test_a_silent_script_loses_control_and_its_velocity(operator):
         assert wait_for(lambda: not c.get("/api/control").json()["held"], 5.0)
         assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
         assert any("silent" in e["text"] for e in c.get("/api/state").json()["log"])
+
+
+def test_other_sites_pages_cannot_order_through_the_pilots_browser(client, operator):
+    evil = {"Origin": "http://evil.example", "Host": "testserver"}
+    r = client.post("/api/control/take", headers=evil)
+    assert r.status_code == 403 and "cross-site request from http://evil.example refused" in r.json()["message"]
+    assert client.post("/api/orders/stop", headers=evil).status_code == 403
+    assert client.get("/api/control").json()["held"] is False and operator.orders_state() == []
+    # Our own page (same origin) and scripts (no Origin) are welcome.
+    assert client.post("/api/control/take", headers={"Origin": "http://testserver"}).status_code == 200
+    with pytest.raises(WebSocketDisconnect) as refused:
+        with client.websocket_connect("/ws", headers={"Origin": "http://evil.example"}) as ws:
+            ws.receive_json()
+    assert refused.value.code == 1008
+    with client.websocket_connect("/ws", headers={"Origin": "http://testserver"}) as ws:
+        assert ws.receive_json()["type"] == "hello"
 
 
 # ----------------------------------------------------------------------

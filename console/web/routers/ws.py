@@ -19,7 +19,8 @@ Plan: one task sends, the receive loop only reads: a socket has one writer.
 Operator events arrive on any thread and reach the sender through a bounded
 queue fed with call_soon_threadsafe; when a slow page lets it fill, the
 oldest event goes (the next telemetry carries the truth anyway).  Closing
-the socket releases control if this client held it.
+the socket releases control if this client held it.  Pages of other sites
+(Origin not ours) are refused before the hello.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from console.operator import OrderError
 
 from ..control import NotHolder
 from ..deps import DeskDep, OperatorDep
-from ..errors import describe
+from ..errors import describe, same_origin
 from ..models import VelocityOrder
 from ..telemetry import finite
 
@@ -50,6 +51,10 @@ EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order"}
 async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: DeskDep) -> None:
     app = websocket.app
     config = app.state.config
+    if not same_origin(websocket.headers):
+        # Browsers let any site open a WebSocket here; only our page may.
+        await websocket.close(code=1008, reason="cross-site WebSocket refused")
+        return
     await websocket.accept()
     client = desk.connect(websocket.query_params.get("name", "")[:40])
     loop = asyncio.get_running_loop()
