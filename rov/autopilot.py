@@ -441,8 +441,20 @@ class AutopilotBridge:
                 except OSError as exc:
                     self._drop(f"send failed: {exc}")
         finally:
+            self._send_neutral()
             self._close()
             self._cancel_all("bridge stopped")
+
+    def _send_neutral(self) -> None:
+        """On the way out: leave the vehicle with neutral sticks rather than coasting
+        on the last wish until ArduSub's 3 s pilot-input failsafe."""
+        if self._conn is None:
+            return
+        try:
+            for _ in range(2):  # two datagrams: one loss must not leave the stick deflected
+                self._conn.mav.manual_control_send(self._target_system, 0, 0, 500, 0, 0)
+        except Exception as exc:
+            log.debug("could not send the final neutral input: %s", exc)
 
     def _open(self, now: float) -> None:
         try:

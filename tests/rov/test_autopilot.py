@@ -11,7 +11,7 @@ from pymavlink import mavutil
 
 from rov.autopilot import AutopilotBridge, Ticket, protocol_mode, sub_mode
 from rov.simulator import SimulatedVehicle
-from rov.vehicle import SubMode, VehicleState
+from rov.vehicle import PilotInput, SubMode, VehicleState
 
 from .conftest import free_udp_port, wait_for
 
@@ -292,3 +292,14 @@ def test_a_position_order_ends_when_the_autopilot_leaves_guided(sim, bridge):
         assert wait_for(lambda: bridge._goto is None, 1.0)
     finally:
         gcs.close()
+
+
+def test_stopping_the_bridge_leaves_the_sticks_neutral(sim):
+    bridge = AutopilotBridge(sim.bridge_url).start()
+    try:
+        assert wait_for(lambda: bridge.snapshot().autopilot_alive, 5.0)
+        bridge.set_velocity(0.8, 0.0, 0.0, 0.3)
+        assert wait_for(lambda: sim.truth().pilot.x == 800, 1.0)
+    finally:
+        bridge.stop()
+    assert wait_for(lambda: sim.truth().pilot == PilotInput(), 1.0)
