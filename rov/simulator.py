@@ -142,6 +142,7 @@ class SimulatedVehicle:
         """Open the endpoint and run the loop in a daemon thread."""
         if self._thread is not None:
             return self
+        self._stop.clear()
         self._open()
         self._thread = threading.Thread(target=self._run, name="rov-sim", daemon=True)
         self._thread.start()
@@ -161,6 +162,7 @@ class SimulatedVehicle:
 
     def serve_forever(self) -> None:
         """Run the loop in this thread until stop() (or KeyboardInterrupt)."""
+        self._stop.clear()
         self._open()
         self._run()
 
