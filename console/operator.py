@@ -48,7 +48,15 @@ from link.master import (
     ReplyLost,
     RequestExpired,
 )
-from link.messages import ImageSettings, Mode, Poll, Position, ProtocolError, Reply, Stop
+from link.messages import (
+    ImageSettings,
+    Mode,
+    Poll,
+    Position,
+    ProtocolError,
+    Reply,
+    Stop,
+)
 from link.transport import Endpoint
 
 log = logging.getLogger("rovlink.console.operator")
@@ -524,7 +532,14 @@ class Operator:
     def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
                      step_s: float = 0.5) -> list[tuple[float, float, float]]:
         """Where a POSITION order would take the vehicle (GUIDED, from the predicted pose)."""
-        from rov.vehicle import Controls, PilotInput, PositionTarget, SubMode, VehicleModel, VehicleState
+        from rov.vehicle import (
+            Controls,
+            PilotInput,
+            PositionTarget,
+            SubMode,
+            VehicleModel,
+            VehicleState,
+        )
 
         start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
         model = VehicleModel(state=VehicleState(x_m=start.x_m, y_m=start.y_m, z_m=start.z_m,

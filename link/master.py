@@ -48,7 +48,6 @@ from typing import Deque
 
 from .frame import OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
-    MAX_OBJECT,
     NO_IMAGE_DATA,
     REPLY_HEADER,
     REPLY_IMAGE_HEADER,

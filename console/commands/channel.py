@@ -2,28 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative, got {text}")
-    return value
-
-
-def _probability(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return value
+from .argtypes import non_negative, positive, probability
 
 
 def add_parser(subparsers) -> None:
@@ -41,16 +20,16 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("--a", required=True, metavar="URL", help="endpoint A (udp://, serial://)")
     p.add_argument("--b", required=True, metavar="URL", help="endpoint B (udp://, serial://)")
-    p.add_argument("--bitrate", type=_positive, default=1900.0, metavar="BPS", help="bits per second (default 1900)")
-    p.add_argument("--delay", type=_non_negative, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
-    p.add_argument("--propagation", type=_non_negative, default=0.0, metavar="S", help="propagation delay, s (default 0)")
-    p.add_argument("--ber", type=_probability, default=0.0, help="bit error rate (default 0)")
-    p.add_argument("--loss", type=_probability, default=0.0, help="packet loss rate (default 0)")
+    p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS", help="bits per second (default 1900)")
+    p.add_argument("--delay", type=non_negative, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
+    p.add_argument("--propagation", type=non_negative, default=0.0, metavar="S", help="propagation delay, s (default 0)")
+    p.add_argument("--ber", type=probability, default=0.0, help="bit error rate (default 0)")
+    p.add_argument("--loss", type=probability, default=0.0, help="packet loss rate (default 0)")
     p.add_argument("--queue", type=int, default=2048, metavar="BYTES", help="transmit queue per side (default 2048)")
     p.add_argument("--full-duplex", action="store_true", help="no half-duplex collisions")
     p.add_argument("--seed", type=int, default=0, help="random seed, for reproducible runs (default 0)")
     p.add_argument("--log", metavar="FILE", help="write every channel event as a JSON line to FILE")
-    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--quiet", action="store_true", help="no periodic status line")
     p.set_defaults(func=run)
 

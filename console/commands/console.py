@@ -2,16 +2,8 @@
 
 from __future__ import annotations
 
-import argparse
-
+from .argtypes import non_negative, positive
 from .serve import add_server_arguments
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
 
 
 def add_parser(subparsers) -> None:
@@ -24,9 +16,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--link", required=True, metavar="URL",
                    help="udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1][&mtu=N]")
     add_server_arguments(p)
-    p.add_argument("--bitrate", type=_positive, default=1900.0, metavar="BPS",
+    p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS",
                    help="the link's bit/s, for reply timeouts (default 1900)")
-    p.add_argument("--delay", type=float, default=0.085, metavar="S",
+    p.add_argument("--delay", type=non_negative, default=0.085, metavar="S",
                    help="the link's intrinsic delay, s, for reply timeouts (default 0.085)")
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
@@ -42,8 +34,6 @@ def run(args) -> int:
 
     from .serve import default_record_path, serve_operator
 
-    if args.delay < 0:
-        raise CommandError("--delay must not be negative")
     try:
         endpoint = open_transport(args.link)
     except TransportError as exc:

@@ -2,23 +2,8 @@
 
 from __future__ import annotations
 
-import argparse
-
+from .argtypes import non_negative, positive, probability
 from .serve import add_server_arguments
-
-
-def _rate(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value < 1.0:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
 
 
 def add_parser(subparsers) -> None:
@@ -32,9 +17,9 @@ def add_parser(subparsers) -> None:
         ),
     )
     add_server_arguments(p)
-    p.add_argument("--bitrate", type=_positive, default=1900.0, metavar="BPS", help="channel bit/s (default 1900)")
-    p.add_argument("--delay", type=float, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
-    p.add_argument("--ber", type=_rate, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")
+    p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS", help="channel bit/s (default 1900)")
+    p.add_argument("--delay", type=non_negative, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
+    p.add_argument("--ber", type=probability, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")
     p.add_argument("--seed", type=int, default=0, help="channel random seed (default 0)")
     p.add_argument("--camera", default="sim", metavar="SPEC", help="camera on the ROV: sim (default), DIR, opencv:N")
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
@@ -50,8 +35,6 @@ def run(args) -> int:
 
     from .serve import default_record_path, serve_operator
 
-    if args.delay < 0:
-        raise CommandError("--delay must not be negative")
     record = None if args.no_record else (args.record or default_record_path())
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
                          camera=args.camera, record=record,

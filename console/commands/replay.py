@@ -2,23 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
-
+from .argtypes import positive
 from .serve import add_server_arguments
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("replay", help="play a recorded session back into the console",
                               description="Serve the console and play FILE's frames into it with their timing.")
     p.add_argument("file", metavar="FILE", help="a session recording (runs/session-*.jsonl)")
-    p.add_argument("--speed", type=_positive, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--speed", type=positive, default=1.0, help="playback speed factor (default 1)")
     add_server_arguments(p)
     p.set_defaults(func=run_replay)
 
@@ -27,7 +19,7 @@ def add_parser(subparsers) -> None:
                               "(commanded vs received velocity) for FILE.")
     q.add_argument("file", metavar="FILE", help="a session recording (runs/session-*.jsonl)")
     q.add_argument("--out", default=".", metavar="DIR", help="folder for the PNG files (default .)")
-    q.add_argument("--window", type=_positive, metavar="S", help="plot only the first S seconds")
+    q.add_argument("--window", type=positive, metavar="S", help="plot only the first S seconds")
     q.set_defaults(func=run_plot)
 
 

@@ -2,14 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
+from .argtypes import positive
 
 
 def add_parser(subparsers) -> None:
@@ -31,13 +24,13 @@ def add_parser(subparsers) -> None:
                    "default: a simulated vehicle in-process")
     p.add_argument("--camera", default="sim", metavar="SPEC",
                    help="sim (default), a folder of images, folder:PATH, or opencv:N")
-    p.add_argument("--failsafe", type=_positive, default=3.0, metavar="S",
+    p.add_argument("--failsafe", type=positive, default=3.0, metavar="S",
                    help="seconds without a valid poll before the vehicle stops (default 3)")
     p.add_argument("--system-id", type=int, default=255, metavar="N", help="our MAVLink system id (default 255)")
     p.add_argument("--budget", type=int, default=2000, metavar="BYTES",
                    help="image budget until the operator sets one (default 2000)")
     p.add_argument("--colour", action="store_true", help="colour images until the operator sets otherwise")
-    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
     p.set_defaults(func=run)
 

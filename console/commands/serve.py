@@ -3,17 +3,11 @@ Operator through the viser scene and the web app until Ctrl-C."""
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import sys
 from pathlib import Path
 
-
-def port(text: str) -> int:
-    value = int(text)
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"must be a port 1..65535, got {text}")
-    return value
+from .argtypes import port
 
 
 def add_server_arguments(p) -> None:

@@ -1,7 +1,6 @@
 """The rovlink command as a user runs it: real processes, real sockets."""
 
 import json
-import os
 import signal
 import socket
 import subprocess

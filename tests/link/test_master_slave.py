@@ -7,13 +7,34 @@ import pytest
 from link.channel import Channel, LinkParams
 from link.frame import FrameDecoder, encode_frame
 from link.master import (
-    ImageComplete, ImageProgress, Master, OrderAcknowledged, OrderCancelled, PoseReceived, ReplyLost,
+    ImageComplete,
+    ImageProgress,
+    Master,
+    OrderAcknowledged,
+    OrderCancelled,
+    PoseReceived,
+    ReplyLost,
     RequestExpired,
 )
-from link.messages import ImageSettings, Mode, Poll, Position, Reply, ReservedOrder, Stop, Velocity
+from link.messages import (
+    ImageSettings,
+    Mode,
+    Poll,
+    Position,
+    Reply,
+    ReservedOrder,
+    Stop,
+    Velocity,
+)
 from link.sim import SimLink
 from link.slave import (
-    FailsafeCleared, FailsafeEntered, ImageWanted, OrderExecuted, OrderRejected, Slave, Status,
+    FailsafeCleared,
+    FailsafeEntered,
+    ImageWanted,
+    OrderExecuted,
+    OrderRejected,
+    Slave,
+    Status,
     VelocityCommanded,
 )
 

@@ -4,9 +4,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from link.frame import encode_frame, FrameDecoder
+from link.frame import FrameDecoder, encode_frame
 from link.messages import (
-    ImageSettings, NoOrder, Poll, Position, ProtocolError, Reply, ReservedOrder, Stop, Velocity,
+    ImageSettings,
+    NoOrder,
+    Poll,
+    Position,
+    ProtocolError,
+    Reply,
+    ReservedOrder,
+    Stop,
+    Velocity,
 )
 
 axis = st.integers(-127, 127)

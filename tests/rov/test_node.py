@@ -22,7 +22,15 @@ import debt
 from link.aio import run_master
 from link.frame import FrameDecoder, encode_frame
 from link.master import ImageComplete, Master, OrderAcknowledged, PoseReceived
-from link.messages import ImageSettings, Mode, Poll, Position, Reply, ReservedOrder, Stop
+from link.messages import (
+    ImageSettings,
+    Mode,
+    Poll,
+    Position,
+    Reply,
+    ReservedOrder,
+    Stop,
+)
 from link.transport import free_udp_port, open_transport
 from rov.autopilot import AutopilotBridge
 from rov.camera import SimulatedCamera
