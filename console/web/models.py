@@ -65,7 +65,7 @@ class ModeOrder(Request):
 
 
 class ImageSettingsOrder(Request):
-    """DEBT settings for the next image; a field left out keeps its value."""
+    """DEBT settings for the next images; a field left out keeps its value (roi: null clears it)."""
 
     # Strict ints inside, but a JSON array must still make a tuple.
     roi: tuple[StrictInt, StrictInt, StrictInt, StrictInt] | None = Field(

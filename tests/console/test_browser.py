@@ -174,3 +174,36 @@ def test_control_passes_between_pages_only_when_taken_and_leaves_with_its_page(o
     pilot.wait_for_function("document.getElementById('control-text').textContent === "
                             "'Watching: nobody has control.'")
     assert live.app.state.desk.status()["held"] is False
+
+
+def test_a_region_dragged_on_the_image_and_a_goto_become_orders(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=20000)
+    width, height = page.evaluate("[document.getElementById('image').naturalWidth, "
+                                  "document.getElementById('image').naturalHeight]")
+    box = page.locator("#image").bounding_box()
+    page.mouse.move(box["x"] + box["width"] * 0.25, box["y"] + box["height"] * 0.25)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] * 0.75, box["y"] + box["height"] * 0.5, steps=5)
+    page.mouse.up()
+    assert page.is_visible("#roi-box")
+    page.fill("#shift", "4")
+    page.click("#apply-image")
+    assert wait_for(lambda: live.operator.requested_settings.roi is not None, 5), "no ROI order"
+    settings = live.operator.requested_settings
+    assert settings.shift == 4
+    expected = (width * 0.25, height * 0.25, width * 0.75, height * 0.5)
+    assert all(abs(got - want) <= 2 for got, want in zip(settings.roi, expected)), (settings.roi, expected)
+
+    page.click("#roi-clear")
+    page.click("#apply-image")
+    assert wait_for(lambda: live.operator.requested_settings.roi is None, 5)
+
+    page.fill("#goto-x", "1.5")
+    page.fill("#goto-y", "-0.5")
+    page.fill("#goto-z", "2.5")
+    page.click("#goto-go")
+    assert wait_for(lambda: any(o["kind"] == "POSITION" and o["x_m"] == 1.5 and o["y_m"] == -0.5 and o["z_m"] == 2.5
+                                for o in live.operator.orders_state()), 5), "no position order"
+    live.operator.stop()  # the ROV need not go there for this test

@@ -168,6 +168,18 @@ def test_stop_is_accepted_from_anyone_and_stops_the_pilot(client, operator):
     assert client.get("/api/control", headers=pilot).json()["you"] is True  # STOP does not take control
 
 
+def test_image_settings_left_out_keep_their_value(client, operator):
+    holder = take(client)
+    assert client.post("/api/image/settings", json={"roi": [10, 20, 110, 90], "shift": 6},
+                       headers=holder).status_code == 200
+    assert client.post("/api/image/settings", json={"mono": True}, headers=holder).status_code == 200
+    assert client.get("/api/orders").json()[-1] | {"id": 0, "t_queued": 0} == {
+        "id": 0, "t_queued": 0, "kind": "IMAGE", "state": "queued", "roi": [10, 20, 110, 90], "shift": 6,
+        "mono": True, "budget_bytes": operator.requested_settings.budget_bytes}
+    client.post("/api/image/settings", json={"roi": None}, headers=holder)
+    assert operator.requested_settings.roi is None and operator.requested_settings.shift == 6
+
+
 def test_unknown_client_id_is_422(client):
     r = client.post("/api/control/take", headers={HEADER: "not-a-client"})
     assert r.status_code == 422

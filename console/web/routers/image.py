@@ -84,7 +84,9 @@ def get_debt(operator: OperatorDep) -> Response:
     422: {"model": ErrorBody, "description": "a setting is malformed or out of range"}},
     summary="ROI, shift, mono and budget for the next images")
 def post_settings(order: ImageSettingsOrder, operator: OperatorDep, _: HolderDep) -> dict:
-    order_id = operator.set_image_settings(roi=order.roi, shift=order.shift, mono=order.mono,
+    # The Operator reads roi=None as "no ROI"; here only an explicit null does.
+    roi = order.roi if "roi" in order.model_fields_set else operator.requested_settings.roi
+    order_id = operator.set_image_settings(roi=roi, shift=order.shift, mono=order.mono,
                                            budget_bytes=order.budget_bytes)
     return {"id": order_id, "kind": "IMAGE"}
 

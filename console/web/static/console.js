@@ -30,6 +30,9 @@ const page = {
   shownImage: null,      // "img:decoded_bytes" on screen
   loadingImage: false,
   wantedImage: null,
+  roi: null,             // [x0, y0, x1, y1] in picture pixels, or null
+  drag: null,            // picture-pixel start of a ROI drag
+  lastPose: null,
 };
 
 const $ = (id) => document.getElementById(id);
@@ -246,6 +249,8 @@ function setBadge(el, text, cls) {
 function render(s) {
   renderControl(s.control);
   const pose = s.pose;
+  page.lastPose = pose.received;
+  $("replaying").hidden = !s.replaying;
   $("pose-received").textContent = poseText(pose.received);
   $("pose-predicted").textContent = poseText(pose.predicted);
   if (pose.received) {
@@ -318,12 +323,72 @@ function showImage(im) {
     img.dataset.img = id;
     img.dataset.decodedBytes = bytes;
     $("image-decoded").textContent = `showing ${bytes} bytes`;
+    drawRoi();
     done();
   };
   next.onerror = done;
   next.src = `/api/image/latest.png?img=${encodeURIComponent(im.img)}&bytes=${im.decoded_bytes}`;
 }
 let lastImageState = null;
+
+// ---------------------------------------------------------------------------
+// Region of interest: dragged on the picture, in the picture's own pixels
+// ---------------------------------------------------------------------------
+
+function picturePoint(ev) {
+  const img = $("image");
+  const r = img.getBoundingClientRect();
+  const fx = Math.min(1, Math.max(0, (ev.clientX - r.left) / r.width));
+  const fy = Math.min(1, Math.max(0, (ev.clientY - r.top) / r.height));
+  return [Math.round(fx * img.naturalWidth), Math.round(fy * img.naturalHeight)];
+}
+
+function roiFrom(a, b) {
+  return [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[0], b[0]), Math.max(a[1], b[1])];
+}
+
+function drawRoi(roi = page.roi) {
+  const box = $("roi-box");
+  const img = $("image");
+  if (!roi || !img.naturalWidth) { box.hidden = true; return; }
+  const sx = img.clientWidth / img.naturalWidth;
+  const sy = img.clientHeight / img.naturalHeight;
+  Object.assign(box.style, {
+    left: `${img.offsetLeft + roi[0] * sx}px`, top: `${img.offsetTop + roi[1] * sy}px`,
+    width: `${(roi[2] - roi[0]) * sx}px`, height: `${(roi[3] - roi[1]) * sy}px`,
+  });
+  box.hidden = false;
+}
+
+function setRoi(roi) {
+  page.roi = roi;
+  $("roi-text").textContent = roi ? `ROI ${roi[0]},${roi[1]} – ${roi[2]},${roi[3]} px (Apply sends it)`
+    : "Drag on the image to choose a region of interest.";
+  $("roi-clear").hidden = !roi;
+  drawRoi();
+}
+
+function wireRoi() {
+  const img = $("image");
+  img.addEventListener("mousedown", (ev) => {
+    if (!page.holder || !img.naturalWidth) return;
+    ev.preventDefault();
+    page.drag = picturePoint(ev);
+  });
+  window.addEventListener("mousemove", (ev) => {
+    if (page.drag) drawRoi(roiFrom(page.drag, picturePoint(ev)));
+  });
+  window.addEventListener("mouseup", (ev) => {
+    if (!page.drag) return;
+    const roi = roiFrom(page.drag, picturePoint(ev));
+    page.drag = null;
+    // A click, not a drag: keep what was chosen before.
+    if (roi[2] - roi[0] < 4 || roi[3] - roi[1] < 4) drawRoi();
+    else setRoi(roi);
+  });
+  window.addEventListener("resize", () => drawRoi());
+  $("roi-clear").onclick = () => setRoi(null);
+}
 
 function setupScene(config) {
   const frame = $("scene");
@@ -358,8 +423,24 @@ function wire() {
   $("arm").onclick = () => api("/api/orders/arm", { armed: true });
   $("disarm").onclick = () => api("/api/orders/arm", { armed: false });
   $("set-mode").onclick = () => api("/api/orders/mode", { mode: $("mode-select").value });
-  $("apply-image").onclick = () => api("/api/image/settings",
-    { mono: $("mono").checked, budget_bytes: parseInt($("budget").value, 10) });
+  $("apply-image").onclick = () => api("/api/image/settings", {
+    roi: page.roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked,
+    budget_bytes: parseInt($("budget").value, 10),
+  });
+  $("goto").onsubmit = (ev) => {
+    ev.preventDefault();
+    api("/api/orders/position", {
+      x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
+      z_m: parseFloat($("goto-z").value), yaw_deg: parseFloat($("goto-yaw").value),
+    });
+  };
+  $("goto-here").onclick = () => {
+    const p = page.lastPose;
+    if (!p) return;
+    $("goto-x").value = p.x_m.toFixed(2); $("goto-y").value = p.y_m.toFixed(2);
+    $("goto-z").value = p.z_m.toFixed(2); $("goto-yaw").value = p.yaw_deg.toFixed(0);
+  };
+  wireRoi();
   $("next-image").onclick = () => api("/api/image/next");
   $("gain").oninput = () => { $("gain-value").textContent = `${Math.round($("gain").value * 100)} %`; };
 
