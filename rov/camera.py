@@ -12,8 +12,10 @@ Plan
 - `SimulatedCamera`: ray-casting against the flat seabed of `rov.scene`, all
   pixels at once with numpy.  Per-pixel ray directions are computed once for the
   camera (pinhole, `hfov_deg`, tilted down by `tilt_deg`), rotated by the vehicle's
-  attitude each frame, intersected with the plane z = depth, and the texture is
-  sampled bilinearly (repeating beyond its extent).  Water is modelled per channel
+  roll and pitch, intersected with the plane z = depth; that geometry and the
+  water's effect on each pixel are cached until depth, roll or pitch change, so a
+  frame is mostly a yaw rotation of the hit points and a bilinear texture lookup
+  (repeating beyond its extent).  Water is modelled per channel
   (red is absorbed fastest): daylight dimming with depth, then attenuation and
   back-scatter (haze) along the line of sight.  Rays that miss the seabed see open
   water, brighter towards the surface.
@@ -109,6 +111,8 @@ class SimulatedCamera:
         padded = np.concatenate([padded, padded[:, :1]], axis=1)
         self._flat_texture = np.ascontiguousarray(padded.reshape(-1, 3))
         self._rays = self._camera_rays()
+        self._geometry_key: tuple | None = None
+        self._geometry_cache: tuple = ()
 
     def _camera_rays(self) -> np.ndarray:
         """Unit ray directions in the body frame: forward, right, down arrays of H*W."""
@@ -139,10 +143,16 @@ class SimulatedCamera:
             np.float32,
         )
 
-    def capture(self, pose: Any = None) -> np.ndarray:
-        x, y, z, roll, pitch, yaw = _pose_tuple(pose)
+    def _geometry(self, z: float, roll: float, pitch: float):
+        """Everything that depends on depth and tilt but not on x, y or yaw: which
+        pixels see the seabed, where (relative to the vehicle, before yaw), and what
+        the water does to their light.  Cached: between frames usually only x, y
+        and yaw change, and yaw turns about the vertical, which leaves it all alone."""
+        key = (round(z, 3), round(roll, 4), round(pitch, 4))
+        if key == self._geometry_key:
+            return self._geometry_cache
         seabed = self.seabed
-        rot = self._body_to_ned(roll, pitch, yaw)
+        rot = self._body_to_ned(roll, pitch, 0.0)
         bx, by, bz = self._rays
         # Three multiply-adds per axis: much faster than a (N,3) @ (3,3) matmul here.
         rx = rot[0, 0] * bx + rot[0, 1] * by + rot[0, 2] * bz
@@ -151,23 +161,32 @@ class SimulatedCamera:
         height_m = seabed.depth_m - z
         daylight = np.exp(-self.DAYLIGHT_PER_M * max(z, 0.0))
         hits = (rz > 1e-3) if height_m > 0 else np.zeros(rz.shape, bool)
-        colour = np.empty((rz.shape[0], 3), np.float32)
+        base = np.empty((rz.shape[0], 3), np.float32)
         miss = np.flatnonzero(~hits)
         if miss.size:
             # Open water: brighter and bluer looking up, darker looking down.
             up = np.clip(-rz[miss], 0.0, 1.0)[:, None]
-            colour[miss] = (self.WATER_RGB + (self.SURFACE_RGB - self.WATER_RGB) * up) * (0.75 + 0.25 * up) * daylight
+            base[miss] = (self.WATER_RGB + (self.SURFACE_RGB - self.WATER_RGB) * up) * (0.75 + 0.25 * up) * daylight
         idx = np.flatnonzero(hits)
+        d = np.float32(max(height_m, 0.0)) / rz[idx]
+        # Sunlight dimmed by the water above the seabed, plus the vehicle's lamps,
+        # which give back some red close by; then absorption and haze on the way.
+        lamp = self.LAMP_GAIN / (1.0 + (d / self.LAMP_RANGE_M) ** 2)
+        light = np.exp(-self.DAYLIGHT_PER_M * seabed.depth_m)[None, :] + lamp[:, None]
+        transmit = np.exp(-self.ATTENUATION_PER_M[None, :] * d[:, None])
+        haze = self.WATER_RGB * np.exp(-self.DAYLIGHT_PER_M * (0.5 * (max(z, 0.0) + seabed.depth_m)))
+        geometry = (idx, rx[idx] * d, ry[idx] * d, light * transmit, haze[None, :] * (1.0 - transmit), base)
+        self._geometry_key, self._geometry_cache = key, geometry
+        return geometry
+
+    def capture(self, pose: Any = None) -> np.ndarray:
+        x, y, z, roll, pitch, yaw = _pose_tuple(pose)
+        idx, offset_n, offset_e, gain, haze, base = self._geometry(z, roll, pitch)
+        colour = base.copy()
         if idx.size:
-            d = np.float32(height_m) / rz[idx]
-            ground = self._sample(np.float32(x) + rx[idx] * d, np.float32(y) + ry[idx] * d)
-            # Sunlight dimmed by the water above the seabed, plus the vehicle's lamps,
-            # which give back some red close by; then absorption and haze on the way.
-            lamp = self.LAMP_GAIN / (1.0 + (d / self.LAMP_RANGE_M) ** 2)
-            light = np.exp(-self.DAYLIGHT_PER_M * seabed.depth_m)[None, :] + lamp[:, None]
-            transmit = np.exp(-self.ATTENUATION_PER_M[None, :] * d[:, None])
-            haze = self.WATER_RGB * np.exp(-self.DAYLIGHT_PER_M * (0.5 * (max(z, 0.0) + seabed.depth_m)))
-            colour[idx] = ground * light * transmit + haze[None, :] * (1.0 - transmit)
+            c, s = np.float32(math.cos(yaw)), np.float32(math.sin(yaw))
+            ground = self._sample(np.float32(x) + c * offset_n - s * offset_e, np.float32(y) + s * offset_n + c * offset_e)
+            colour[idx] = ground * gain + haze
         image = colour.reshape(self.height, self.width, 3)
         return np.clip(image * self.EXPOSURE, 0, 255).astype(np.uint8)
 
