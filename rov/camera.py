@@ -111,8 +111,7 @@ class SimulatedCamera:
         padded = np.concatenate([padded, padded[:, :1]], axis=1)
         self._flat_texture = np.ascontiguousarray(padded.reshape(-1, 3))
         self._rays = self._camera_rays()
-        self._geometry_key: tuple | None = None
-        self._geometry_cache: tuple = ()
+        self._cached_geometry: tuple = (None, ())
 
     def _camera_rays(self) -> np.ndarray:
         """Unit ray directions in the body frame: forward, right, down arrays of H*W."""
@@ -149,8 +148,9 @@ class SimulatedCamera:
         the water does to their light.  Cached: between frames usually only x, y
         and yaw change, and yaw turns about the vertical, which leaves it all alone."""
         key = (round(z, 3), round(roll, 4), round(pitch, 4))
-        if key == self._geometry_key:
-            return self._geometry_cache
+        cached_key, cached = self._cached_geometry  # one attribute: safe across threads
+        if key == cached_key:
+            return cached
         seabed = self.seabed
         rot = self._body_to_ned(roll, pitch, 0.0)
         bx, by, bz = self._rays
@@ -176,7 +176,7 @@ class SimulatedCamera:
         transmit = np.exp(-self.ATTENUATION_PER_M[None, :] * d[:, None])
         haze = self.WATER_RGB * np.exp(-self.DAYLIGHT_PER_M * (0.5 * (max(z, 0.0) + seabed.depth_m)))
         geometry = (idx, rx[idx] * d, ry[idx] * d, light * transmit, haze[None, :] * (1.0 - transmit), base)
-        self._geometry_key, self._geometry_cache = key, geometry
+        self._cached_geometry = (key, geometry)
         return geometry
 
     def capture(self, pose: Any = None) -> np.ndarray:
