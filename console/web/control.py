@@ -191,9 +191,6 @@ class ControlDesk:
     # Status
     # ------------------------------------------------------------------
 
-    def holder_id(self) -> str | None:
-        return self._holder
-
     def status(self, client_id: str | None = None) -> dict:
         with self._lock:
             holder = self._clients.get(self._holder) if self._holder else None

@@ -96,6 +96,18 @@ def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
     assert client.get("/api/image").json()["received_bytes"] == 0
 
 
+def test_estimates_that_are_not_finite_are_sent_as_null(client, operator, monkeypatch):
+    monkeypatch.setattr(operator.master, "estimated_ber", lambda: math.inf)
+    assert client.get("/api/link").json()["estimated_ber"] is None
+    assert client.get("/api/state").json()["link"]["estimated_ber"] is None
+    with client.websocket_connect("/ws") as ws:
+        # Browsers' JSON.parse refuses NaN and Infinity, so a strict parser here too.
+        ws.receive_json()
+        text = ws.receive_text()
+        telemetry = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in telemetry"))
+        assert telemetry["link"]["estimated_ber"] is None
+
+
 def test_no_picture_yet_is_404_with_a_message(client):
     for path in ("/api/image/latest.png", "/api/image/latest.debt"):
         r = client.get(path)

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Request
 
 from ..deps import ClientIdDep, DeskDep, OperatorDep
 from ..models import Config, OrderInfo, PoseState, State
-from ..telemetry import snapshot
+from ..telemetry import finite, snapshot
 
 router = APIRouter(prefix="/api", tags=["state"])
 
@@ -14,12 +14,12 @@ router = APIRouter(prefix="/api", tags=["state"])
 @router.get("/state", response_model=State, summary="Everything the console knows, at once")
 def get_state(operator: OperatorDep, desk: DeskDep, cid: ClientIdDep) -> dict:
     desk.touch(cid)
-    return snapshot(operator, desk, cid, orders=50, log=20)
+    return finite(snapshot(operator, desk, cid, orders=50, log=20))
 
 
 @router.get("/pose", response_model=PoseState, summary="Received and predicted pose, armed, mode, failsafe")
 def get_pose(operator: OperatorDep) -> dict:
-    return operator.pose_state()
+    return finite(operator.pose_state())
 
 
 @router.get("/orders", response_model=list[OrderInfo], summary="The last 50 one-shot orders and their progress")
