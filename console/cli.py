@@ -25,6 +25,7 @@ COMMAND_MODULES = [
     "console.commands.console",
     "console.commands.demo",
     "console.commands.replay",
+    "console.commands.debt",
 ]
 
 

@@ -191,7 +191,8 @@ def _neighbours(sig, off, h, w, y, x):
 def _new_significant(mode, st, buf, probs, counts, c, p, cls, neg, sig, sgn, rec,
                      pk, sigplane, lsp, nlsp):
     # A coefficient just found significant: its sign, then its state.
-    s = _code(mode, st, buf, probs, counts, CTX_SIGN + cls, neg[c])
+    # Decoding passes a one-element `neg`: read it only when encoding.
+    s = _code(mode, st, buf, probs, counts, CTX_SIGN + cls, neg[c] if mode == 0 else 0)
     if s < 0:
         return -1
     sig[c] = 1

@@ -11,6 +11,7 @@ import importlib
 BENCH_MODULES = [
     "console.bench.link",
     "console.bench.console",
+    "console.bench.debt",
 ]
 
 
