@@ -326,6 +326,8 @@ def test_websocket_refuses_bad_messages_with_a_reason(client, operator):
         client.post("/api/control/take", headers={HEADER: ws.receive_json()["client_id"]})
         ws.send_text("not json")
         assert "JSON" in next_of(ws, "error")["message"]
+        ws.send_bytes(b"\x00\x01")
+        assert "binary messages" in next_of(ws, "error")["message"]
         ws.send_json({"type": "dance"})
         assert "unknown message type 'dance'" in next_of(ws, "error")["message"]
         ws.send_json({"type": "velocity", "vx": 3})

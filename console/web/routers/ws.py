@@ -79,13 +79,16 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
         await websocket.send_text(json.dumps({"type": "hello", "client_id": client.id, "config": config}))
         next_at = loop.time()
         while True:
-            try:
-                async with asyncio.timeout(max(0.0, next_at - loop.time())):
-                    message = await outbox.get()
-                await websocket.send_text(json.dumps(message))
-                continue
-            except TimeoutError:
-                pass
+            # Events between telemetry ticks; a busy outbox never delays a tick.
+            wait = next_at - loop.time()
+            if wait > 0:
+                try:
+                    async with asyncio.timeout(wait):
+                        message = await outbox.get()
+                    await websocket.send_text(json.dumps(message))
+                    continue
+                except TimeoutError:
+                    pass
             desk.tick()
             if desk.version != control_version:
                 control_version = desk.version
@@ -109,7 +112,13 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
     try:
         while True:
             # A page gone while the sender writes also ends this receive.
-            _handle(await websocket.receive_text(), client.id, operator, desk, post)
+            message = await websocket.receive()
+            if message["type"] == "websocket.disconnect":
+                break
+            if message.get("text") is None:
+                post({"type": "error", "message": "binary messages are not understood; send JSON text"})
+                continue
+            _handle(message["text"], client.id, operator, desk, post)
     except WebSocketDisconnect:
         pass
     finally:
