@@ -207,3 +207,28 @@ def test_a_region_dragged_on_the_image_and_a_goto_become_orders(open_page, live)
     assert wait_for(lambda: any(o["kind"] == "POSITION" and o["x_m"] == 1.5 and o["y_m"] == -0.5 and o["z_m"] == 2.5
                                 for o in live.operator.orders_state()), 5), "no position order"
     live.operator.stop()  # the ROV need not go there for this test
+
+
+FAKE_GAMEPAD = """() => {
+  // Headless Chromium has no gamepad: stand in for the Gamepad API.
+  const pad = { id: "test pad", index: 0, connected: true, axes: [0, 0, 0, 0],
+                buttons: Array.from({ length: 17 }, () => ({ pressed: false, value: 0 })) };
+  window.testPad = pad;
+  navigator.getGamepads = () => [pad];
+  window.dispatchEvent(Object.assign(new Event("gamepadconnected"), { gamepad: pad }));
+}"""
+
+
+def test_gamepad_sticks_drive_and_button_b_stops(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.evaluate(FAKE_GAMEPAD)
+    assert page.text_content("#gamepad") == "Gamepad: test pad."
+    # Left stick pushed forward and right, right stick left: surge, sway, yaw.
+    page.evaluate("window.testPad.axes = [0.4, -0.8, -0.6, 0.05]")
+    assert wait_for(lambda: wish(live) == {"vx": 0.8, "vy": 0.4, "vz": 0.0, "vyaw": -0.6}, 3), wish(live)
+    page.evaluate("window.testPad.axes = [0, 0, 0, 0]")
+    assert wait_for(lambda: wish(live) == NEUTRAL, 3), "stick released but still moving"
+    stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
+    page.evaluate("window.testPad.buttons[1] = { pressed: true, value: 1 }")
+    assert wait_for(lambda: sum(o["kind"] == "STOP" for o in live.operator.orders_state()) == stops + 1, 3)
