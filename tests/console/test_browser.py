@@ -53,12 +53,15 @@ def browser():
 
 @pytest.fixture
 def open_page(browser, live):
-    contexts = []
+    """Opens operator pages; fails the test if a page logged a script error."""
+    contexts, errors = [], []
 
     def open_():
         context = browser.new_context()
         contexts.append(context)
         page = context.new_page()
+        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+        page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
         page.goto(live.url)
         page.wait_for_function("document.body.dataset.clientId !== undefined")
         return page
@@ -66,6 +69,7 @@ def open_page(browser, live):
     yield open_
     for context in contexts:
         context.close()
+    assert not errors, errors
 
 
 def wish(live) -> dict:
