@@ -40,7 +40,7 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     except OSError as exc:
         raise CommandError(f"cannot serve the 3D scene on port {args.viser_port}: {exc}") from None
     viser_url = f"http://{browser_host(args.host)}:{args.viser_port}"
-    app = create_app(operator, viser_url=viser_url, scene=scene)
+    app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0)
     tasks = [asyncio.create_task(coro) for coro in background]
     url = f"http://{browser_host(args.host)}:{args.port}"
     print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url}\n  Ctrl-C stops.", flush=True)
