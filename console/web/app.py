@@ -76,7 +76,8 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
         description=(
             "Read the session (pose, link health, image) freely; orders need control: "
             "`POST /api/control/take`, then send the returned id as `X-Rovlink-Client`. "
-            "STOP is accepted from anyone. Telemetry streams on the WebSocket `/ws`."
+            "STOP is accepted from anyone. Telemetry streams on the WebSocket `/ws`:\n\n"
+            "```\n" + _ws_protocol() + "\n```"
         ),
         version="1",
         lifespan=lifespan,
@@ -98,6 +99,13 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
         return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
 
     return app
+
+
+def _ws_protocol() -> str:
+    """The WebSocket's messages, as its module documents them (OpenAPI has no place for them)."""
+    doc = ws.__doc__ or ""
+    start, end = doc.find("Server to client"), doc.find("\n\nPlan:")
+    return doc[start:end if end > 0 else None].strip()
 
 
 def _bind(host: str, port: int) -> socket.socket:

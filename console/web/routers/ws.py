@@ -1,8 +1,8 @@
 """The WebSocket at /ws: telemetry out, the holder's velocity in.
 
-Server to client (JSON text messages, each with a "type"):
+Server to client (JSON text messages: "type" and the fields named, flat):
   hello      {client_id, config}: once, first; the page's id for REST and take
-  telemetry  {t, pose, link, image, velocity_wish, orders, log, replaying, control}
+  telemetry  {pose, link, image, velocity_wish, orders, log, replaying, control}
              at `telemetry_hz`; `control.you` says whether this client drives
   image      {image: <image state>}: a new picture was decoded (fetch the PNG)
   log        {entry: {t, text}}

@@ -57,8 +57,11 @@ function connect() {
   };
 }
 
+// Two pages on one machine must be told apart in "X has control".
+const PAGE_TAG = Math.random().toString(16).slice(2, 6);
+
 function pageName() {
-  return `browser ${navigator.platform || ""}`.trim().slice(0, 40);
+  return `browser ${navigator.platform || ""}`.trim().slice(0, 33) + ` #${PAGE_TAG}`;
 }
 
 function onMessage(msg) {
