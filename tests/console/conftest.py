@@ -74,7 +74,7 @@ def live():
             asyncio.run(main())
         except asyncio.CancelledError:
             pass
-        except BaseException as exc:  # shown by the fixture, not lost in the thread
+        except BaseException as exc:  # noqa: BLE001 -- raised again by the fixture, not lost in the thread
             holder["error"] = exc
         finally:
             ready.set()

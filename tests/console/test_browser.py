@@ -8,6 +8,7 @@ Debian's /usr/bin/chromium driven by Playwright (no browser download).
 
 from __future__ import annotations
 
+import itertools
 import os
 
 import pytest
@@ -113,10 +114,10 @@ def test_an_image_arrives_and_visibly_refines(open_page, live):
         samples.append((*shown, page.evaluate(PIXEL_CHECKSUM)))
         # Two pictures of one image, the later from more bytes, and different.
         return any(a[0] == b[0] and b[1] > a[1] and b[2] > a[2] and b[4] != a[4]
-                   for a, b in zip(samples, samples[1:]))
+                   for a, b in itertools.pairwise(samples))
 
     assert wait_for(refined, 30, period_s=0.05), f"no refinement seen in {samples[-5:]}"
-    img, decoded, received, total, _ = samples[-1]
+    _, decoded, received, total, _ = samples[-1]
     assert 0 < decoded <= received <= total
     progress = page.evaluate("[document.getElementById('image-progress').value, "
                              "document.getElementById('image-progress').max]")

@@ -18,8 +18,8 @@ import httpx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from starlette.websockets import WebSocketDisconnect
 from PIL import Image
+from starlette.websockets import WebSocketDisconnect
 
 import debt
 from console.operator import Operator
@@ -216,9 +216,9 @@ def test_other_sites_pages_cannot_order_through_the_pilots_browser(client, opera
     assert client.get("/api/control").json()["held"] is False and operator.orders_state() == []
     # Our own page (same origin) and scripts (no Origin) are welcome.
     assert client.post("/api/control/take", headers={"Origin": "http://testserver"}).status_code == 200
-    with pytest.raises(WebSocketDisconnect) as refused:
-        with client.websocket_connect("/ws", headers={"Origin": "http://evil.example"}) as ws:
-            ws.receive_json()
+    with pytest.raises(WebSocketDisconnect) as refused, \
+            client.websocket_connect("/ws", headers={"Origin": "http://evil.example"}) as ws:
+        ws.receive_json()
     assert refused.value.code == 1008
     with client.websocket_connect("/ws", headers={"Origin": "http://testserver"}) as ws:
         assert ws.receive_json()["type"] == "hello"
@@ -309,16 +309,15 @@ def test_websocket_velocity_only_from_the_holder_and_released_on_disconnect(clie
 
 
 def test_websocket_velocity_falls_back_to_neutral_when_its_repeats_stop(operator):
-    with TestClient(create_app(operator, velocity_deadman_s=0.3)) as c:
-        with c.websocket_connect("/ws") as ws:
-            me = {HEADER: ws.receive_json()["client_id"]}
-            c.post("/api/control/take", headers=me)
-            ws.send_json({"type": "velocity", "vz": -0.8})
-            assert wait_for(lambda: wish(operator) == (0.0, 0.0, -0.8, 0.0), 2.0)
-            # No repeat: the dead man sets neutral, control stays.
-            assert wait_for(lambda: wish(operator) == (0.0, 0.0, 0.0, 0.0), 3.0)
-            assert c.get("/api/control", headers=me).json()["you"] is True
-            assert any("stopped arriving" in e["text"] for e in c.get("/api/state").json()["log"])
+    with TestClient(create_app(operator, velocity_deadman_s=0.3)) as c, c.websocket_connect("/ws") as ws:
+        me = {HEADER: ws.receive_json()["client_id"]}
+        c.post("/api/control/take", headers=me)
+        ws.send_json({"type": "velocity", "vz": -0.8})
+        assert wait_for(lambda: wish(operator) == (0.0, 0.0, -0.8, 0.0), 2.0)
+        # No repeat: the dead man sets neutral, control stays.
+        assert wait_for(lambda: wish(operator) == (0.0, 0.0, 0.0, 0.0), 3.0)
+        assert c.get("/api/control", headers=me).json()["you"] is True
+        assert any("stopped arriving" in e["text"] for e in c.get("/api/state").json()["log"])
 
 
 def test_websocket_refuses_bad_messages_with_a_reason(client, operator):

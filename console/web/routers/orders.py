@@ -6,8 +6,17 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from ..deps import ClientIdDep, DeskDep, HolderDep, OperatorDep
-from ..models import (ArmOrder, ErrorBody, ModeOrder, OrderQueued, PathPreview, PositionOrder, Requested,
-                      VelocityOrder, VelocityWish)
+from ..models import (
+    ArmOrder,
+    ErrorBody,
+    ModeOrder,
+    OrderQueued,
+    PathPreview,
+    PositionOrder,
+    Requested,
+    VelocityOrder,
+    VelocityWish,
+)
 
 INVALID = {422: {"model": ErrorBody, "description": "the order is malformed or out of range"}}
 HOLDER_ONLY = {409: {"model": ErrorBody, "description": "the caller does not hold control"}, **INVALID}
