@@ -4,12 +4,14 @@ loopback port, all in one event loop on a background thread, the way
 `rovlink demo` runs them.  Tests talk to it over real sockets.
 
 The link runs at 19.2 kbit/s with 20 ms delay so that an image arrives in a
-second or two instead of eleven; nothing in the web layer depends on the rate.
+second or two instead of eleven (nothing in the web layer depends on the
+rate), and the ROV's failsafe waits 1 s instead of 3.
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import socket
 import threading
 import time
@@ -37,10 +39,20 @@ class LiveConsole:
     app: object
     url: str  # http://127.0.0.1:PORT
     loop: asyncio.AbstractEventLoop
+    stack: Stack
 
     @property
     def ws_url(self) -> str:
         return "ws" + self.url[len("http"):] + "/ws"
+
+    def set_link_loss(self, loss: float) -> None:
+        """Lose this fraction of the polls on their way to the ROV (1.0: the ROV hears nothing)."""
+        channel = self.stack.channel
+
+        def change() -> None:
+            channel.params["a"] = dataclasses.replace(channel.params["a"], loss=loss)
+
+        self.loop.call_soon_threadsafe(change)
 
 
 def _listening_socket() -> socket.socket:
@@ -58,12 +70,12 @@ def live():
     holder: dict = {}
 
     async def main() -> None:
-        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02)) as stack:
+        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, failsafe_s=1.0)) as stack:
             app = create_app(stack.operator, viser_url=None)
             sock = _listening_socket()
             port = sock.getsockname()[1]
             holder["console"] = LiveConsole(stack.operator, app, f"http://127.0.0.1:{port}",
-                                            asyncio.get_running_loop())
+                                            asyncio.get_running_loop(), stack)
             server = asyncio.create_task(serve(app, sock=sock))
             holder["task"] = asyncio.current_task()
             ready.set()

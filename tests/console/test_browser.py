@@ -237,3 +237,25 @@ def test_gamepad_sticks_drive_and_button_b_stops(open_page, live):
     stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
     page.evaluate("window.testPad.buttons[1] = { pressed: true, value: 1 }")
     assert wait_for(lambda: sum(o["kind"] == "STOP" for o in live.operator.orders_state()) == stops + 1, 3)
+
+
+def test_a_dropped_link_shows_in_link_health_and_the_failsafe_stays_visible(open_page, live):
+    page = open_page()
+    page.wait_for_function("document.getElementById('link-odo-age').textContent.endsWith(' s')")
+    lost_before = live.operator.link_state()["replies_lost"]
+    live.set_link_loss(1.0)
+    try:
+        # Polls go unanswered: the page counts lost replies and ageing odometry.
+        page.wait_for_function(f"+document.getElementById('link-lost').textContent.split(' / ')[1] > {lost_before}",
+                               timeout=10000)
+        page.wait_for_function("parseFloat(document.getElementById('link-odo-age').textContent) > 1.5",
+                               timeout=10000)
+        assert wait_for(lambda: live.stack.node.slave.failsafe, 10), "the ROV never went to failsafe"
+    finally:
+        live.set_link_loss(0.0)
+    # The first reply back says FAILSAFE; the ROV clears it at once, the page keeps showing it.
+    page.wait_for_selector("#failsafe:visible", timeout=10000)
+    page.wait_for_function("document.getElementById('failsafe').textContent === 'FAILSAFE (cleared)'",
+                           timeout=10000)
+    assert page.is_visible("#failsafe")
+    assert float(page.text_content("#link-odo-age").split()[0]) < 1.5

@@ -8,6 +8,7 @@ Server to client (JSON text messages: "type" and the fields named, flat):
   log        {entry: {t, text}}
   order      {order: <order info>}: an order was queued or changed state
   control    {control}: the holder changed (also in every telemetry)
+  failsafe   {failsafe, t}: the ROV's FAILSAFE flag changed (in a reply at session time t)
   error      {message}: a message of ours was refused
 Client to server:
   velocity   {vx, vy, vz, vyaw} fractions -1..1, from the holder only; repeat it
@@ -65,13 +66,25 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
             outbox.get_nowait()
         outbox.put_nowait(message)
 
+    failsafe_seen = [False]
+
     def on_event(topic: str, payload) -> None:  # any thread
-        key = EVENT_TOPICS.get(topic)
-        if key is not None:
-            try:
-                loop.call_soon_threadsafe(post, {"type": topic, key: finite(payload)})
-            except RuntimeError:  # loop closed
-                pass
+        if topic == "pose":
+            if bool(payload.get("failsafe")) == failsafe_seen[0]:
+                return
+            # The ROV says FAILSAFE in the first reply after a silence and
+            # clears it soon after: a flag that short could fall between two
+            # telemetry ticks, so its changes are events of their own.
+            failsafe_seen[0] = not failsafe_seen[0]
+            message = {"type": "failsafe", "failsafe": failsafe_seen[0], "t": payload["t"]}
+        elif topic in EVENT_TOPICS:
+            message = {"type": topic, EVENT_TOPICS[topic]: finite(payload)}
+        else:
+            return
+        try:
+            loop.call_soon_threadsafe(post, message)
+        except RuntimeError:  # loop closed
+            pass
 
     async def send_loop() -> None:
         period = 1.0 / config["telemetry_hz"]

@@ -33,6 +33,8 @@ const page = {
   roi: null,             // [x0, y0, x1, y1] in picture pixels, or null
   drag: null,            // picture-pixel start of a ROI drag
   lastPose: null,
+  failsafeActive: false,
+  failsafeAt: null,      // Date.now() when FAILSAFE was last reported
 };
 
 const $ = (id) => document.getElementById(id);
@@ -83,6 +85,10 @@ function onMessage(msg) {
       break;
     case "error":
       showError(msg.message);
+      break;
+    case "failsafe":
+      page.failsafeActive = msg.failsafe;
+      renderFailsafe(msg.failsafe);
       break;
   }
 }
@@ -272,15 +278,26 @@ function render(s) {
   $("link-bps").textContent = `${fmt(l.bytes_per_s, 0)} B/s`;
   $("link-odo-age").textContent = l.odometry_age_s === null ? "—" : `${fmt(l.odometry_age_s, 2)} s`;
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
-  const fs = $("failsafe");
-  fs.hidden = !l.failsafe;
-  fs.className = "badge bad";
+  renderFailsafe(l.failsafe || page.failsafeActive);
   setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
   setBadge($("link-up"), l.link_up ? "link up" : "link down", l.link_up ? "good" : "bad");
 
   renderImageProgress(s.image);
   renderList($("orders"), s.orders.slice(-6).reverse(), (o) => `#${o.id} ${o.kind}: ${o.state}`);
   renderList($("log"), s.log.slice(-6).reverse(), (e) => `${fmt(e.t, 1)} s ${e.text}`);
+}
+
+// FAILSAFE often lasts one reply (the first after a silence): the badge
+// stays up a while after it clears, so that the pilot sees it happened.
+const FAILSAFE_LATCH_MS = 10000;
+
+function renderFailsafe(active) {
+  if (active) page.failsafeAt = Date.now();
+  const recent = page.failsafeAt !== null && Date.now() - page.failsafeAt < FAILSAFE_LATCH_MS;
+  const el = $("failsafe");
+  el.hidden = !recent;
+  el.textContent = active ? "FAILSAFE" : "FAILSAFE (cleared)";
+  el.className = `badge ${active ? "bad" : "warn"}`;
 }
 
 function renderList(ul, items, text) {
