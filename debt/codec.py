@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from . import coder
+from . import coder, kernels
 from .transform import band_levels, band_shapes, band_weights, forward, inverse, levels_for
 
 MAGIC = 0b1011
@@ -222,7 +223,7 @@ def _layout(height: int, width: int, levels: int, ncomp: int) -> _Layout:
     res = band_levels(levels)
     order = [(c, i) for i in range(len(shapes1)) for c in range(ncomp)]
     nb = len(order)
-    binfo = np.zeros((nb, 5), dtype=np.int64)
+    binfo = np.zeros((nb, 6), dtype=np.int64)
     noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
     nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
     count = np.zeros(KMAX + 2, dtype=np.int64)
@@ -231,7 +232,7 @@ def _layout(height: int, width: int, levels: int, ncomp: int) -> _Layout:
     for b, (c, i) in enumerate(order):
         h, w = shapes1[i]
         k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
-        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + res[i])
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + res[i], 0 if i == 0 else (i - 1) % 3 + 1)
         off += h * w
         if h and w:
             count[0] += h * w
@@ -255,7 +256,7 @@ def _pyramid(values: np.ndarray, lay: _Layout, use_max: bool) -> np.ndarray:
     pad = 0 if use_max else np.iinfo(np.int64).max
     reduce = np.maximum if use_max else np.minimum
     for b in range(len(lay.shapes)):
-        off, h, w, k_root, _ = lay.binfo[b]
+        off, h, w, k_root = lay.binfo[b, :4]
         if not h or not w:
             continue
         level = values[off:off + h * w].reshape(h, w)
@@ -359,55 +360,118 @@ def _scales(h: Header, levels: int, ncomp: int) -> list[float] | list[int]:
     return [[v * comp_w[c] * 2.0 ** FRACTION_BITS for v in w] for c in range(ncomp)]
 
 
+# ---------------------------------------------------------------- plan
+
+@dataclass
+class _Plan:
+    """Everything that depends only on the header, shared by encode and decode."""
+    levels: int
+    lay: _Layout
+    ccls: np.ndarray        # band class of each coefficient (contexts), uint8
+    cfloor: np.ndarray      # lowest coded plane of each coefficient
+    node_floor: np.ndarray  # min of cfloor over each quadtree node, uint8
+    masks: list | None      # ROI mask per band of one component
+    scales: list            # per component and band: factor (9/7) or shift (5/3)
+    pos: np.ndarray | None = None        # 9/7: index of each coefficient in the Mallat arrays
+    scale: np.ndarray | None = None      # 9/7: its scale (band weight, ROI raise)
+    inv_scale: np.ndarray | None = None
+    cfloor8: np.ndarray | None = None    # cfloor as uint8, for the coder (small in cache)
+
+
+@lru_cache(maxsize=8)
+def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int) -> _Plan:
+    # Cached: the ROV sends image after image of one size, and the console
+    # decodes prefix after prefix of one stream.
+    levels = levels_for(height, width)
+    probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
+    lay = _layout(height, width, levels, ncomp)
+    masks = _roi_masks(probe, levels)
+    scales = _scales(probe, levels, ncomp)
+    n = max(lay.ncoef, 1)
+    sizes = lay.binfo[:, 1] * lay.binfo[:, 2]
+    ccls = np.zeros(n, dtype=np.uint8)
+    if lay.ncoef:
+        ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
+    cfloor = np.zeros(n, dtype=np.int64)
+    plan = _Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales)
+    if reversible:
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            c, i = lay.comp[b], lay.index[b]
+            f = np.full((bh, bw), scales[c][i], dtype=np.int64)
+            if masks is not None:
+                f[masks[i]] += shift
+            cfloor[off:off + bh * bw] = f.ravel()
+    else:
+        hs, ws = [height], [width]
+        for _ in range(levels):
+            hs.append(-(-hs[-1] // 2))
+            ws.append(-(-ws[-1] // 2))
+        origins = [(0, 0)]
+        for j in range(levels, 0, -1):
+            origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
+        pos = np.zeros(n, dtype=np.int64)
+        scale = np.ones(n, dtype=np.float64)
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            c, i = lay.comp[b], lay.index[b]
+            y0, x0 = origins[i]
+            yy, xx = np.mgrid[0:bh, 0:bw]
+            pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
+            sc = np.full((bh, bw), scales[c][i])
+            if masks is not None:
+                sc[masks[i]] *= float(1 << shift)
+            scale[off:off + bh * bw] = sc.ravel()
+        plan.pos, plan.scale, plan.inv_scale = pos, scale, 1.0 / scale
+    plan.node_floor = _pyramid(cfloor, lay, False).astype(np.uint8)
+    plan.cfloor8 = cfloor.astype(np.uint8)
+    return plan
+
+
 # ---------------------------------------------------------------- encode
 
 def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift: int,
                     limit: int):
     """Returns (header, payload bytes, complete?)."""
     height, width = img.shape[:2]
-    levels = levels_for(height, width)
     ncomp = 3 if colour else 1
-    probe = Header(width, height, colour, reversible, 0, roi, shift)
-    masks = _roi_masks(probe, levels)
-    scales = _scales(probe, levels, ncomp)
-    comp_bands = [forward(c, levels, "53" if reversible else "97") for c in _components(img, colour, reversible)]
-    lay = _layout(height, width, levels, ncomp)
-    mag = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
-    neg = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
-    cfloor = np.zeros(max(lay.ncoef, 1), dtype=np.int64)
-    for b in range(len(lay.shapes)):
-        off, bh, bw = lay.binfo[b, :3]
-        if not bh or not bw:
-            continue
-        c, i = lay.comp[b], lay.index[b]
-        band = comp_bands[c][i]
-        m = masks[i] if masks is not None else None
-        if reversible:
-            s = scales[c][i]
-            f = np.full(band.shape, s, dtype=np.int64)
-            if m is not None:
-                f[m] += shift
-            q = np.abs(band) << f
-            cfloor[off:off + bh * bw] = f.ravel()
-        else:
-            a = np.abs(band) * scales[c][i]
-            if m is not None:
-                a[m] *= float(1 << shift)
-            q = np.floor(a).astype(np.int64)
-        mag[off:off + bh * bw] = q.ravel()
-        neg[off:off + bh * bw] = (band < 0).ravel()
+    plan = _plan(height, width, ncomp, reversible, roi, shift)
+    lay = plan.lay
+    n = max(lay.ncoef, 1)
+    mag = np.zeros(n, dtype=np.int64)
+    neg = np.zeros(n, dtype=np.uint8)
+    comps = _components(img, colour, reversible)
+    if reversible:
+        comp_bands = [forward(c, plan.levels, "53") for c in comps]
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            band = comp_bands[lay.comp[b]][lay.index[b]]
+            f = plan.cfloor[off:off + bh * bw].reshape(bh, bw)
+            mag[off:off + bh * bw] = (np.abs(band) << f).ravel()
+            neg[off:off + bh * bw] = (band < 0).ravel()
+    else:
+        flat = np.empty(ncomp * height * width, dtype=np.float64)
+        for c, comp in enumerate(comps):
+            a = np.ascontiguousarray(comp, dtype=np.float64)
+            kernels.forward97(a, plan.levels)
+            flat[c * height * width:(c + 1) * height * width] = a.ravel()
+        kernels.gather97(flat, plan.pos, plan.scale, mag, neg)
     top = max(int(mag.max()).bit_length() - 1, 0)
     header = Header(width, height, colour, reversible, top, roi, shift)
-    node_max = _pyramid(mag, lay, True)
-    node_floor = _pyramid(cfloor, lay, False)
-    ccls = (lay.binfo[:, 4][np.repeat(np.arange(len(lay.shapes)), lay.binfo[:, 1] * lay.binfo[:, 2])]
-            if lay.ncoef else np.zeros(1, dtype=np.int64))
+    node_max = np.zeros(max(lay.nnodes, 1), dtype=np.int64)
+    kernels.max_pyramid(mag, lay.binfo, lay.noff, lay.nw, node_max)
     buf = np.zeros(limit + 64, dtype=np.uint8)
     st = coder.encoder_state(limit + 1)
     rec = np.zeros_like(mag)
-    pk = np.full_like(mag, -1)
-    sgn = np.zeros_like(mag)
-    complete = coder.run(0, mag, neg, cfloor, np.ascontiguousarray(ccls), node_max, node_floor,
+    pk = np.full(n, -1, dtype=np.int8)
+    sgn = np.zeros(n, dtype=np.uint8)
+    complete = coder.run(0, mag, neg, plan.cfloor8, plan.ccls, node_max, plan.node_floor,
                          lay.binfo, lay.noff, lay.nw, lay.seg, KMAX, top, buf, st, rec, pk, sgn)
     if complete:
         n = coder.flush(st, buf)
@@ -461,52 +525,38 @@ def decode(data) -> np.ndarray:
         raise ValueError(f"data must be bytes, not {type(data).__name__}")
     data = bytes(data)
     h = unpack_header(data)
-    levels = levels_for(h.height, h.width)
     ncomp = 3 if h.colour else 1
-    lay = _layout(h.height, h.width, levels, ncomp)
-    masks = _roi_masks(h, levels)
-    scales = _scales(h, levels, ncomp)
+    plan = _plan(h.height, h.width, ncomp, h.reversible, h.roi, h.shift)
+    lay = plan.lay
     n = max(lay.ncoef, 1)
-    cfloor = np.zeros(n, dtype=np.int64)
-    if h.reversible:
-        for b in range(len(lay.shapes)):
-            off, bh, bw = lay.binfo[b, :3]
-            if not bh or not bw:
-                continue
-            c, i = lay.comp[b], lay.index[b]
-            f = np.full((bh, bw), scales[c][i], dtype=np.int64)
-            if masks is not None:
-                f[masks[i]] += h.shift
-            cfloor[off:off + bh * bw] = f.ravel()
-    node_floor = _pyramid(cfloor, lay, False)
-    ccls = (lay.binfo[:, 4][np.repeat(np.arange(len(lay.shapes)), lay.binfo[:, 1] * lay.binfo[:, 2])]
-            if lay.ncoef else np.zeros(1, dtype=np.int64))
-    payload = np.frombuffer(data[h.size:], dtype=np.uint8).copy()
+    payload = np.frombuffer(data, dtype=np.uint8, offset=h.size).copy()
     st = coder.decoder_state(payload)
     buf = payload if payload.size else np.zeros(1, dtype=np.uint8)
     dummy = np.zeros(1, dtype=np.int64)
     rec = np.zeros(n, dtype=np.int64)
-    pk = np.full(n, -1, dtype=np.int64)
-    sgn = np.zeros(n, dtype=np.int64)
-    coder.run(1, dummy, dummy, cfloor, np.ascontiguousarray(ccls), dummy, node_floor, lay.binfo,
+    pk = np.full(n, -1, dtype=np.int8)
+    sgn = np.zeros(n, dtype=np.uint8)
+    coder.run(1, dummy, np.zeros(1, dtype=np.uint8), plan.cfloor8, plan.ccls, dummy, plan.node_floor, lay.binfo,
               lay.noff, lay.nw, lay.seg, KMAX, h.top, buf, st, rec, pk, sgn)
+    if not h.reversible:
+        hw = h.height * h.width
+        flat = np.zeros(ncomp * hw, dtype=np.float64)
+        kernels.reconstruct97(rec, pk, sgn, plan.pos, plan.inv_scale, flat)
+        comps = []
+        for c in range(ncomp):
+            a = flat[c * hw:(c + 1) * hw].reshape(h.height, h.width)
+            kernels.inverse97(a, plan.levels)
+            comps.append(a)
+        return _image(comps, h.colour, False)
+    cfloor = plan.cfloor
+    pk = pk.astype(np.int64)
     known = pk >= 0
-    if h.reversible:
-        span = np.where(known & (pk > cfloor), (np.int64(1) << np.maximum(pk - cfloor, 0)) - 1, 0) >> 1
-        mag = np.where(known, (rec >> cfloor) + span, 0)
-    else:
-        mag = np.where(known, rec + 0.5 * np.exp2(np.maximum(pk, 0)), 0.0)
+    span = np.where(known & (pk > cfloor), (np.int64(1) << np.maximum(pk - cfloor, 0)) - 1, 0) >> 1
+    mag = np.where(known, (rec >> cfloor) + span, 0)
     val = np.where(sgn == 1, -mag, mag)
-    comp_bands = [[None] * len(band_shapes(h.height, h.width, levels)) for _ in range(ncomp)]
+    comp_bands = [[None] * len(band_shapes(h.height, h.width, plan.levels)) for _ in range(ncomp)]
     for b in range(len(lay.shapes)):
         off, bh, bw = lay.binfo[b, :3]
-        c, i = lay.comp[b], lay.index[b]
-        band = val[off:off + bh * bw].reshape(bh, bw)
-        if not h.reversible:
-            band = band / scales[c][i]
-            if masks is not None and bh and bw:
-                band[masks[i]] /= float(1 << h.shift)
-        comp_bands[c][i] = band
-    kind = "53" if h.reversible else "97"
-    comps = [inverse(bands, levels, kind) for bands in comp_bands]
-    return _image(comps, h.colour, h.reversible)
+        comp_bands[lay.comp[b]][lay.index[b]] = val[off:off + bh * bw].reshape(bh, bw)
+    comps = [inverse(bands, plan.levels, "53") for bands in comp_bands]
+    return _image(comps, h.colour, True)

@@ -54,17 +54,21 @@ def _cache_ok() -> bool:
 
 if _numba is not None:
     _jit = _numba.njit(cache=_cache_ok(), nogil=True)
+    # Helpers are inlined into the traversal: a call that passes arrays costs
+    # reference counting, several times the work of one binary decision.
+    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always")
 else:  # pragma: no cover
     def _jit(f):
         return f
+    _inline = _jit
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
 # times 8 plus resolution level (0 = low band, j = level-j details).
 NCLS = 16
-CTX_SIG = 0                      # + cls * 4 + min(neighbours, 3)
-CTX_SET = CTX_SIG + NCLS * 4     # + cls * 8 + min(k, 7)
-CTX_SIGN = CTX_SET + NCLS * 8    # + cls
-CTX_REF = CTX_SIGN + NCLS        # + cls * 2 + (first refinement)
+CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
+CTX_SET = CTX_SIG + NCLS * 16    # + cls * 8 + min(k, 7)
+CTX_SIGN = CTX_SET + NCLS * 8    # + cls * 5 + sign context (0..4)
+CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 
 PROB_BITS = 15
@@ -77,7 +81,7 @@ REF_GROUP = 32
 SIG_GROUP = 8
 
 
-@_jit
+@_inline
 def _shift_low(st, buf):
     low = st[0]
     if low < 0xFF000000 or low >= 0x100000000:
@@ -97,50 +101,71 @@ def _shift_low(st, buf):
     st[0] = (low & 0x00FFFFFF) << 8
 
 
-@_jit
-def _code(mode, st, buf, probs, counts, ctx, bit):
+@_inline
+def _shift_low_t(low, cache, cache_size, pos, buf):
+    # `_shift_low` on scalars, so that the coder state stays in registers.
+    if low < 0xFF000000 or low >= 0x100000000:
+        carry = low >> 32
+        temp = cache
+        while True:
+            if pos < buf.shape[0]:
+                buf[pos] = (temp + carry) & 0xFF
+            pos += 1
+            temp = 0xFF
+            cache_size -= 1
+            if cache_size == 0:
+                break
+        cache = (low >> 24) & 0xFF
+    cache_size += 1
+    low = (low & 0x00FFFFFF) << 8
+    return low, cache, cache_size, pos
+
+
+@_inline
+def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
     """Encode `bit` (mode 0) or decode one (mode 1) in context `ctx`.
 
-    Returns the bit, or -1 when the encoder reached its byte limit or the
+    The coder state travels as scalars (five times faster than an array):
+    encoder (low, range, cache, cache size, bytes out), decoder (range,
+    lowest code, highest code, next byte, unused); `lim` is the encoder's
+    byte limit or the number of bytes the decoder holds.  Returns the new
+    state and the bit, or -1 when the encoder reached its byte limit or the
     decoder cannot be sure of the decision from the bytes it has."""
     p = probs[ctx]
     if mode == 0:
-        if st[4] >= st[5]:
-            return -1
-        rng = st[1]
-        bound = (rng >> PROB_BITS) * p
+        if a4 >= lim:
+            return a0, a1, a2, a3, a4, -1
+        bound = (a1 >> PROB_BITS) * p
         if bit == 0:
-            st[1] = bound
+            a1 = bound
         else:
-            st[0] += bound
-            st[1] = rng - bound
-        while st[1] < 0x1000000:
-            st[1] <<= 8
-            _shift_low(st, buf)
+            a0 += bound
+            a1 -= bound
+        while a1 < 0x1000000:
+            a1 <<= 8
+            a0, a2, a3, a4 = _shift_low_t(a0, a2, a3, a4, buf)
     else:
-        rng = st[0]
-        bound = (rng >> PROB_BITS) * p
-        if st[2] < bound:
+        bound = (a0 >> PROB_BITS) * p
+        if a2 < bound:
             bit = 0
-            st[0] = bound
-        elif st[1] >= bound:
+            a0 = bound
+        elif a1 >= bound:
             bit = 1
-            st[1] -= bound
-            st[2] -= bound
-            st[0] = rng - bound
+            a1 -= bound
+            a2 -= bound
+            a0 -= bound
         else:
-            return -1
-        while st[0] < 0x1000000:
-            st[0] <<= 8
-            pos = st[3]
-            if pos < st[4]:
-                byte = np.int64(buf[pos])
-                st[1] = (st[1] << 8) | byte
-                st[2] = (st[2] << 8) | byte
+            return a0, a1, a2, a3, a4, -1
+        while a0 < 0x1000000:
+            a0 <<= 8
+            if a3 < lim:
+                byte = np.int64(buf[a3])
+                a1 = (a1 << 8) | byte
+                a2 = (a2 << 8) | byte
             else:
-                st[1] = st[1] << 8
-                st[2] = (st[2] << 8) | 0xFF
-            st[3] = pos + 1
+                a1 = a1 << 8
+                a2 = (a2 << 8) | 0xFF
+            a3 += 1
     n = counts[ctx]
     shift = RATE[n]
     if n < RATE_LAST:
@@ -154,57 +179,143 @@ def _code(mode, st, buf, probs, counts, ctx, bit):
     elif p > PROB_ONE - 32:
         p = PROB_ONE - 32
     probs[ctx] = p
-    return bit
+    return a0, a1, a2, a3, a4, bit
 
 
-@_jit
+@_inline
+def _save(st, a0, a1, a2, a3, a4):
+    st[0] = a0
+    st[1] = a1
+    st[2] = a2
+    st[3] = a3
+    st[4] = a4
+    return 0
+
+
+@_inline
 def _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x):
     if k == 0:
         return cfloor[binfo[b, 0] + y * binfo[b, 2] + x]
     return node_floor[noff[b, k] + y * nw[b, k] + x]
 
 
-@_jit
+@_inline
 def _node_max(mag, node_max, binfo, noff, nw, b, k, y, x):
     if k == 0:
         return mag[binfo[b, 0] + y * binfo[b, 2] + x]
     return node_max[noff[b, k] + y * nw[b, k] + x]
 
 
-@_jit
-def _neighbours(sig, off, h, w, y, x):
-    count = 0
-    for dy in range(-1, 2):
-        yy = y + dy
-        if yy < 0 or yy >= h:
-            continue
-        row = off + yy * w
-        for dx in range(-1, 2):
-            xx = x + dx
-            if xx < 0 or xx >= w or (dy == 0 and dx == 0):
-                continue
-            count += sig[row + xx]
-    return count
+@_inline
+def _sig_context(sig, off, h, w, y, x, orient):
+    # Significance context from the 8 neighbours, split as EBCOT does into
+    # along-edge (h), across-edge (v) and diagonal (d) counts: in a band that
+    # is high-pass horizontally, significant coefficients line up vertically.
+    up = y > 0
+    dn = y + 1 < h
+    lf = x > 0
+    rt = x + 1 < w
+    row = off + y * w
+    nh = 0
+    nv = 0
+    nd = 0
+    if lf:
+        nh += sig[row + x - 1]
+    if rt:
+        nh += sig[row + x + 1]
+    if up:
+        nv += sig[row - w + x]
+        if lf:
+            nd += sig[row - w + x - 1]
+        if rt:
+            nd += sig[row - w + x + 1]
+    if dn:
+        nv += sig[row + w + x]
+        if lf:
+            nd += sig[row + w + x - 1]
+        if rt:
+            nd += sig[row + w + x + 1]
+    if orient == 1:  # high-pass across columns: edges run vertically
+        t = nh
+        nh = nv
+        nv = t
+    if orient == 3:
+        hv = nh + nv
+        if nd >= 3:
+            return 8
+        if nd == 2:
+            return 7 if hv >= 1 else 6
+        if nd == 1:
+            return 5 if hv >= 2 else (4 if hv == 1 else 3)
+        return 2 if hv >= 2 else (1 if hv == 1 else 0)
+    if nh == 2:
+        return 8
+    if nh == 1:
+        if nv >= 1:
+            return 7
+        return 6 if nd >= 1 else 5
+    if nv == 2:
+        return 4
+    if nv == 1:
+        return 3
+    if nd >= 2:
+        return 2
+    return 1 if nd == 1 else 0
 
 
-@_jit
-def _new_significant(mode, st, buf, probs, counts, c, p, cls, neg, sig, sgn, rec,
-                     pk, sigplane, lsp, nlsp):
-    # A coefficient just found significant: its sign, then its state.
-    # Decoding passes a one-element `neg`: read it only when encoding.
-    s = _code(mode, st, buf, probs, counts, CTX_SIGN + cls, neg[c] if mode == 0 else 0)
+@_inline
+def _sign_part(sig, sgn, i):
+    # +1 for a significant positive neighbour, -1 for a negative one.
+    if sig[i] == 0:
+        return 0
+    return -1 if sgn[i] else 1
+
+
+@_inline
+def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w, y, x, p,
+                     cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp):
+    # A coefficient just found significant: its sign, then its state.  The
+    # sign is predicted from the signs of the horizontal and vertical
+    # neighbours (EBCOT's five contexts, the prediction folded in by XOR).
+    c = off + y * w + x
+    hc = 0
+    vc = 0
+    if x > 0:
+        hc += _sign_part(sig, sgn, c - 1)
+    if x + 1 < w:
+        hc += _sign_part(sig, sgn, c + 1)
+    if y > 0:
+        vc += _sign_part(sig, sgn, c - w)
+    if y + 1 < h:
+        vc += _sign_part(sig, sgn, c + w)
+    hc = max(-1, min(1, hc))
+    vc = max(-1, min(1, vc))
+    flip = 0
+    if hc < 0 or (hc == 0 and vc < 0):
+        flip = 1
+        hc = -hc
+        vc = -vc
+    if hc == 0:
+        sctx = 0 if vc == 0 else 1
+    else:
+        sctx = 4 if vc == 1 else (3 if vc == 0 else 2)
+    # (`neg` is a placeholder of one element when decoding: never index it then.)
+    nb = (neg[c] if mode == 0 else 0) ^ flip
+    a0, a1, a2, a3, a4, s = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                                  CTX_SIGN + cls * 5 + sctx, nb)
     if s < 0:
-        return -1
+        return a0, a1, a2, a3, a4, -1
+    s ^= flip
     sig[c] = 1
     sgn[c] = s
     rec[c] = np.int64(1) << p
     pk[c] = p
     sigplane[c] = p
     lsp[nlsp] = c
-    return nlsp + 1
+    return a0, a1, a2, a3, a4, nlsp + 1
 
 
-@_jit
+@_inline
 def _drop_unfinished(lsp, nbefore, nlsp, rec, pk):
     # The decoder stopped inside a sorting pass.  Coefficients found
     # significant are shown in groups: a single one can, through the overlap
@@ -226,13 +337,14 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     the end of the certain data (decoder) stopped it first."""
     ncoef = cfloor.shape[0]
     nb = binfo.shape[0]
+    a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
     probs = np.full(NCTX, PROB_ONE // 2, dtype=np.int64)
     counts = np.zeros(NCTX, dtype=np.int64)
     lis = np.empty(seg[kmax + 1], dtype=np.int64)
     lis_len = np.zeros(kmax + 1, dtype=np.int64)
-    sig = np.zeros(ncoef, dtype=np.int64)
-    sigplane = np.zeros(ncoef, dtype=np.int64)
-    lsp = np.empty(ncoef, dtype=np.int64)
+    sig = np.zeros(ncoef, dtype=np.uint8)
+    sigplane = np.zeros(ncoef, dtype=np.int8)
+    lsp = np.empty(ncoef, dtype=np.int32)
     nlsp = 0
     stack = np.empty((4 * (kmax + 2), 3), dtype=np.int64)
     cy4 = np.empty(4, dtype=np.int64)
@@ -270,26 +382,26 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                     bit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
-                    nbr = _neighbours(sig, off, h, w, y, x)
-                    if nbr > 3:
-                        nbr = 3
-                    r = _code(mode, st, buf, probs, counts, CTX_SIG + cls * 4 + nbr, bit)
+                    ctx = CTX_SIG + cls * 16 + _sig_context(sig, off, h, w, y, x, binfo[b, 5])
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
+                                                  counts, ctx, bit)
                     if r < 0:
-                        return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                        return _save(st, a0, a1, a2, a3, a4) + _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                     if r == 0:
                         lis[base + j] = e
                         j += 1
                         continue
-                    r = _new_significant(mode, st, buf, probs, counts, c, p, cls, neg,
-                                         sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                    a0, a1, a2, a3, a4, r = _new_significant(
+                        mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w, y, x, p,
+                        cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                     if r < 0:
-                        return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                        return _save(st, a0, a1, a2, a3, a4) + _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                     nlsp = r
                     continue
                 kk = k if k < 7 else 7
-                r = _code(mode, st, buf, probs, counts, CTX_SET + cls * 8 + kk, bit)
+                a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, CTX_SET + cls * 8 + kk, bit)
                 if r < 0:
-                    return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                    return _save(st, a0, a1, a2, a3, a4) + _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                 if r == 0:
                     lis[base + j] = e
                     j += 1
@@ -333,16 +445,14 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                             if mode == 0:
                                 cbit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, ck, yy, xx) >= thr else 0
                             if ck == 0:
-                                nbr = _neighbours(sig, off, h, w, yy, xx)
-                                if nbr > 3:
-                                    nbr = 3
-                                ctx = CTX_SIG + cls * 4 + nbr
+                                ctx = CTX_SIG + cls * 16 + _sig_context(sig, off, h, w, yy, xx,
+                                                                        binfo[b, 5])
                             else:
                                 kk = ck if ck < 7 else 7
                                 ctx = CTX_SET + cls * 8 + kk
-                            r = _code(mode, st, buf, probs, counts, ctx, cbit)
+                            a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, cbit)
                             if r < 0:
-                                return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                                return _save(st, a0, a1, a2, a3, a4) + _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                         if r == 0:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
@@ -350,10 +460,11 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                         any_sig = True
                         if ck == 0:
                             c = off + yy * w + xx
-                            r = _new_significant(mode, st, buf, probs, counts, c, p, cls,
-                                                 neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
+                            a0, a1, a2, a3, a4, r = _new_significant(
+                                mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w,
+                                yy, xx, p, cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                             if r < 0:
-                                return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
+                                return _save(st, a0, a1, a2, a3, a4) + _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                             nlsp = r
                         else:
                             stack[depth, 0] = ck
@@ -372,7 +483,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
             if mode == 0:
                 bit = (mag[c] >> p) & 1
             first = 1 if sigplane[c] == p + 1 else 0
-            r = _code(mode, st, buf, probs, counts, CTX_REF + ccls[c] * 2 + first, bit)
+            a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, CTX_REF + ccls[c] * 2 + first, bit)
             if r < 0:
                 # One refinement can move a value away from the truth; a group
                 # of them almost never does.  Drop the unfinished group so that
@@ -382,9 +493,10 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                     if cfloor[c] <= p:
                         rec[c] &= ~(np.int64(1) << p)
                         pk[c] = p + 1
-                return 0
+                return _save(st, a0, a1, a2, a3, a4)
             rec[c] |= r << p
             pk[c] = p
+    _save(st, a0, a1, a2, a3, a4)
     return 1
 
 
@@ -397,11 +509,11 @@ def flush(st, buf):
 
 def encoder_state(limit: int) -> np.ndarray:
     # [low, range, cache, cache size, bytes out, byte limit]
-    return np.array([0, 0xFFFFFFFF, 0, 1, 0, limit, 0, 0], dtype=np.int64)
+    return np.array([0, 0xFFFFFFFF, 0, 1, 0, limit], dtype=np.int64)
 
 
 def decoder_state(data: np.ndarray) -> np.ndarray:
-    # [range, lowest code, highest code, next byte, bytes held]
+    # [range, lowest code, highest code, next byte, unused, bytes held]
     lo = 0
     hi = 0
     for i in range(4):
@@ -410,4 +522,4 @@ def decoder_state(data: np.ndarray) -> np.ndarray:
         hi = (hi << 8) | (0xFF if byte is None else byte)
     rng = 0xFFFFFFFF
     hi = min(hi, rng - 1)
-    return np.array([rng, lo, hi, 4, data.shape[0], 0, 0, 0], dtype=np.int64)
+    return np.array([rng, lo, hi, 4, 0, data.shape[0]], dtype=np.int64)
