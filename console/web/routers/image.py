@@ -4,7 +4,8 @@ raw DEBT prefix, and the settings and skip orders.
 The PNG is encoded once per decoded picture (a page refreshes it at every
 decode, and several pages may watch), so the last one is kept with the
 picture array it was made from: the Operator replaces that array, never
-changes it in place."""
+changes it in place.  It also stands in while a new image has no picture
+yet (the Operator drops the old one when the next begins)."""
 
 from __future__ import annotations
 
@@ -27,19 +28,25 @@ class PngCache:
         self._lock = threading.Lock()
         self._picture = None
         self._png = b""
+        self._state: dict | None = None
 
-    def get(self, picture) -> bytes:
+    def get(self, picture, state: dict) -> tuple[bytes, dict]:
+        """The PNG of `picture` and the image state it was made with."""
         with self._lock:
             if picture is self._picture:
-                return self._png
+                return self._png, self._state
         from PIL import Image
 
         buf = io.BytesIO()
         Image.fromarray(picture).save(buf, format="PNG", compress_level=1)
         png = buf.getvalue()
         with self._lock:
-            self._picture, self._png = picture, png
-        return png
+            self._picture, self._png, self._state = picture, png, state
+        return png, state
+
+    def last(self) -> tuple[bytes, dict] | None:
+        with self._lock:
+            return (self._png, self._state) if self._state is not None else None
 
 
 def _headers(state: dict, nbytes: int) -> dict:
@@ -60,9 +67,14 @@ def get_png(request: Request, operator: OperatorDep) -> Response:
     # Counters first: the picture read after them is at least as new.
     state = operator.image_state()
     picture = operator.picture()
-    if picture is None:
+    cache: PngCache = request.app.state.png_cache
+    if picture is not None:
+        png, state = cache.get(picture, state)
+    elif (last := cache.last()) is not None:
+        # A new image has started and has no picture yet: the last one is still the latest.
+        png, state = last
+    else:
         raise HTTPException(404, "no image decoded yet")
-    png = request.app.state.png_cache.get(picture)
     return Response(png, media_type="image/png", headers=_headers(state, state["decoded_bytes"]))
 
 

@@ -81,7 +81,7 @@ function onMessage(msg) {
       renderControl(msg.control);
       break;
     case "image":
-      showImage(msg.image);
+      renderImageProgress(msg.image);
       break;
     case "error":
       showError(msg.message);
@@ -308,12 +308,15 @@ function renderList(ul, items, text) {
 }
 
 function renderImageProgress(im) {
+  // Image events and telemetry snapshots interleave: never step back.
+  const card = $("image-card");
+  if (String(im.img ?? "") === card.dataset.img && im.received_bytes < +card.dataset.receivedBytes) return;
   const bar = $("image-progress");
   bar.max = im.total_bytes || 1;
   bar.value = im.received_bytes;
   $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
   $("image-id").textContent = im.img === null ? "" : `#${im.img}${im.complete ? " complete" : ""}`;
-  const card = $("image-card");
+  card.dataset.img = im.img ?? "";
   card.dataset.receivedBytes = im.received_bytes;
   card.dataset.totalBytes = im.total_bytes ?? "";
   showImage(im);
