@@ -349,6 +349,12 @@ def test_a_taken_over_page_is_told_at_once(client, operator):
 # ----------------------------------------------------------------------
 
 
+def test_serve_binds_this_machine_only_unless_told():
+    import inspect
+
+    assert inspect.signature(serve).parameters["host"].default == "127.0.0.1"
+
+
 def test_serve_reports_a_port_in_use_as_oserror(operator):
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
