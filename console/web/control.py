@@ -36,6 +36,10 @@ class NotHolder(Exception):
     """An order from a client that does not hold control (HTTP 409)."""
 
 
+class Replaying(NotHolder):
+    """An order to a console that replays a recording: there is no ROV (HTTP 409)."""
+
+
 class UnknownClient(Exception):
     """A client id this desk never issued or has forgotten (HTTP 422)."""
 
@@ -101,8 +105,14 @@ class ControlDesk:
     # Taking and giving back
     # ------------------------------------------------------------------
 
+    def check_live(self) -> None:
+        """Replaying has no ROV to order: Replaying, saying so."""
+        if self.operator.replaying:
+            raise Replaying("this console replays a recording: there is no ROV to order")
+
     def take(self, client_id: str | None, name: str = "") -> Client:
         """Give control to `client_id`, or to a new script client if None."""
+        self.check_live()
         with self._lock:
             if client_id is None:
                 client = Client(secrets.token_urlsafe(16), "script", name or "script", self._clock())
@@ -141,6 +151,7 @@ class ControlDesk:
 
     def require(self, client_id: str | None) -> Client:
         """The holder's Client, or NotHolder saying why not."""
+        self.check_live()
         with self._lock:
             if self._holder is None:
                 raise NotHolder("nobody holds control: POST /api/control/take first")

@@ -192,6 +192,16 @@ def test_image_settings_left_out_keep_their_value(client, operator):
     assert operator.requested_settings.roi is None and operator.requested_settings.shift == 6
 
 
+def test_a_replay_takes_no_orders(client, operator):
+    holder = take(client)
+    operator.replaying = True
+    for path, body in [*ORDERS, ("/api/orders/stop", None), ("/api/control/take", None)]:
+        r = client.post(path, json=body, headers=holder)
+        assert r.status_code == 409 and "replays a recording" in r.json()["message"], path
+    assert operator.orders_state() == []
+    assert client.get("/api/state").json()["replaying"] is True
+
+
 def test_unknown_client_id_is_422(client):
     r = client.post("/api/control/take", headers={HEADER: "not-a-client"})
     assert r.status_code == 422

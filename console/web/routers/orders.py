@@ -52,8 +52,10 @@ def preview_position(order: PositionOrder, operator: OperatorDep) -> dict:
 
 
 @router.post("/stop", response_model=OrderQueued,
+             responses={409: {"model": ErrorBody, "description": "a replay: there is no ROV"}},
              summary="STOP: neutral velocity, cancel targets, hold depth; anyone may press it")
 def post_stop(operator: OperatorDep, desk: DeskDep, cid: ClientIdDep) -> dict:
+    desk.check_live()
     desk.touch(cid)
     return {"id": operator.stop(), "kind": "STOP"}
 

@@ -158,6 +158,10 @@ def _handle(text: str, client_id: str, operator, desk, post) -> None:
         except (NotHolder, OrderError) as exc:
             post({"type": "error", "message": f"velocity refused: {exc}"})
     elif kind == "stop":
-        operator.stop()
+        try:
+            desk.check_live()
+            operator.stop()
+        except NotHolder as exc:
+            post({"type": "error", "message": f"stop refused: {exc}"})
     else:
         post({"type": "error", "message": f"unknown message type {kind!r}; expected 'velocity' or 'stop'"})
