@@ -63,8 +63,9 @@ else:  # pragma: no cover
     _inline = _jit
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
-# times 8 plus resolution level (0 = low band, j = level-j details).
-NCLS = 16
+# times 8 plus resolution level (0 = low band, j = level-j details), plus 16
+# for sets and coefficients inside the region of interest.
+NCLS = 32
 CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
 CTX_SET = CTX_SIG + NCLS * 16    # + cls * 8 + min(k, 7)
 CTX_SIGN = CTX_SET + NCLS * 8    # + cls * 5 + sign context (0..4)
@@ -264,6 +265,22 @@ def _sig_context(sig, off, h, w, y, x, orient):
 
 
 @_inline
+def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
+    # With no significant neighbour, whether the parent (same orientation,
+    # one level coarser) is significant still says much at low rates.
+    ctx = _sig_context(sig, off, h, w, y, x, binfo[b, 5])
+    if ctx == 0:
+        pb = binfo[b, 6]
+        if pb >= 0:
+            py = y >> 1
+            px = x >> 1
+            if py < binfo[pb, 1] and px < binfo[pb, 2]:
+                if sig[binfo[pb, 0] + py * binfo[pb, 2] + px]:
+                    return 9
+    return ctx
+
+
+@_inline
 def _sign_part(sig, sgn, i):
     # +1 for a significant positive neighbour, -1 for a negative one.
     if sig[i] == 0:
@@ -330,7 +347,7 @@ def _drop_unfinished(lsp, nbefore, nlsp, rec, pk):
 
 @_jit
 def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-        kmax, top, buf, st, rec, pk, sgn):
+        kmax, top, buf, st, rec, pk, sgn, roi_shift):
     """Traverse the bit planes from `top` down to 0, coding every decision.
 
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
@@ -369,20 +386,25 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                 b = e >> 40
                 y = (e >> 20) & 0xFFFFF
                 x = e & 0xFFFFF
-                if _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x) > p:
+                # Floor byte: lowest coded plane, plus 128 when the set
+                # touches the region of interest.  Outside it nothing can be
+                # significant in the top `roi_shift` planes.
+                v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x)
+                if (v & 127) > p or (roi_shift > 0 and v < 128 and p > top - roi_shift):
                     lis[base + j] = e
                     j += 1
                     continue
                 off = binfo[b, 0]
                 h = binfo[b, 1]
                 w = binfo[b, 2]
-                cls = binfo[b, 4]
+                bcls = binfo[b, 4]
+                cls = bcls + (16 if v >= 128 else 0)
                 bit = 0
                 if mode == 0:
                     bit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
-                    ctx = CTX_SIG + cls * 16 + _sig_context(sig, off, h, w, y, x, binfo[b, 5])
+                    ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   counts, ctx, bit)
                     if r < 0:
@@ -434,10 +456,12 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                         yy = cy4[t]
                         xx = cx4[t]
                         packed = (b << 40) | (yy << 20) | xx
-                        if _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx) > p:
+                        v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx)
+                        if (v & 127) > p or (roi_shift > 0 and v < 128 and p > top - roi_shift):
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
                             continue
+                        cls = bcls + (16 if v >= 128 else 0)
                         if t == nchild - 1 and not any_sig:
                             r = 1  # the parent is significant, so this one is
                         else:
@@ -445,8 +469,8 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                             if mode == 0:
                                 cbit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, ck, yy, xx) >= thr else 0
                             if ck == 0:
-                                ctx = CTX_SIG + cls * 16 + _sig_context(sig, off, h, w, yy, xx,
-                                                                        binfo[b, 5])
+                                ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off,
+                                                                               h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
                                 ctx = CTX_SET + cls * 8 + kk
@@ -477,7 +501,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
         # Refinement pass: coefficients significant before this plane.
         for i in range(nbefore):
             c = lsp[i]
-            if cfloor[c] > p:
+            if (cfloor[c] & 127) > p:
                 continue
             bit = 0
             if mode == 0:
@@ -490,7 +514,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
                 # a longer prefix never shows a worse picture.
                 for m in range(i - i % REF_GROUP, i):
                     c = lsp[m]
-                    if cfloor[c] <= p:
+                    if (cfloor[c] & 127) <= p:
                         rec[c] &= ~(np.int64(1) << p)
                         pk[c] = p + 1
                 return _save(st, a0, a1, a2, a3, a4)
