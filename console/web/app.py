@@ -51,6 +51,10 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     holding control and silent that long loses it.  `velocity_deadman_s`: a
     velocity streamed over a WebSocket goes neutral when not repeated within it.
     """
+    for name, value in (("telemetry_hz", telemetry_hz), ("lease_s", lease_s),
+                        ("velocity_deadman_s", velocity_deadman_s)):
+        if not value > 0:
+            raise ValueError(f"{name} must be positive, got {value!r}")
     desk = ControlDesk(operator, lease_s=lease_s, deadman_s=velocity_deadman_s)
 
     @contextlib.asynccontextmanager
