@@ -58,11 +58,14 @@ CAMERA_TILT_DEG = 35.0
 CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electronics tube
 DEFAULT_IMAGE_PX = (320, 240)
 
-# The screen showing the latest picture: a board standing above the water north
-# of the start point, facing south, towards the initial view.
-SCREEN_WIDTH_M = 6.4
-SCREEN_CENTRE = (0.0, 6.0, 2.6)
-SCREEN_WXYZ = tf.SO3.from_matrix(np.column_stack([(1.0, 0, 0), (0, 0, -1.0), (0, 1.0, 0)])).wxyz
+# The initial view: from behind the start point (south-east, a little above),
+# looking down at the vehicle, 2 m deep, and the seabed beyond.
+VIEW_POSITION = (2.6, -5.0, -0.2)
+VIEW_LOOK_AT = (-0.3, 1.2, -2.8)
+# The screen showing the latest picture: a board standing upright north-west of
+# the start point, turned towards the initial view.
+SCREEN_WIDTH_M = 4.0
+SCREEN_CENTRE = (-3.2, 3.4, -0.4)
 
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
@@ -105,6 +108,25 @@ def as_rgb(picture: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(p[:, :, :3])
 
 
+def facing_wxyz(centre, viewer) -> np.ndarray:
+    """Orientation of an upright image node at `centre` whose picture faces
+    `viewer` (its -z side towards it, image rows running down)."""
+    away = np.asarray(centre, float) - np.asarray(viewer, float)
+    away[2] = 0.0
+    z = away / np.linalg.norm(away)
+    y = np.array([0.0, 0.0, -1.0])
+    return tf.SO3.from_matrix(np.column_stack([np.cross(y, z), y, z])).wxyz
+
+
+SCREEN_WXYZ = facing_wxyz(SCREEN_CENTRE, VIEW_POSITION)
+
+
+def _show(handle) -> None:
+    # Every assignment is a message to each browser: only when it changes.
+    if not handle.visible:
+        handle.visible = True
+
+
 class ConsoleScene:
     def __init__(self, operator: Operator, *, host: str = "127.0.0.1", port: int = 8080,
                  update_hz: float = 20.0, hfov_deg: float = CAMERA_HFOV_DEG, tilt_deg: float = CAMERA_TILT_DEG,
@@ -131,6 +153,7 @@ class ConsoleScene:
         self._thread: threading.Thread | None = None
         self._unsubscribe = None
         self._last_received: Pose | None = None
+        self._last_predicted: Pose | None = None
         self._trail_len = None
         self._last_preview_at = 0.0
         self._lock = threading.RLock()
@@ -196,8 +219,8 @@ class ConsoleScene:
         gradient = (top * (1 - rows) + bottom * rows).astype(np.uint8)
         scene.set_background_image(np.repeat(gradient[:, None, :], 4, axis=1), format="png")
         camera = self.server.initial_camera
-        camera.position = (4.0, -9.5, 3.0)
-        camera.look_at = (0.0, 1.5, -3.0)
+        camera.position = VIEW_POSITION
+        camera.look_at = VIEW_LOOK_AT
         camera.up = (0.0, 0.0, 1.0)
 
     def _build_seabed(self) -> None:
@@ -267,7 +290,7 @@ class ConsoleScene:
         s = self.seabed
         limits = ((s.y_min_m, s.y_max_m), (s.x_min_m, s.x_max_m), (s.floor_z + 0.3, 0.0))
         self.gizmo = self.server.scene.add_transform_controls(
-            "/target", scale=1.2, translation_limits=limits, disable_sliders=False, depth_test=False,
+            "/target", scale=0.7, translation_limits=limits, disable_sliders=False, depth_test=False,
             opacity=0.9, position=(0.0, 0.0, -2.0))
         self.target_ghost_node = self.server.scene.add_frame("/target_ghost", show_axes=False, visible=False)
         self.server.scene.add_mesh_simple(
@@ -462,18 +485,19 @@ class ConsoleScene:
             return
         received = Pose.from_reply(reply)
         predicted = self.operator.predicted_pose() or received
-        with self.server.atomic():
-            if received != self._last_received:
-                self._last_received = received
-                self.rov_node.position, self.rov_node.wxyz = frames.pose_to_world(received)
-                self.rov_node.visible = True
-                self._update_footprint(received)
-                if self.target is None:
-                    # No target yet: the gizmo waits on the vehicle.
-                    self.gizmo.position = frames.ned_to_world(received.x_m, received.y_m, received.z_m)
-                    self.gizmo.wxyz = frames.body_wxyz(0.0, 0.0, received.yaw_deg)
+        if received != self._last_received:
+            self._last_received = received
+            self.rov_node.position, self.rov_node.wxyz = frames.pose_to_world(received)
+            _show(self.rov_node)
+            self._update_footprint(received)
+            if self.target is None:
+                # No target yet: the gizmo waits on the vehicle.
+                self.gizmo.position = frames.ned_to_world(received.x_m, received.y_m, received.z_m)
+                self.gizmo.wxyz = frames.body_wxyz(0.0, 0.0, received.yaw_deg)
+        if predicted != self._last_predicted:
+            self._last_predicted = predicted
             self.ghost_node.position, self.ghost_node.wxyz = frames.pose_to_world(predicted)
-            self.ghost_node.visible = True
+            _show(self.ghost_node)
         self.frames_pushed += 1
 
     def _update_footprint(self, pose: Pose) -> None:
@@ -486,7 +510,7 @@ class ConsoleScene:
         rays = np.stack([np.repeat(cam[None], 4, axis=0), corners], axis=1)
         edges = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
         self.footprint_node.points = np.concatenate([rays, edges]).astype(np.float32)
-        self.footprint_node.visible = True
+        _show(self.footprint_node)
 
     def update_trail(self) -> None:
         trail = list(self.operator.history.trail)[-TRAIL_POINTS:]
@@ -496,7 +520,7 @@ class ConsoleScene:
         t = np.asarray(trail, float)
         pts = frames.ned_to_world(t[:, 1], t[:, 2], t[:, 3]).astype(np.float32)
         self.trail_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
-        self.trail_node.visible = True
+        _show(self.trail_node)
 
     def update_image(self) -> None:
         picture = self.operator.picture()

@@ -82,7 +82,7 @@ class ControlPanel:
         with self.gui.add_folder("Vehicle"):
             self.vehicle_md = self.gui.add_markdown("*waiting for the first odometry*")
             self.arming = self.gui.add_button_group("Arming", ("Arm", "Disarm"))
-            self.mode = self.gui.add_dropdown("Mode", MODES, initial_value="MANUAL")
+            self.mode = self.gui.add_dropdown("Request mode", MODES, initial_value="MANUAL")
 
         @self.arming.on_click
         def _(event) -> None:

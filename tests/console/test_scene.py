@@ -1,0 +1,370 @@
+"""The viser scene against the whole system: a real viser server on a free
+loopback port, a real `console.stack.Stack` (simulated ArduSub over MAVLink, ROV
+node, emulated channel at 19.2 kbit/s so that an image takes a second or two)
+running in its own event loop on a background thread, and one headless Chromium
+that loads the page.
+
+The scene's callbacks delegate to plain methods (`select_roi_world`,
+`move_target`, `send_target`); the tests call those with world points, as the
+callbacks do, and check what reaches the ROV.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import math
+import os
+import shutil
+import socket
+import threading
+import time
+import urllib.request
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import trimesh
+from viser import transforms as tf
+
+import debt
+from console.scene import frames
+from console.scene.app import (CAMERA_HFOV_DEG, CAMERA_TILT_DEG, SCREEN_CENTRE, SCREEN_WXYZ, VIEW_POSITION,
+                               ConsoleScene, SeabedAsset, as_rgb)
+from console.scene.panel import link_bins, step_values
+from console.scene.roi import draw_roi, roi_from_pixels
+from console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
+from console.stack import Stack, StackConfig
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def wait_for(predicate, timeout_s: float, period_s: float = 0.05):
+    deadline = time.monotonic() + timeout_s
+    value = predicate()
+    while not value and time.monotonic() < deadline:
+        time.sleep(period_s)
+        value = predicate()
+    return value
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+class LoopThread:
+    """An asyncio loop on its own thread, as `rovlink demo` runs the stack."""
+
+    def __init__(self) -> None:
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, name="stack-loop", daemon=True)
+        self.thread.start()
+
+    def run(self, coro, timeout_s: float = 30.0):
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout_s)
+
+    def close(self) -> None:
+        # Stopped, not closed: the ROV node's encoder thread may still hand a
+        # finished image to the loop, and a closed loop would raise there.
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(timeout=5.0)
+
+
+@pytest.fixture(scope="module")
+def live():
+    # The codec is compiled on first use (numba), in this process: do it here,
+    # not while a test waits for the ROV's first image.
+    debt.decode(debt.encode(np.zeros((16, 16, 3), np.uint8), 100))
+    runner = LoopThread()
+    stack = Stack(StackConfig(bitrate_bps=19200, delay_s=0.02))
+    operator = runner.run(stack.start())
+    scene = ConsoleScene(operator, port=free_port()).start()
+    try:
+        assert wait_for(lambda: operator.picture() is not None, 60.0), "no image from the ROV"
+        yield SimpleNamespace(stack=stack, operator=operator, scene=scene)
+    finally:
+        scene.stop()
+        runner.run(stack.stop())
+        runner.close()
+
+
+def screen_point(scene: ConsoleScene, u: float, v: float) -> np.ndarray:
+    """The world point where pixel (u, v) of the picture sits on the scene's screen."""
+    local = frames.pixel_to_image_plane(np.array([u, v]), scene.screen_size_m(), scene.image_px)
+    r = tf.SO3(np.asarray(scene.screen_node.wxyz)).as_matrix()
+    return np.asarray(scene.screen_node.position) + r @ np.array([local[0], local[1], 0.0])
+
+
+def received_pose(operator):
+    reply = operator.last_reply
+    return None if reply is None else (reply.x_cm / 100, reply.y_cm / 100, reply.z_cm / 100, reply.yaw_cdeg / 100)
+
+
+# ----------------------------------------------------------------------
+# Conventions (no server)
+# ----------------------------------------------------------------------
+
+
+def test_world_frame_is_enu_with_the_seabed_below():
+    assert np.allclose(frames.ned_to_world(1.0, 2.0, 3.0), (2.0, 1.0, -3.0))
+    assert np.allclose(frames.world_to_ned(frames.ned_to_world(1.0, 2.0, 3.0)), (1.0, 2.0, 3.0))
+    seabed = SeabedAsset.load()
+    assert seabed.floor_z == -seabed.depth_m < 0
+
+
+def test_vehicle_axes_follow_heading_and_attitude():
+    for yaw in (0.0, 90.0, -135.0, 170.0):
+        r = frames.body_rotation(0.0, 0.0, yaw)
+        assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
+        # Forward: NED yaw 0 is north (+y), 90 east (+x); up stays up.
+        assert np.allclose(r[:, 0], (math.sin(math.radians(yaw)), math.cos(math.radians(yaw)), 0.0), atol=1e-9)
+        assert np.allclose(r[:, 2], (0.0, 0.0, 1.0), atol=1e-9)
+        assert frames.yaw_deg_from_wxyz(frames.body_wxyz(0.0, 0.0, yaw)) == pytest.approx(yaw, abs=1e-6)
+    # Positive pitch raises the nose; positive roll dips the right (starboard) side.
+    assert frames.body_rotation(0.0, 20.0, 0.0)[2, 0] > 0
+    assert (frames.body_rotation(20.0, 0.0, 0.0) @ np.array([0.0, -1.0, 0.0]))[2] < 0
+
+
+def test_camera_matches_the_simulated_camera():
+    from rov.camera import SimulatedCamera
+
+    defaults = inspect.signature(SimulatedCamera.__init__).parameters
+    assert defaults["hfov_deg"].default == CAMERA_HFOV_DEG
+    assert defaults["tilt_deg"].default == CAMERA_TILT_DEG
+    r = frames.camera_rotation_in_body(CAMERA_TILT_DEG)
+    optical_axis = r[:, 2]  # body FLU
+    assert optical_axis[0] > 0 and math.degrees(math.asin(-optical_axis[2])) == pytest.approx(CAMERA_TILT_DEG)
+    # The image's top row sees farther than its bottom row: the bottom corners
+    # meet the seabed below, the top ones (3 degrees under the horizon) stop at range.
+    corners = frames.seabed_footprint((0, 0, -2.0), frames.body_rotation(0, 0, 0) @ r,
+                                      frames.image_corner_rays(CAMERA_HFOV_DEG, 320, 240), -8.0, 30.0)
+    assert np.allclose(corners[2:, 2], -8.0) and np.all(corners[:2, 2] > -8.0)
+    assert np.allclose(np.linalg.norm(corners[:2] - (0, 0, -2.0), axis=1), 30.0)
+    assert corners[0, 1] > corners[3, 1] > 0  # north of the vehicle, top farther
+    assert corners[0, 0] < 0 < corners[1, 0]  # top-left is west, top-right east
+
+
+def test_seabed_texture_is_placed_where_the_camera_sees_it():
+    seabed = SeabedAsset.load()
+    north_west = frames.ned_to_world(seabed.x_max_m, seabed.y_min_m, seabed.depth_m)
+    centre = frames.ned_to_world((seabed.x_min_m + seabed.x_max_m) / 2, (seabed.y_min_m + seabed.y_max_m) / 2,
+                                 seabed.depth_m)
+    size_m = (seabed.y_max_m - seabed.y_min_m, seabed.x_max_m - seabed.x_min_m)
+    h, w = seabed.texture.shape[:2]
+    local = frames.pixel_to_image_plane(np.array([0.0, 0.0]), size_m, (w, h))
+    r = tf.SO3(np.array([0.0, 1.0, 0.0, 0.0])).as_matrix()  # the seabed node's orientation
+    assert np.allclose(centre + r @ np.array([local[0], local[1], 0.0]), north_west)
+    # Seen from above: the image node's viewer side (-z local) points up.
+    assert (r @ np.array([0.0, 0.0, -1.0]))[2] == pytest.approx(1.0)
+
+
+def test_screen_stands_upright_facing_the_initial_view():
+    r = tf.SO3(np.asarray(SCREEN_WXYZ)).as_matrix()
+    to_view = np.subtract(VIEW_POSITION, SCREEN_CENTRE)
+    assert r[:, 2] @ to_view < 0  # the picture's side (-z) towards the viewer
+    assert np.allclose(r[:, 1], (0.0, 0.0, -1.0))  # rows run down
+    assert np.cross(-to_view, (0.0, 0.0, 1.0)) @ r[:, 0] > 0  # columns run to the viewer's right
+
+
+def test_rov_asset_is_a_blue_rov_sized_coloured_mesh():
+    assert ASSET_PATH.exists(), "run python -m console.scene.rov_model"
+    mesh = load_rov_mesh()
+    built = build_rov_mesh()
+    assert np.allclose(mesh.bounds, built.bounds, atol=1e-4)
+    length, width, height = mesh.extents
+    assert 0.4 < length < 0.6 and 0.45 < width < 0.7 and 0.2 < height < 0.35
+    colours = {tuple(c) for c in np.asarray(mesh.visual.face_colors)[:, :3]}
+    assert len(colours) >= 6
+    assert isinstance(trimesh.load(ASSET_PATH, force="mesh"), trimesh.Trimesh)
+
+
+def test_roi_rounds_outwards_clips_and_ignores_clicks():
+    assert roi_from_pixels((40.3, 30.2), (199.6, 149.9), (320, 240)) == (40, 30, 200, 150)
+    assert roi_from_pixels((199.6, 149.9), (40.3, 30.2), (320, 240)) == (40, 30, 200, 150)
+    assert roi_from_pixels((-20, -5), (400, 300), (320, 240)) == (0, 0, 320, 240)
+    assert roi_from_pixels((10, 10), (11.5, 12), (320, 240)) is None
+    img = draw_roi(np.zeros((240, 320, 3), np.uint8), (40, 30, 200, 150))
+    assert img[30, 100].any() and img[149, 100].any() and not img[90, 100].any()
+
+
+def test_plot_series_hold_values_and_bin_traffic():
+    samples = [(1.0, 0.5, 0, 0, 0), (3.0, -0.2, 0, 0, 0)]
+    assert list(step_values(samples, np.array([0.0, 1.0, 2.0, 3.5]), 1)) == [0.0, 0.5, 0.5, -0.2]
+    t, bins = link_bins([(9.2, "tx", 12), (9.3, "rx", 40), (9.4, "lost", 0)], 10.0, span_s=2.0, bin_s=0.5)
+    assert len(t) == 4 and bins["tx"][2] == 24 and bins["rx"][2] == 80 and bins["lost"][2] == 1
+
+
+# ----------------------------------------------------------------------
+# Against the live system
+# ----------------------------------------------------------------------
+
+
+def test_scene_is_served_on_loopback_with_every_node(live):
+    scene = live.scene
+    assert scene.url.startswith("http://127.0.0.1:")
+    with urllib.request.urlopen(scene.url, timeout=10) as response:
+        assert response.status == 200
+    for name in ("/seabed", "/rov", "/rov/mesh", "/rov/camera", "/ghost", "/ghost/mesh", "/screen", "/screen/roi",
+                 "/trail", "/footprint", "/target", "/target_ghost", "/preview"):
+        assert scene.server.scene.get_handle_by_name(name) is not None, name
+    assert ConsoleScene.__init__.__kwdefaults__["host"] == "127.0.0.1"
+
+
+def test_poses_follow_odometry(live):
+    op, scene = live.operator, live.scene
+    assert wait_for(lambda: op.last_reply is not None and scene.rov_node.visible, 10.0)
+
+    def shown_at_received():
+        pose = received_pose(op)
+        return (pose is not None
+                and np.allclose(scene.rov_node.position, frames.ned_to_world(*pose[:3]), atol=1e-6)
+                and abs((frames.yaw_deg_from_wxyz(scene.rov_node.wxyz) - pose[3] + 180) % 360 - 180) < 0.01)
+
+    assert wait_for(shown_at_received, 5.0)
+    assert scene.ghost_node.visible
+    start = np.array(scene.rov_node.position)
+    pushed = scene.frames_pushed
+    op.arm(True)
+    assert wait_for(lambda: op.last_reply.armed, 10.0)
+    op.set_velocity(0.0, 0.0, 0.0, 0.6)  # turn on the spot
+    try:
+        assert wait_for(lambda: abs(received_pose(op)[3]) > 20.0, 10.0)
+        assert wait_for(shown_at_received, 5.0)
+        # The ghost runs ahead of the last odometry while the wish holds.
+        assert wait_for(lambda: not np.allclose(scene.ghost_node.wxyz, scene.rov_node.wxyz, atol=1e-4), 5.0)
+    finally:
+        live.operator.stop()
+    assert scene.frames_pushed > pushed
+    assert np.linalg.norm(np.array(scene.rov_node.position) - start) < 2.0
+    assert wait_for(lambda: scene.trail_node.visible, 5.0)
+
+
+def test_image_plane_shows_each_decoded_picture(live):
+    op, scene = live.operator, live.scene
+    assert wait_for(lambda: op.picture() is not None, 15.0), (op.image_state(), op.link_state(), list(op.history.log))
+
+    def same_picture():
+        picture = op.picture()
+        return scene.images_shown > 0 and np.array_equal(scene.screen_node.image, as_rgb(picture))
+
+    assert wait_for(same_picture, 5.0)
+    assert np.array_equal(scene.frustum_node.image, scene.screen_node.image)
+    h, w = scene.screen_node.image.shape[:2]
+    assert scene.image_px == (w, h)
+    assert scene.screen_node.render_width / scene.screen_node.render_height == pytest.approx(w / h)
+
+
+def test_roi_drawn_on_the_picture_reaches_the_next_image(live):
+    op, scene = live.operator, live.scene
+    assert wait_for(lambda: op.picture() is not None, 15.0)
+    orders_before = len(op.orders_state())
+    a, b = screen_point(scene, 40.3, 30.2), screen_point(scene, 199.6, 149.9)
+
+    # While dragging: the rectangle is drawn, nothing is sent.
+    assert scene.preview_roi_world(a, b) == (40, 30, 200, 150)
+    assert scene.roi_node.visible and len(op.orders_state()) == orders_before
+
+    # The callback's path: viser's end point lies on a camera-facing plane; the
+    # scene casts the view ray through it onto the screen.
+    eye = np.array([3.0, -9.0, 4.0])
+    off_plane = eye + 0.8 * (b - eye)  # on the ray through b, short of the screen
+    drag = SimpleNamespace(phase="update", start_position=tuple(a), end_position=tuple(off_plane),
+                           client=SimpleNamespace(camera=SimpleNamespace(position=tuple(eye))))
+    scene._on_screen_drag(drag)
+    assert len(op.orders_state()) == orders_before
+    np.testing.assert_allclose(scene._pointer_on_screen(drag), b, atol=1e-6)
+
+    # Release: the IMAGE order goes out, the ROV acknowledges it.
+    drag.phase = "end"
+    scene._on_screen_drag(drag)
+    roi = (40, 30, 200, 150)
+    orders = op.orders_state()[orders_before:]
+    assert [o["kind"] for o in orders] == ["IMAGE"] and tuple(orders[0]["roi"]) == roi
+    order_id = orders[0]["id"]
+    assert wait_for(lambda: any(o["id"] == order_id and o["state"] == "acknowledged" for o in op.orders_state()),
+                    10.0)
+    acked_img = op.image.img
+
+    # A later image carries it in its DEBT header.
+    def roi_in_stream():
+        stream = op.image.stream
+        return op.image.img != acked_img and len(stream) >= 10 and debt.unpack_header(stream).roi == roi
+
+    assert wait_for(roi_in_stream, 20.0)
+    assert op.image_state()["settings"]["roi"] == list(roi)
+    scene.clear_roi()
+    assert not scene.roi_node.visible
+
+
+def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
+    op, scene = live.operator, live.scene
+    op.arm(True)
+    assert wait_for(lambda: op.last_reply is not None and op.last_reply.armed, 10.0)
+    x0, y0, z0, _ = received_pose(op)
+    target_ned = (x0 + 1.5, y0 - 1.0, max(1.0, z0 + 0.5))
+    orders_before = len(op.orders_state())
+
+    path = scene.move_target(frames.ned_to_world(*target_ned), frames.body_wxyz(0.0, 0.0, 30.0))
+    assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)
+    assert len(path) >= 3 and math.dist(path[-1], target_ned) < 0.5 and math.dist(path[0], (x0, y0, z0)) < 1.0
+    assert scene.target_ghost_node.visible and scene.preview_node.visible
+    assert np.allclose(scene.target_ghost_node.position, frames.ned_to_world(*target_ned))
+    assert len(scene.preview_node.points) == len(path) - 1
+
+    # Nothing was sent and nothing moves while the pilot has not confirmed.
+    time.sleep(1.0)
+    assert len(op.orders_state()) == orders_before
+    assert math.dist(received_pose(op)[:3], (x0, y0, z0)) < 0.3
+
+    order_id = scene.send_target()
+    assert order_id is not None
+    sent = op.orders_state()[orders_before:]
+    assert [o["kind"] for o in sent] == ["POSITION"] and sent[0]["id"] == order_id
+    assert wait_for(lambda: math.dist(received_pose(op)[:3], target_ned) < 0.3, 25.0), received_pose(op)
+    assert wait_for(lambda: abs((received_pose(op)[3] - 30.0 + 180) % 360 - 180) < 10.0, 10.0)
+    scene.stop_vehicle()
+    assert not scene.preview_node.visible and scene.target is None
+
+
+# ----------------------------------------------------------------------
+# One real browser
+# ----------------------------------------------------------------------
+
+
+@pytest.mark.browser
+def test_browser_renders_the_scene(live, tmp_path):
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"no Chromium at {CHROMIUM}")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright's Python package is not installed")
+    op, scene = live.operator, live.scene
+    assert wait_for(lambda: op.picture() is not None and scene.images_shown > 0, 15.0)
+    shot = tmp_path / "scene.png"
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(scene.url)
+            canvas = page.wait_for_selector("canvas", timeout=30000)
+            box = canvas.bounding_box()
+            assert box and box["width"] > 400 and box["height"] > 300
+            page.wait_for_selector("text=Vehicle", timeout=30000)
+            page.wait_for_selector("text=Link", timeout=30000)
+            time.sleep(6.0)  # software WebGL: let the textures arrive and a few frames render
+            page.screenshot(path=str(shot))
+        finally:
+            browser.close()
+    # Keep a copy where a person can look at it.
+    keep = os.environ.get("ROVLINK_SCENE_SCREENSHOT")
+    if keep:
+        shutil.copy(shot, keep)
+    from PIL import Image
+
+    with Image.open(shot) as image:
+        pixels = np.asarray(image.convert("RGB"), dtype=float)
+    view = pixels[:, : int(pixels.shape[1] * 0.6)]  # the 3-D view, left of the panel
+    assert view.std() > 15.0, "the 3-D view looks blank"
