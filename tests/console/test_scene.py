@@ -336,13 +336,23 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
 # ----------------------------------------------------------------------
 
 
+def project(camera, point, box) -> tuple[float, float]:
+    """Page coordinates of a world point, seen by a client's camera (OpenCV
+    convention, vertical fov) on a canvas at `box`."""
+    r = tf.SO3(np.asarray(camera.wxyz)).as_matrix()
+    p = r.T @ (np.asarray(point, float) - np.asarray(camera.position, float))
+    focal = (box["height"] / 2) / math.tan(camera.fov / 2)
+    return box["x"] + box["width"] / 2 + focal * p[0] / p[2], box["y"] + box["height"] / 2 + focal * p[1] / p[2]
+
+
 @pytest.mark.browser
-def test_browser_renders_the_scene(live, tmp_path):
+def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path):
     if not os.path.exists(CHROMIUM):
         pytest.skip(f"no Chromium at {CHROMIUM}")
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright's Python package is not installed")
     op, scene = live.operator, live.scene
     assert wait_for(lambda: op.picture() is not None and scene.images_shown > 0, 15.0)
+    orders_before = len(op.orders_state())
     shot = tmp_path / "scene.png"
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
@@ -350,11 +360,30 @@ def test_browser_renders_the_scene(live, tmp_path):
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.goto(scene.url)
             canvas = page.wait_for_selector("canvas", timeout=30000)
-            box = canvas.bounding_box()
-            assert box and box["width"] > 400 and box["height"] > 300
             page.wait_for_selector("text=Vehicle", timeout=30000)
             page.wait_for_selector("text=Link", timeout=30000)
-            time.sleep(6.0)  # software WebGL: let the textures arrive and a few frames render
+            box = canvas.bounding_box()
+            assert box and box["width"] > 400 and box["height"] > 300
+            assert wait_for(lambda: scene.server.get_clients(), 10.0)
+            time.sleep(4.0)  # software WebGL: let the textures arrive and a few frames render
+            camera = next(iter(scene.server.get_clients().values())).camera
+
+            # Drag over the upper left of the picture on the screen, as a pilot would.
+            start = project(camera, screen_point(scene, 30.0, 25.0), box)
+            end = project(camera, screen_point(scene, 150.0, 110.0), box)
+            page.mouse.move(*start)
+            page.mouse.down()
+            for k in range(1, 13):
+                page.mouse.move(start[0] + (end[0] - start[0]) * k / 12, start[1] + (end[1] - start[1]) * k / 12)
+                time.sleep(0.05)
+            time.sleep(0.3)
+            page.mouse.up()
+            assert wait_for(lambda: len(op.orders_state()) > orders_before, 10.0), "the drag sent no order"
+            order = op.orders_state()[orders_before]
+            assert order["kind"] == "IMAGE"
+            assert np.allclose(order["roi"], (30, 25, 150, 110), atol=6), order["roi"]
+            assert scene.roi_node.visible
+            time.sleep(2.0)
             page.screenshot(path=str(shot))
         finally:
             browser.close()
@@ -368,3 +397,4 @@ def test_browser_renders_the_scene(live, tmp_path):
         pixels = np.asarray(image.convert("RGB"), dtype=float)
     view = pixels[:, : int(pixels.shape[1] * 0.6)]  # the 3-D view, left of the panel
     assert view.std() > 15.0, "the 3-D view looks blank"
+    scene.clear_roi()
