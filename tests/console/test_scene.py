@@ -331,6 +331,49 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
     assert not scene.preview_node.visible and scene.target is None
 
 
+def test_panel_controls_reach_the_operator(live):
+    op, scene = live.operator, live.scene
+    panel = scene.panel
+    orders_before = len(op.orders_state())
+
+    # Mode: the dropdown's callback requests it.
+    panel.mode.value = "STABILIZE"
+    assert wait_for(lambda: op.last_reply.mode == 2, 10.0)  # the protocol's STABILIZE
+
+    # Velocity: keys step the sliders, the sliders set the wish; X zeroes it.
+    panel.nudge_velocity("vx", 0.1)
+    panel.nudge_velocity("vx", 0.1)
+    panel.nudge_velocity("vyaw", -0.1)
+    assert op.state()["velocity_wish"] == pytest.approx({"vx": 0.2, "vy": 0.0, "vz": 0.0, "vyaw": -0.1})
+    # The plot (Fig. 5) shows the wish commanded, then received by the ROV.
+    assert wait_for(lambda: any(abs(r[1] - 0.2) < 0.01 for r in op.history.received), 5.0)
+    time.sleep(0.3)
+    _t, commanded, received = panel.velocity_series(op.now(), "vx")
+    assert commanded[-1] == pytest.approx(0.2) and received.max() == pytest.approx(0.2, abs=0.01)
+    panel.zero_velocity()
+    assert op.state()["velocity_wish"] == pytest.approx({"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0})
+
+    # Image settings: Apply sends one IMAGE order with the panel's values.
+    panel.budget.value = 1500
+    panel.mono.value = True
+    panel.apply_image_settings()
+    sent = op.orders_state()[orders_before:]
+    assert [o["kind"] for o in sent] == ["IMAGE"] and sent[0]["budget_bytes"] == 1500 and sent[0]["mono"] is True
+
+    # Readouts and plots refresh in place.
+    panel.refresh()
+    assert "poll rate" in panel.link_md.content and "AUTOPILOT ok" in panel.link_md.content
+    assert "STABILIZE" in panel.vehicle_md.content
+    t, commanded, received = panel.velocity_plot.data
+    assert len(t) == len(commanded) == len(received) > 100 and commanded.max() == pytest.approx(0.2)
+    assert commanded[-1] == 0.0
+    assert len(panel.link_plot.data) == 4 and panel.link_plot.data[2].sum() > 0
+    assert 0.0 <= panel.progress.value <= 100.0
+    panel.budget.value = 2000
+    panel.mono.value = False
+    panel.apply_image_settings()
+
+
 # ----------------------------------------------------------------------
 # One real browser
 # ----------------------------------------------------------------------
