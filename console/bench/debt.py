@@ -41,7 +41,7 @@ def psnr(a, b) -> float:
     import numpy as np
 
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
-    return 99.0 if mse == 0 else 10.0 * np.log10(255.0 ** 2 / mse)
+    return 99.0 if mse == 0 else float(10.0 * np.log10(255.0 ** 2 / mse))
 
 
 def _gauss_filter(x, taps):
@@ -278,17 +278,17 @@ def measure(runs: int = 7, curve: bool = True) -> dict:
     grey_t = timing[0]
     targets = dict(
         psnr_vs_jpeg2000_min_margin_db=min(margins),
-        psnr_ge_jpeg2000_everywhere=min(margins) >= 0,
+        psnr_ge_jpeg2000_everywhere=bool(min(margins) >= 0),
         ahead_of_webp=f"{ahead_webp}/{len(quality)}",
         ahead_of_avif=f"{ahead_avif}/{len(quality)}",
         roi_shift6_1000B_gain_over_jpeg2000_min_db=min(roi_gain),
-        roi_target_met=min(roi_gain) >= 4.0,
+        roi_target_met=bool(min(roi_gain) >= 4.0),
         encode_ratio_vs_openjpeg=grey_t["debt_encode_ms"] / grey_t["openjpeg_encode_ms"],
         decode_ratio_vs_openjpeg=grey_t["debt_decode_ms"] / grey_t["openjpeg_decode_ms"],
         curves_monotone=all(c["monotone"] for c in curves.values()) if curves else None,
     )
-    targets["speed_target_met"] = (targets["encode_ratio_vs_openjpeg"] <= 2.0
-                                   and targets["decode_ratio_vs_openjpeg"] <= 2.0)
+    targets["speed_target_met"] = bool(targets["encode_ratio_vs_openjpeg"] <= 2.0
+                                       and targets["decode_ratio_vs_openjpeg"] <= 2.0)
     return dict(quality=quality, roi=roi_rows, curves=curves, timing=timing, targets=targets)
 
 
