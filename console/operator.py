@@ -144,6 +144,16 @@ class Recorder:
                 self._file = None
 
 
+def _warm_up_decoder() -> None:
+    import debt
+
+    try:
+        for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
+            debt.decode(debt.encode(image, 200, roi=(0, 0, 8, 8), shift=4))
+    except Exception:  # a warm-up only
+        log.debug("codec warm-up failed", exc_info=True)
+
+
 def _protocol_to_sub_mode(mode: int):
     from rov.autopilot import PROTOCOL_TO_SUB
     from rov.vehicle import SubMode
@@ -185,6 +195,7 @@ class Operator:
         self._pending_decode: tuple[int, bytes] | None = None
         self._decoder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-decode")
         self._decode_busy = False
+        self._decoder.submit(_warm_up_decoder)  # DEBT compiles on first use
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S")})
         self._last_poll_at: float | None = None

@@ -83,6 +83,14 @@ def clip_roi(roi, width: int, height: int):
     return (x0, y0, x1, y1)
 
 
+def _warm_up(encode) -> None:
+    try:
+        for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
+            encode(image, 200, roi=(0, 0, 8, 8), shift=4, mono=image.ndim == 2)
+    except Exception:  # a warm-up only; the real encode reports real errors
+        log.debug("codec warm-up failed", exc_info=True)
+
+
 class RovNode:
     def __init__(
         self,
@@ -116,6 +124,9 @@ class RovNode:
             now=time.monotonic(),
         )
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-encoder")
+        # DEBT's coder compiles on first use (tens of seconds when its cache
+        # is cold): do it now, while the link comes up, not at the first image.
+        self._worker.submit(_warm_up, self._encode)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._prefetched_image: tuple[int, ImageSettings, float, bytes] | None = None
         self._arm_ticket = None
@@ -274,9 +285,12 @@ class RovNode:
                 self._note(f"image {img} not encoded: {exc}")
                 return
             stream = f.result()
-            if loop is None:
-                return
-            loop.call_soon_threadsafe(self._encoded, img, settings, stream, deliver)
+            if loop is None or loop.is_closed():
+                return  # the node is shutting down
+            try:
+                loop.call_soon_threadsafe(self._encoded, img, settings, stream, deliver)
+            except RuntimeError:
+                pass  # the loop closed between the check and the call
 
         future.add_done_callback(done)
 

@@ -43,14 +43,48 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0)
     tasks = [asyncio.create_task(coro) for coro in background]
     url = f"http://{browser_host(args.host)}:{args.port}"
+    stop = _stop_on_signals()
+    server = asyncio.create_task(serve(app, host=args.host, port=args.port))
     print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url}\n  Ctrl-C stops.", flush=True)
+    waiter = asyncio.create_task(stop.wait())
     try:
-        await serve(app, host=args.host, port=args.port)
-    except OSError as exc:
-        raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
+        await asyncio.wait([server, waiter], return_when=asyncio.FIRST_COMPLETED)
+        if server.done() and server.exception() is not None:
+            exc = server.exception()
+            if isinstance(exc, OSError):
+                raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
+            raise exc
     finally:
-        for t in tasks:
+        print("stopping...", file=sys.stderr, flush=True)
+        for t in (server, waiter, *tasks):
             t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
+        await asyncio.gather(server, waiter, *tasks, return_exceptions=True)
         scene.stop()
     print("stopped.", file=sys.stderr, flush=True)
+
+
+def _stop_on_signals() -> asyncio.Event:
+    """SIGINT/SIGTERM set the returned event; a second one exits at once.
+
+    Ours rather than uvicorn's: uvicorn re-raises the signal after its own
+    shutdown, and the KeyboardInterrupt would cut the vehicle side's teardown
+    (simulator, bridge threads) short and leave the process hanging.
+    """
+    import os
+    import signal
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+
+    def on_signal() -> None:
+        if stop.is_set():
+            print("forced exit", file=sys.stderr, flush=True)
+            os._exit(130)
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, on_signal)
+        except (NotImplementedError, RuntimeError):  # not the main thread, or no such signal here
+            pass
+    return stop

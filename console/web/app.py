@@ -126,20 +126,40 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
+def _quiet_server_class():
+    import uvicorn
+
+    class QuietServer(uvicorn.Server):
+        """uvicorn without its own signal handling.
+
+        The program that owns the event loop (rovlink demo/console/replay)
+        decides what Ctrl-C means; uvicorn's handler would re-raise the
+        signal after its shutdown and cut the vehicle side's teardown short.
+        Stop it by cancelling `serve`.
+        """
+
+        @contextlib.contextmanager
+        def capture_signals(self):
+            yield
+
+    return QuietServer
+
+
 async def serve(app: FastAPI, host: str = "127.0.0.1", port: int = 8000, *,
                 sock: socket.socket | None = None, log_level: str = "warning") -> None:
-    """Serve `app` with uvicorn in the running loop until cancelled (or a signal).
+    """Serve `app` with uvicorn in the running loop until cancelled.
 
     OSError if the address cannot be bound.  `sock`: an already bound,
     listening socket to serve on instead (tests bind port 0 and read it back).
     """
     import uvicorn
 
+    _QuietServer = _quiet_server_class()
     if sock is None:
         sock = _bind(host, port)
     config = uvicorn.Config(app, log_level=log_level, lifespan="on", timeout_graceful_shutdown=2,
                             ws_ping_interval=10, ws_ping_timeout=10)
-    server = uvicorn.Server(config)
+    server = _QuietServer(config)
     task = asyncio.ensure_future(server.serve(sockets=[sock]))
     try:
         await asyncio.shield(task)

@@ -122,9 +122,11 @@ def test_node_answers_polls_sends_roi_images_and_runs_orders_once():
         await rig.start()
         try:
             # Odometry from the autopilot reaches the operator.
-            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].autopilot, 15)
+            # (HEARTBEAT comes first, LOCAL_POSITION_NED once the stream is asked for.)
+            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].autopilot
+                                   and rig.replies[-1][1].position_valid, 15)
             reply = rig.replies[-1][1]
-            assert reply.position_valid and reply.z_cm == pytest.approx(200, abs=30)
+            assert reply.z_cm == pytest.approx(200, abs=30)
 
             # Images: the requested ROI, SHIFT and budget are honoured.
             roi = (100, 60, 220, 180)
