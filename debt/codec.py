@@ -43,10 +43,11 @@ _ICT = np.array([[0.299, 0.587, 0.114],
                  [-0.168736, -0.331264, 0.5],
                  [0.5, -0.418688, -0.081312]])
 _ICT_INV = np.linalg.inv(_ICT)
+CHROMA = 1.0  # chroma weight beyond the RGB-error weighting (1.0 measured best)
 # Weight of each component so that its error counts as it does in RGB squared
 # error (norm of its column of the inverse over sqrt(3)); chroma then gets
 # fewer bits simply because it holds less energy.
-_COLOUR_WEIGHTS = np.sqrt((_ICT_INV ** 2).sum(axis=0) / 3.0)
+_COLOUR_WEIGHTS = np.sqrt((_ICT_INV ** 2).sum(axis=0) / 3.0) * np.array([1.0, CHROMA, CHROMA])
 
 
 @dataclass(frozen=True)
