@@ -254,15 +254,19 @@ class ControlPanel:
 
     def _build_plots(self) -> None:
         empty = np.zeros(2)
+        # A fixed window of the last PLOT_SPAN_S seconds: viser's client keeps
+        # auto x-scales "relative" across updates, which can lose the data when
+        # the chart is laid out late; a static range takes another path.
+        x_scale = uplot.Scale(time=False, range=(-PLOT_SPAN_S, 0.0))
         with self.gui.add_folder("Plots"):
             self.plot_axis = self.gui.add_dropdown("Velocity axis", AXES, initial_value="vx")
             self.velocity_plot = self.gui.add_uplot(
                 (np.array([-PLOT_SPAN_S, 0.0]), empty, empty),
                 (uplot.Series(label="t (s)"),
-                 uplot.Series(label="commanded", stroke="#f08c28", width=2),
-                 uplot.Series(label="received", stroke="#3cb4ff", width=2, dash=(6, 3))),
+                 uplot.Series(label="commanded", stroke="#f08c28", width=3.5),
+                 uplot.Series(label="received", stroke="#3cb4ff", width=1.5)),
                 title="Velocity wish: commanded vs received by the ROV",
-                scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(range=(-1.05, 1.05))},
+                scales={"x": x_scale, "y": uplot.Scale(range=(-1.05, 1.05))},
                 aspect=1.6)
             self.link_plot = self.gui.add_uplot(
                 (np.array([-PLOT_SPAN_S, 0.0]), empty, empty, empty),
@@ -271,7 +275,7 @@ class ControlPanel:
                  uplot.Series(label="received B/s", stroke="#3cb4ff", width=1.5),
                  uplot.Series(label="replies lost", stroke="#ff4040", width=1.5, scale="n")),
                 title="Link time-lapse",
-                scales={"x": uplot.Scale(time=False, auto=True), "y": uplot.Scale(auto=True),
+                scales={"x": x_scale, "y": uplot.Scale(auto=True),
                         "n": uplot.Scale(auto=True)},
                 axes=(uplot.Axis(), uplot.Axis(scale="y"), uplot.Axis(scale="n", side=1)),
                 aspect=1.6)
