@@ -1,0 +1,176 @@
+"""`rovlink demo` as a user runs it: one real process with the simulated ROV,
+the ROV node, the emulated channel and the console, driven through the
+operator page in headless Chromium (Debian's chromium, no download).
+
+The link runs at 9600 bit/s here instead of 1900 so an image takes ~2 s, not
+~11 s; everything else is the demo's default.  Then Ctrl-C stops it cleanly,
+and the session it recorded plots.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+
+import debt
+
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not os.path.exists(CHROMIUM),
+                       reason=f"Chromium is not installed at {CHROMIUM} (Debian package 'chromium'); "
+                              "the browser tests drive it and download no browser"),
+]
+
+
+def free_tcp_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def get(url: str):
+    with urllib.request.urlopen(url, timeout=10) as r:
+        body = r.read()
+        return json.loads(body) if r.headers.get_content_type() == "application/json" else body
+
+
+def wait_for(predicate, timeout_s: float, period_s: float = 0.2):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            value = predicate()
+        except Exception:  # the server may not answer yet
+            value = None
+        if value or time.monotonic() > deadline:
+            return value
+        time.sleep(period_s)
+
+
+@pytest.fixture
+def demo(tmp_path):
+    port, viser_port = free_tcp_port(), free_tcp_port()
+    record = tmp_path / "session.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "console", "demo", "--port", str(port), "--viser-port", str(viser_port),
+         "--bitrate", "9600", "--record", str(record)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        assert wait_for(lambda: get(base + "/api/state"), 60), "the demo did not come up"
+        yield base, proc, record
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
+def test_demo_in_the_browser(demo, tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    base, proc, record = demo
+    errors = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(base)
+
+        # The 3D scene renders in the page: viser's canvas inside the iframe draws something.
+        page.wait_for_selector("#scene", state="visible", timeout=30000)
+        frame = page.frame_locator("#scene")
+        frame.locator("canvas").first.wait_for(timeout=60000)
+        time.sleep(3)
+        shot = tmp_path / "demo.png"
+        page.locator("#scene").screenshot(path=str(shot))
+        from PIL import Image
+
+        pixels = np.asarray(Image.open(shot).convert("L"), dtype=float)
+        assert pixels.std() > 10, "the 3D view is blank"
+
+        # An image arrives and visibly refines.
+        page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=90000)
+        seen = set()
+        assert wait_for(lambda: seen.add(page.get_attribute("#image", "data-decoded-bytes")) or len(seen) >= 3,
+                        60, 0.05), f"the picture did not refine: {seen}"
+
+        # A held key moves the ROV.
+        page.click("#take")
+        page.click("#arm")
+        assert wait_for(lambda: get(base + "/api/state")["pose"]["armed"], 30)
+        x0 = get(base + "/api/state")["pose"]["received"]["x_m"]
+        page.locator("body").focus()
+        page.keyboard.down("w")
+        time.sleep(3)
+        page.keyboard.up("w")
+        assert wait_for(lambda: get(base + "/api/state")["pose"]["received"]["x_m"] > x0 + 0.3, 15)
+
+        # An ROI dragged on the image is acknowledged by the ROV; the next image honours it.
+        box = page.locator("#image").bounding_box()
+        page.mouse.move(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.3)
+        page.mouse.down()
+        page.mouse.move(box["x"] + box["width"] * 0.6, box["y"] + box["height"] * 0.7, steps=5)
+        page.mouse.up()
+        page.fill("#shift", "6")
+        page.click("#apply-image")
+
+        def image_order():
+            orders = [o for o in get(base + "/api/orders") if o["kind"] == "IMAGE" and o.get("roi")]
+            return orders[-1] if orders and orders[-1]["state"] == "acknowledged" else None
+
+        order = wait_for(image_order, 30)
+        assert order, "the ROI order was not acknowledged"
+        roi = tuple(order["roi"])
+
+        def honoured():
+            stream = get(base + "/api/image/latest.debt")
+            state = get(base + "/api/image")
+            return state.get("complete") and tuple(debt.unpack_header(stream).roi or ()) == roi
+
+        assert wait_for(honoured, 60), "no image with the requested ROI"
+        browser.close()
+    assert not errors, errors
+
+    # Ctrl-C stops everything cleanly.
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err, err
+    assert "http://127.0.0.1:" in out
+
+    # The session was recorded and plots.
+    plots = subprocess.run([sys.executable, "-m", "console", "plot", str(record), "--out", str(tmp_path / "plots")],
+                           capture_output=True, text=True, timeout=120)
+    assert plots.returncode == 0, plots.stderr
+    assert (tmp_path / "plots" / "fig4_link_timelapse.png").stat().st_size > 10_000
+    assert (tmp_path / "plots" / "fig5_velocity.png").stat().st_size > 10_000
+
+
+def test_demo_refuses_a_busy_port(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        busy = s.getsockname()[1]
+        out = subprocess.run([sys.executable, "-m", "console", "demo", "--port", str(busy), "--viser-port",
+                              str(free_tcp_port()), "--no-record"], capture_output=True, text=True, timeout=120,
+                             cwd=tmp_path)
+    assert out.returncode == 1
+    assert "cannot serve the page" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
