@@ -186,6 +186,8 @@ class ConsoleScene:
         return self
 
     def stop(self) -> None:
+        if self._stop.is_set():
+            return
         self._stop.set()
         if self._unsubscribe is not None:
             self._unsubscribe()
@@ -338,7 +340,7 @@ class ConsoleScene:
         preview = event.phase != "update" or now - self._last_preview_at >= 0.1
         if preview:
             self._last_preview_at = now
-        self.move_target(event.target.position, event.target.wxyz, preview=preview)
+        self.move_target(event.target.position, event.target.wxyz, preview=preview, place_gizmo=False)
         if event.phase == "end":
             # The order carries yaw only: square the gizmo up again.
             event.target.wxyz = frames.body_wxyz(0.0, 0.0, self.target[3])
@@ -389,9 +391,11 @@ class ConsoleScene:
     # Supervised control: target, preview, Send, Stop
     # ------------------------------------------------------------------
 
-    def move_target(self, position_world, wxyz, *, preview: bool = True) -> list[tuple[float, float, float]]:
+    def move_target(self, position_world, wxyz, *, preview: bool = True,
+                    place_gizmo: bool = True) -> list[tuple[float, float, float]]:
         """The gizmo moved: the ghost at the target and (with `preview`) the path
-        the vehicle would take (GUIDED, from the predicted pose).  Sends nothing."""
+        the vehicle would take (GUIDED, from the predicted pose).  Sends nothing.
+        Called from elsewhere than the gizmo, the gizmo follows (`place_gizmo`)."""
         s = self.seabed
         x, y, z = frames.world_to_ned(np.asarray(position_world, float))
         x = min(max(float(x), s.x_min_m), s.x_max_m)
@@ -407,6 +411,9 @@ class ConsoleScene:
         self.target_ghost_node.position = frames.ned_to_world(x, y, z)
         self.target_ghost_node.wxyz = frames.body_wxyz(0.0, 0.0, yaw)
         self.target_ghost_node.visible = True
+        if place_gizmo:
+            self.gizmo.position = self.target_ghost_node.position
+            self.gizmo.wxyz = self.target_ghost_node.wxyz
         if path is not None:
             self._show_path(path)
         if self.panel is not None:

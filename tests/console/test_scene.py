@@ -309,11 +309,20 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
     target_ned = (x0 + 1.5, y0 - 1.0, max(1.0, z0 + 0.5))
     orders_before = len(op.orders_state())
 
+    # The gizmo's callback: the pilot drags and turns it (a little roll too,
+    # which a POSITION order cannot carry); on release it is squared up.
+    scene.gizmo.position = frames.ned_to_world(*target_ned)
+    scene.gizmo.wxyz = frames.body_wxyz(10.0, 0.0, 30.0)
+    scene._on_gizmo(SimpleNamespace(phase="end", target=scene.gizmo))
+    assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)
+    assert np.allclose(scene.gizmo.wxyz, frames.body_wxyz(0.0, 0.0, 30.0))
+
     path = scene.move_target(frames.ned_to_world(*target_ned), frames.body_wxyz(0.0, 0.0, 30.0))
     assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)
     assert len(path) >= 3 and math.dist(path[-1], target_ned) < 0.5 and math.dist(path[0], (x0, y0, z0)) < 1.0
     assert scene.target_ghost_node.visible and scene.preview_node.visible
     assert np.allclose(scene.target_ghost_node.position, frames.ned_to_world(*target_ned))
+    assert np.allclose(scene.gizmo.position, frames.ned_to_world(*target_ned))
     assert len(scene.preview_node.points) == len(path) - 1
 
     # Nothing was sent and nothing moves while the pilot has not confirmed.
