@@ -381,6 +381,7 @@ def test_panel_controls_reach_the_operator(live):
     panel.budget.value = 2000
     panel.mono.value = False
     panel.apply_image_settings()
+    panel.mode.value = "DEPTH_HOLD"  # STABILIZE lets the buoyant vehicle rise
 
 
 # ----------------------------------------------------------------------
