@@ -153,7 +153,7 @@ class ConsoleScene:
         self._unsubscribe = None
         self._last_received: Pose | None = None
         self._last_predicted: Pose | None = None
-        self._trail_len = None
+        self._trail_shown = None
         self._last_preview_at = 0.0
         self._lock = threading.RLock()
 
@@ -520,9 +520,9 @@ class ConsoleScene:
 
     def update_trail(self) -> None:
         trail = list(self.operator.history.trail)[-TRAIL_POINTS:]
-        if len(trail) < 2 or (len(trail), trail[-1]) == self._trail_len:
+        if len(trail) < 2 or (len(trail), trail[-1]) == self._trail_shown:
             return
-        self._trail_len = (len(trail), trail[-1])
+        self._trail_shown = (len(trail), trail[-1])
         t = np.asarray(trail, float)
         pts = frames.ned_to_world(t[:, 1], t[:, 2], t[:, 3]).astype(np.float32)
         self.trail_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
