@@ -25,7 +25,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-
 
 INIT_SCRIPT = """
 (() => {
-  const rec = window.__rovlinkBench = {poses: [], shown: []};
+  const rec = window.__rovlinkBench = {poses: [], shown: [], telemetry: []};
   const Native = window.WebSocket;
   window.WebSocket = function (...args) {
     const ws = new Native(...args);
@@ -33,6 +33,7 @@ INIT_SCRIPT = """
     ws.addEventListener("message", (ev) => {
       try {
         const msg = JSON.parse(ev.data);
+        if (msg.type === "telemetry") rec.telemetry.push(Date.now());
         if (msg.type === "telemetry" && msg.pose && msg.pose.predicted) {
           const key = JSON.stringify(msg.pose.predicted);
           if (key !== last) { rec.poses.push(Date.now()); last = key; }
@@ -116,6 +117,7 @@ async def _measure(seconds: float, telemetry_hz: float) -> dict:
         "seconds": seconds,
         "telemetry_hz": telemetry_hz,
         "pose_updates_hz": len(poses) / span,
+        "telemetry_messages_hz": len([t for t in rec["telemetry"] if t / 1000 >= t0 + 3.0]) / span,
         "trunks": len(trunks),
         "pictures_shown": len(rec["shown"]),
         "trunk_latency_ms_median": statistics.median(latencies) if latencies else None,

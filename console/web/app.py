@@ -89,7 +89,9 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     app.state.operator = operator
     app.state.scene = scene
     app.state.desk = desk
-    app.state.snapshot = SharedSnapshot(operator, desk)
+    # Shared by all pages, but younger than a telemetry period: a snapshot
+    # reused by the next tick would repeat the same predicted pose.
+    app.state.snapshot = SharedSnapshot(operator, desk, max_age_s=min(0.04, 0.5 / float(telemetry_hz)))
     app.state.png_cache = PngCache()
     app.state.config = {"viser_url": viser_url, "telemetry_hz": float(telemetry_hz),
                         "velocity_deadman_s": float(velocity_deadman_s), "lease_s": float(lease_s)}

@@ -327,6 +327,10 @@ function showImage(im) {
   lastImageState = im;
   const key = `${im.img}:${im.decoded_bytes}`;
   if (key === page.shownImage) return;
+  // A telemetry snapshot taken before the newest decode may arrive after
+  // it: never swap in an older picture of the same image.
+  const [wantedImg, wantedBytes] = (page.wantedImage || ":").split(":");
+  if (String(im.img) === wantedImg && im.decoded_bytes < +wantedBytes) return;
   page.wantedImage = key;
   if (page.loadingImage) return;   // the load in flight fetches again when done
   page.loadingImage = true;
