@@ -36,6 +36,7 @@ MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
 FINE_BAND_FACTOR = {0: 1.1, 1: 1.12}  # empirical: plane alignment between bands, tuned on the samples
 ROI_REACH = (1, 1)  # see _roi_ranges; tuned for ROI PSNR on the samples
+ROI_REACH_BY_LEVEL = {1: (0, 0)}  # finest details: only what lies over the ROI
 KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
 
 # Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT).
@@ -284,9 +285,9 @@ def _roi_ranges(a: int, b: int, n: int, levels: int):
     # shapes pixels 2m +- reach, high coefficient m pixels 2m + 1 +- reach.
     # (The full 9/7 supports are 3 and 4; the far tails weigh little and
     # would make every coarse coefficient part of the region.)
-    rl, rh = ROI_REACH
     out = []
-    for _ in range(levels):
+    for level in range(levels):
+        rl, rh = ROI_REACH_BY_LEVEL.get(level + 1, ROI_REACH)
         nl, nh = -(-n // 2), n // 2
         low = (max(0, -((rl - a) // 2)), min(nl, (b - 1 + rl) // 2 + 1))
         high = (max(0, -((1 + rh - a) // 2)), min(nh, (b - 2 + rh) // 2 + 1))

@@ -53,15 +53,20 @@ def _cache_ok() -> bool:
 
 
 if _numba is not None:
-    _jit = _numba.njit(cache=_cache_ok(), nogil=True)
+    # No reference counting (_nrt=False): profiling showed two thirds of the
+    # traversal's time in the atomic increments numba wraps around every
+    # array passed to a helper.  The kernels therefore allocate nothing; the
+    # Python wrappers hand them their work arrays.
+    _jit = _numba.njit(cache=_cache_ok(), nogil=True, _nrt=False)
+    _jit_nrt = _numba.njit(cache=_cache_ok(), nogil=True)  # for kernels that allocate
     # The binary coder is inlined by numba itself (its scalar state then
     # stays in registers); other helpers are left to LLVM, since inlining
     # them all tripled the first compilation for ~15 % speed.
-    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always")
+    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always", _nrt=False)
 else:  # pragma: no cover
     def _jit(f):
         return f
-    _inline = _jit
+    _inline = _jit_nrt = _jit
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
 # times 8 plus resolution level (0 = low band, j = level-j details), plus 16
@@ -346,7 +351,6 @@ def _drop_unfinished(lsp, nbefore, nlsp, rec, pk):
     return 0
 
 
-@_jit
 def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
         kmax, top, buf, st, rec, pk, sgn, roi_shift):
     """Traverse the bit planes from `top` down to 0, coding every decision.
@@ -354,19 +358,29 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
     the end of the certain data (decoder) stopped it first."""
     ncoef = cfloor.shape[0]
-    nb = binfo.shape[0]
-    a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
     probs = np.full(NCTX, PROB_ONE // 2, dtype=np.int64)
     counts = np.zeros(NCTX, dtype=np.int64)
-    lis = np.empty(seg[kmax + 1], dtype=np.int64)
+    lis = np.empty(max(int(seg[kmax + 1]), 1), dtype=np.int64)
     lis_len = np.zeros(kmax + 1, dtype=np.int64)
     sig = np.zeros(ncoef, dtype=np.uint8)
     sigplane = np.zeros(ncoef, dtype=np.int8)
     lsp = np.empty(ncoef, dtype=np.int32)
-    nlsp = 0
     stack = np.empty((4 * (kmax + 2), 3), dtype=np.int64)
     cy4 = np.empty(4, dtype=np.int64)
     cx4 = np.empty(4, dtype=np.int64)
+    return _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
+                     kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
+                     sig, sigplane, lsp, stack, cy4, cx4)
+
+
+@_jit
+def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
+              kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
+              sig, sigplane, lsp, stack, cy4, cx4):
+    ncoef = cfloor.shape[0]
+    nb = binfo.shape[0]
+    a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
+    nlsp = 0
     for b in range(nb):
         if binfo[b, 1] == 0 or binfo[b, 2] == 0:
             continue
