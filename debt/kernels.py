@@ -36,11 +36,17 @@ def _rows_step(a, h, w, start, coef):
 
 @_jit
 def _cols_step(a, h, w, start, coef):
+    # The same along rows; the mirrored edges are taken out of the inner loop.
     for r in range(h):
-        for x in range(start, w, 2):
-            lf = x - 1 if x >= 1 else 1
-            rt = x + 1 if x + 1 < w else w - 2
-            a[r, x] += coef * (a[r, lf] + a[r, rt])
+        x = start
+        if x == 0:
+            a[r, 0] += 2.0 * coef * a[r, 1]
+            x = 2
+        while x + 1 < w:
+            a[r, x] += coef * (a[r, x - 1] + a[r, x + 1])
+            x += 2
+        if x < w:
+            a[r, x] += 2.0 * coef * a[r, x - 1]
 
 
 @_jit
@@ -48,6 +54,7 @@ def forward97(a, levels):
     """In-place multilevel CDF 9/7 analysis of a 2-D float64 array."""
     h, w = a.shape
     tmp = np.empty(max(h, w), dtype=np.float64)
+    rows = np.empty((h, w), dtype=np.float64)
     for _ in range(levels):
         hl = (h + 1) // 2
         wl = (w + 1) // 2
@@ -56,11 +63,14 @@ def forward97(a, levels):
             _rows_step(a, h, w, 0, _B)
             _rows_step(a, h, w, 1, _C)
             _rows_step(a, h, w, 0, _D)
-            for x in range(w):
-                for r in range(h):
-                    tmp[(r >> 1) if r % 2 == 0 else hl + (r >> 1)] = a[r, x]
-                for r in range(h):
-                    a[r, x] = tmp[r]
+            # De-interleave whole rows (contiguous copies, not columns).
+            for r in range(h):
+                dst = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
+                for x in range(w):
+                    rows[dst, x] = a[r, x]
+            for r in range(h):
+                for x in range(w):
+                    a[r, x] = rows[r, x]
         if w > 1:
             _cols_step(a, h, w, 1, _A)
             _cols_step(a, h, w, 0, _B)
@@ -86,6 +96,7 @@ def inverse97(a, levels):
         hs[j + 1] = (hs[j] + 1) // 2
         ws[j + 1] = (ws[j] + 1) // 2
     tmp = np.empty(max(H, W), dtype=np.float64)
+    rows = np.empty((H, W), dtype=np.float64)
     for j in range(levels - 1, -1, -1):
         h = hs[j]
         w = ws[j]
@@ -102,11 +113,13 @@ def inverse97(a, levels):
             _cols_step(a, h, w, 0, -_B)
             _cols_step(a, h, w, 1, -_A)
         if h > 1:
-            for x in range(w):
-                for r in range(h):
-                    tmp[r] = a[(r >> 1) if r % 2 == 0 else hl + (r >> 1), x]
-                for r in range(h):
-                    a[r, x] = tmp[r]
+            for r in range(h):
+                src = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
+                for x in range(w):
+                    rows[r, x] = a[src, x]
+            for r in range(h):
+                for x in range(w):
+                    a[r, x] = rows[r, x]
             _rows_step(a, h, w, 0, -_D)
             _rows_step(a, h, w, 1, -_C)
             _rows_step(a, h, w, 0, -_B)
