@@ -73,8 +73,8 @@ else:  # pragma: no cover
 # for sets and coefficients inside the region of interest.
 NCLS = 32
 CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
-CTX_SET = CTX_SIG + NCLS * 16    # + cls * 8 + min(k, 7)
-CTX_SIGN = CTX_SET + NCLS * 8    # + cls * 5 + sign context (0..4)
+CTX_SET = CTX_SIG + NCLS * 16    # + cls * 24 + min(k, 7) * 3 + significant neighbour sets (0..2)
+CTX_SIGN = CTX_SET + NCLS * 24   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 
@@ -287,6 +287,25 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
 
 
 @_jit
+def _set_context(nsig, noff, nw, binfo, b, k, y, x):
+    # Blocks next to blocks already found significant are likelier to be.
+    base = noff[b, k]
+    wk = nw[b, k]
+    hk = (binfo[b, 1] + (np.int64(1) << k) - 1) >> k
+    i = base + y * wk + x
+    c = 0
+    if x > 0:
+        c += nsig[i - 1]
+    if x + 1 < wk:
+        c += nsig[i + 1]
+    if y > 0:
+        c += nsig[i - wk]
+    if y + 1 < hk:
+        c += nsig[i + wk]
+    return c if c < 2 else 2
+
+
+@_jit
 def _sign_part(sig, sgn, i):
     # +1 for a significant positive neighbour, -1 for a negative one.
     if sig[i] == 0:
@@ -368,15 +387,16 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     stack = np.empty((4 * (kmax + 2), 3), dtype=np.int64)
     cy4 = np.empty(4, dtype=np.int64)
     cx4 = np.empty(4, dtype=np.int64)
+    nsig = np.zeros(node_floor.shape[0], dtype=np.uint8)
     return _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
                      kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
-                     sig, sigplane, lsp, stack, cy4, cx4)
+                     sig, sigplane, lsp, stack, cy4, cx4, nsig)
 
 
 @_jit
 def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
               kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
-              sig, sigplane, lsp, stack, cy4, cx4):
+              sig, sigplane, lsp, stack, cy4, cx4, nsig):
     ncoef = cfloor.shape[0]
     nb = binfo.shape[0]
     a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
@@ -438,8 +458,9 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     nlsp = r
                     continue
                 kk = k if k < 7 else 7
+                ctx = CTX_SET + cls * 24 + kk * 3 + _set_context(nsig, noff, nw, binfo, b, k, y, x)
                 a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                              CTX_SET + cls * 8 + kk, bit)
+                                              ctx, bit)
                 if r < 0:
                     _save(st, a0, a1, a2, a3, a4)
                     return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
@@ -447,6 +468,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     lis[base + j] = e
                     j += 1
                     continue
+                nsig[noff[b, k] + y * nw[b, k] + x] = 1
                 # Significant set: split it, depth first, until every piece
                 # is either an insignificant set (back in a list) or a
                 # significant coefficient.
@@ -493,7 +515,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                                                                h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
-                                ctx = CTX_SET + cls * 8 + kk
+                                ctx = CTX_SET + cls * 24 + kk * 3 + _set_context(
+                                    nsig, noff, nw, binfo, b, ck, yy, xx)
                             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                           counts, ctx, cbit)
                             if r < 0:
@@ -514,6 +537,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                 return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
                             nlsp = r
                         else:
+                            nsig[noff[b, ck] + yy * nw[b, ck] + xx] = 1
                             stack[depth, 0] = ck
                             stack[depth, 1] = yy
                             stack[depth, 2] = xx
