@@ -73,8 +73,8 @@ else:  # pragma: no cover
 # for sets and coefficients inside the region of interest.
 NCLS = 32
 CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
-CTX_SET = CTX_SIG + NCLS * 16    # + cls * 24 + min(k, 7) * 3 + significant neighbour sets (0..2)
-CTX_SIGN = CTX_SET + NCLS * 24   # + cls * 5 + sign context (0..4)
+CTX_SET = CTX_SIG + NCLS * 16    # + cls * 32 + min(k, 7) * 4 + set context (0..3)
+CTX_SIGN = CTX_SET + NCLS * 32   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 
@@ -287,7 +287,7 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
 
 
 @_jit
-def _set_context(nsig, noff, nw, binfo, b, k, y, x):
+def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     # Blocks next to blocks already found significant are likelier to be.
     base = noff[b, k]
     wk = nw[b, k]
@@ -302,6 +302,20 @@ def _set_context(nsig, noff, nw, binfo, b, k, y, x):
         c += nsig[i - wk]
     if y + 1 < hk:
         c += nsig[i + wk]
+    if c == 0:
+        # None yet: the same block of the parent band (one level coarser,
+        # same orientation) tells whether this region holds any detail.
+        pb = binfo[b, 6]
+        if pb >= 0 and binfo[pb, 1] > 0 and binfo[pb, 2] > 0:
+            pk_ = k - 1
+            if pk_ == 0:
+                if y < binfo[pb, 1] and x < binfo[pb, 2]:
+                    if sig[binfo[pb, 0] + y * binfo[pb, 2] + x]:
+                        return 3
+            elif pk_ <= binfo[pb, 3]:
+                if y < ((binfo[pb, 1] + (np.int64(1) << pk_) - 1) >> pk_) and x < nw[pb, pk_]:
+                    if nsig[noff[pb, pk_] + y * nw[pb, pk_] + x]:
+                        return 3
     return c if c < 2 else 2
 
 
@@ -458,7 +472,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     nlsp = r
                     continue
                 kk = k if k < 7 else 7
-                ctx = CTX_SET + cls * 24 + kk * 3 + _set_context(nsig, noff, nw, binfo, b, k, y, x)
+                ctx = CTX_SET + cls * 32 + kk * 4 + _set_context(nsig, sig, noff, nw, binfo, b, k, y, x)
                 a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
                                               ctx, bit)
                 if r < 0:
@@ -515,8 +529,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                                                                h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
-                                ctx = CTX_SET + cls * 24 + kk * 3 + _set_context(
-                                    nsig, noff, nw, binfo, b, ck, yy, xx)
+                                ctx = CTX_SET + cls * 32 + kk * 4 + _set_context(
+                                    nsig, sig, noff, nw, binfo, b, ck, yy, xx)
                             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                           counts, ctx, cbit)
                             if r < 0:
