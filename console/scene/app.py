@@ -427,6 +427,11 @@ class ConsoleScene:
         self.preview_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
         self.preview_node.visible = True
 
+    def preview_target_ned(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0) -> list:
+        """Show a target typed elsewhere (the web page) as if the gizmo had put it there."""
+        position, wxyz = frames.pose_to_world(Pose(x_m, y_m, z_m, 0.0, 0.0, yaw_deg))
+        return self.move_target(position, wxyz)
+
     def send_target(self) -> int | None:
         """The pilot confirmed: the POSITION order goes out."""
         with self._lock:

@@ -1,6 +1,9 @@
 """`rovlink demo` as a user runs it: one real process with the simulated ROV,
 the ROV node, the emulated channel and the console, driven through the
-operator page in headless Chromium (Debian's chromium, no download).
+operator page in headless Chromium (Debian's chromium, no download): the 3D
+scene renders, an image refines, a held key moves the ROV, an ROI drag is
+honoured by the next image, a previewed position order moves nothing until
+sent and then the ROV goes there.
 
 The link runs at 9600 bit/s here instead of 1900 so an image takes ~2 s, not
 ~11 s; everything else is the demo's default.  Then Ctrl-C stops it cleanly,
@@ -10,6 +13,7 @@ and the session it recorded plots.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -141,6 +145,31 @@ def test_demo_in_the_browser(demo, tmp_path):
             return state.get("complete") and tuple(debt.unpack_header(stream).roi or ()) == roi
 
         assert wait_for(honoured, 60), "no image with the requested ROI"
+
+        # Supervised control: a previewed position order moves nothing until sent.
+        start = get(base + "/api/state")["pose"]["received"]
+        target = (round(start["x_m"] - 2.0, 2), round(start["y_m"] + 1.5, 2), 3.0)
+        for field, value in zip(("#goto-x", "#goto-y", "#goto-z", "#goto-yaw"), (*target, 45)):
+            page.fill(field, str(value))
+        page.click("#goto-preview")
+        page.wait_for_selector("#goto-plan", state="visible")
+        assert "not sent" in page.text_content("#goto-plan")
+        assert int(page.get_attribute("#goto-plan", "data-points")) > 3
+        time.sleep(3)
+        assert not [o for o in get(base + "/api/orders") if o["kind"] == "POSITION"]
+        now = get(base + "/api/state")["pose"]["received"]
+        assert math.hypot(now["x_m"] - start["x_m"], now["y_m"] - start["y_m"]) < 0.3, "moved before Send"
+        page.click("#goto-go")
+
+        def arrived():
+            p = get(base + "/api/state")["pose"]["received"]
+            return math.dist((p["x_m"], p["y_m"], p["z_m"]), target) < 0.5
+
+        assert wait_for(lambda: any(o["kind"] == "POSITION" and o["state"] == "acknowledged"
+                                    for o in get(base + "/api/orders")), 20), (
+            f"position order not acknowledged: page says {page.text_content('#goto-plan')!r}, "
+            f"error {page.text_content('#error')!r}, orders {get(base + '/api/orders')}")
+        assert wait_for(arrived, 60), "the ROV did not reach the target"
         browser.close()
     assert not errors, errors
 

@@ -3,7 +3,7 @@ Operator refuses is a 422 carrying its message (see `create_app`)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Request
 
 from ..deps import ClientIdDep, DeskDep, HolderDep, OperatorDep
 from ..models import (
@@ -41,13 +41,18 @@ def post_position(order: PositionOrder, operator: OperatorDep, _: HolderDep) -> 
 
 @router.post("/position/preview", response_model=PathPreview, responses=INVALID,
              summary="Where a position order would take the vehicle (nothing is sent)")
-def preview_position(order: PositionOrder, operator: OperatorDep) -> dict:
+def preview_position(order: PositionOrder, operator: OperatorDep, request: Request) -> dict:
     if order.relative:
         # The preview works in absolute coordinates; relative targets are the
         # scene's business (it knows the heading it drew them with).
         from console.operator import OrderError
 
         raise OrderError("the preview takes absolute targets only (relative=false)")
+    scene = getattr(request.app.state, "scene", None)
+    if scene is not None and hasattr(scene, "preview_target_ned"):
+        # The 3D view shows the ghost at the target and its path, as if the
+        # gizmo had been moved there; still nothing is sent.
+        scene.preview_target_ned(order.x_m, order.y_m, order.z_m, order.yaw_deg)
     return {"points": operator.preview_path(order.x_m, order.y_m, order.z_m, order.yaw_deg)}
 
 

@@ -454,12 +454,33 @@ function wire() {
     roi: page.roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked,
     budget_bytes: parseInt($("budget").value, 10),
   });
-  $("goto").onsubmit = (ev) => {
+  const gotoTarget = () => ({
+    x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
+    z_m: parseFloat($("goto-z").value), yaw_deg: parseFloat($("goto-yaw").value),
+  });
+  // Supervised control: Preview shows the target ghost and the path the
+  // vehicle would fly in the 3D view (nothing is sent); Go to sends it.
+  $("goto-preview").onclick = async () => {
+    const target = gotoTarget();
+    const plan = await api("/api/orders/position/preview", target);
+    if (!plan) return;
+    const pts = plan.points;
+    const end = pts[pts.length - 1];
+    let length = 0;
+    for (let i = 1; i < pts.length; i += 1) {
+      length += Math.hypot(pts[i][0] - pts[i - 1][0], pts[i][1] - pts[i - 1][1], pts[i][2] - pts[i - 1][2]);
+    }
+    const miss = Math.hypot(end[0] - target.x_m, end[1] - target.y_m, end[2] - target.z_m);
+    const box = $("goto-plan");
+    box.textContent = `preview: ${length.toFixed(1)} m in about ${((pts.length - 1) * 0.5).toFixed(0)} s, ` +
+      `ends ${miss.toFixed(2)} m from the target; not sent`;
+    box.dataset.points = pts.length;
+    box.hidden = false;
+  };
+  $("goto").onsubmit = async (ev) => {
     ev.preventDefault();
-    api("/api/orders/position", {
-      x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
-      z_m: parseFloat($("goto-z").value), yaw_deg: parseFloat($("goto-yaw").value),
-    });
+    const sent = await api("/api/orders/position", gotoTarget());
+    if (sent) $("goto-plan").textContent = `position order #${sent.id} sent`;
   };
   $("goto-here").onclick = () => {
     const p = page.lastPose;
