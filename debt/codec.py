@@ -353,7 +353,9 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarra
             out = np.stack([cr + g, g, cb + g], axis=-1)
         return np.clip(out, 0, 255).astype(np.uint8)
     if not colour:
-        out = comps[0] + 128.0
+        out = np.empty(comps[0].shape, dtype=np.uint8)
+        kernels.to_uint8(np.ascontiguousarray(comps[0]), 128.0, out)
+        return out
     else:
         ycc = np.stack([comps[0] + 128.0, comps[1], comps[2]], axis=-1)
         out = ycc @ _ICT_INV.T

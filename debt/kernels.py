@@ -191,3 +191,13 @@ def gather97(flat, pos, scale, mag, neg):
         else:
             neg[c] = np.uint8(0)
         mag[c] = np.int64(np.floor(v * scale[c]))
+
+
+@_jit
+def to_uint8(a, offset, out):
+    """out = clip(round(a + offset), 0, 255) in one pass (grey pictures)."""
+    h, w = a.shape
+    for r in range(h):
+        for x in range(w):
+            v = np.rint(a[r, x] + offset)
+            out[r, x] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
