@@ -180,8 +180,13 @@ class Operator:
         self.bitrate_bps = bitrate_bps
         self.delay_s = delay_s
         self.history = History()
-        self.image = ImageView(settings=image_settings or ImageSettings(mono=True, budget_bytes=2000))
-        self.requested_settings = self.image.settings
+        # What the ROV is known to use: given by a caller that knows (the demo
+        # starts the ROV itself), else unknown until an IMAGE order we sent is
+        # acknowledged.  `requested_settings` is the base for the pilot's edits.
+        self._confirmed_settings = image_settings
+        self._image_orders: dict[int, ImageSettings] = {}
+        self.image = ImageView(settings=image_settings)
+        self.requested_settings = image_settings or ImageSettings(mono=True, budget_bytes=2000)
         self._lock = threading.RLock()
         self._subscribers: list[Callable[[str, Any], None]] = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -351,7 +356,7 @@ class Operator:
                 view.picture = None
                 view.decoded_bytes = 0
                 view.complete = False
-                view.settings = self.requested_settings
+                view.settings = self._confirmed_settings
             view.received_bytes = event.received_bytes
             view.total_bytes = event.total_bytes
             view.stream = event.prefix
@@ -409,9 +414,11 @@ class Operator:
             info["t_" + state.split(":")[0]] = t
         self.recorder.write({"k": "order_state", "t": round(t, 4), "id": order_id, "state": state})
         self._publish("order", dict(info))
-        if state == "acknowledged" and info["kind"] == "IMAGE":
+        if info["kind"] == "IMAGE":
             with self._lock:
-                self.image.settings = self.requested_settings
+                settings = self._image_orders.pop(order_id, None)
+                if state == "acknowledged" and settings is not None:
+                    self._confirmed_settings = settings  # applies from the next image on
 
     # ------------------------------------------------------------------
     # Commands (any thread)
@@ -501,9 +508,12 @@ class Operator:
             raise OrderError(str(exc)) from None
         with self._lock:
             self.requested_settings = settings
-        return self._queue(settings, "IMAGE", {"roi": list(settings.roi) if settings.roi else None,
+        order_id = self._queue(settings, "IMAGE", {"roi": list(settings.roi) if settings.roi else None,
                                                "shift": settings.shift, "mono": settings.mono,
                                                "budget_bytes": settings.budget_bytes})
+        with self._lock:
+            self._image_orders[order_id] = settings
+        return order_id
 
     def next_image(self) -> None:
         with self._lock:

@@ -39,7 +39,11 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
         scene = ConsoleScene(operator, host=args.host, port=args.viser_port).start()
     except OSError as exc:
         raise CommandError(f"cannot serve the 3D scene on port {args.viser_port}: {exc}") from None
-    viser_url = f"http://{browser_host(args.host)}:{args.viser_port}"
+    # viser takes the next free port when the one asked for is busy: use the real one.
+    from urllib.parse import urlsplit
+
+    viser_port = urlsplit(scene.url).port or args.viser_port
+    viser_url = f"http://{browser_host(args.host)}:{viser_port}"
     app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0)
     tasks = [asyncio.create_task(coro) for coro in background]
     url = f"http://{browser_host(args.host)}:{args.port}"
