@@ -9,22 +9,13 @@ Debian's /usr/bin/chromium driven by Playwright (no browser download).
 from __future__ import annotations
 
 import itertools
-import os
 
 import pytest
 
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import wait_for
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not os.path.exists(CHROMIUM),
-                       reason=f"Chromium is not installed at {CHROMIUM} (Debian package 'chromium'); "
-                              "the browser tests drive it and download no browser"),
-]
+pytestmark = [pytest.mark.browser, needs_chromium]
 
 NEUTRAL = {"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}
 # The first picture waits for the codec's JIT compilation, slow on a busy machine.
@@ -49,7 +40,7 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         yield chromium
         chromium.close()
 

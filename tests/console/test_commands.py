@@ -4,42 +4,23 @@ joined by UDP, the way they are deployed with a modem between them."""
 
 from __future__ import annotations
 
-import json
 import signal
-import socket
 import subprocess
 import sys
-import time
 import urllib.request
 
 import pytest
 
 from link.transport import free_udp_port
 
+from ..helpers import free_tcp_port
+from ..helpers import get_json as get
+from ..helpers import wait_until_up as wait_for
+
 ROVLINK = [sys.executable, "-m", "console"]
 
 
-def free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
-
-def get(url: str):
-    with urllib.request.urlopen(url, timeout=10) as r:
-        return json.loads(r.read())
-
-
-def wait_for(predicate, timeout_s: float, period_s: float = 0.2):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            value = predicate()
-        except Exception:  # not up yet
-            value = None
-        if value or time.monotonic() > deadline:
-            return value
-        time.sleep(period_s)
 
 
 def stop(proc: subprocess.Popen) -> tuple[int, str, str]:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -26,24 +25,10 @@ import pytest
 
 import debt
 
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
+from ..helpers import wait_until_up as wait_for
 
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not os.path.exists(CHROMIUM),
-                       reason=f"Chromium is not installed at {CHROMIUM} (Debian package 'chromium'); "
-                              "the browser tests drive it and download no browser"),
-]
-
-
-def free_tcp_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+pytestmark = [pytest.mark.browser, needs_chromium]
 
 
 def get(url: str):
@@ -51,17 +36,6 @@ def get(url: str):
         body = r.read()
         return json.loads(body) if r.headers.get_content_type() == "application/json" else body
 
-
-def wait_for(predicate, timeout_s: float, period_s: float = 0.2):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            value = predicate()
-        except Exception:  # the server may not answer yet
-            value = None
-        if value or time.monotonic() > deadline:
-            return value
-        time.sleep(period_s)
 
 
 @pytest.fixture
@@ -88,7 +62,7 @@ def test_demo_in_the_browser(demo, tmp_path):
     base, proc, record = demo
     errors = []
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1400, "height": 900})
         page.on("pageerror", lambda exc: errors.append(str(exc)))
         page.goto(base)

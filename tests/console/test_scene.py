@@ -29,17 +29,22 @@ from viser import transforms as tf
 
 import debt
 from console.scene import frames
-from console.scene.app import (CAMERA_HFOV_DEG, CAMERA_TILT_DEG, SCREEN_CENTRE, SCREEN_WXYZ, VIEW_POSITION,
-                               ConsoleScene, SeabedAsset, as_rgb)
+from console.scene.app import (
+    CAMERA_HFOV_DEG,
+    CAMERA_TILT_DEG,
+    SCREEN_CENTRE,
+    SCREEN_WXYZ,
+    VIEW_POSITION,
+    ConsoleScene,
+    SeabedAsset,
+    as_rgb,
+)
 from console.scene.panel import link_bins, step_values
 from console.scene.roi import draw_roi, roi_from_pixels
 from console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
 from console.stack import Stack, StackConfig
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+from ..helpers import CHROMIUM, CHROMIUM_ARGS
 
 
 def wait_for(predicate, timeout_s: float, period_s: float = 0.05):

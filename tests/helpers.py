@@ -1,0 +1,46 @@
+"""Small things several test modules need: the browser they drive, free
+loopback ports, waiting for a condition, and reading the console's API."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import time
+import urllib.request
+
+import pytest
+
+# Debian's chromium (installed by .ci/run); no browser is ever downloaded.
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+needs_chromium = pytest.mark.skipif(
+    not os.path.exists(CHROMIUM),
+    reason=f"Chromium is not installed at {CHROMIUM} (Debian package 'chromium'); "
+           "the browser tests drive it and download no browser")
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def get_json(url: str):
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def wait_until_up(predicate, timeout_s: float, period_s: float = 0.2):
+    """Poll predicate() until truthy; errors count as "not yet" (a server still starting)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            value = predicate()
+        except Exception:
+            value = None
+        if value or time.monotonic() > deadline:
+            return value
+        time.sleep(period_s)
