@@ -6,7 +6,7 @@
   along, the session recorded to a file), with the Python heap measured by
   tracemalloc every five simulated minutes.  Flat means: the heap's peak in
   the second half is within `--flat-mb` of its peak in the first half.
-- page: with `--page`, the real demo stack at 1.9 kbit/s, the web app and
+- page (unless `--no-page`): the real demo stack at 1.9 kbit/s, the web app and
   headless Chromium on the operator page: how often the page receives a new
   predicted pose, and how long a received trunk takes to show in the page
   (operator receipt to the page's handling of it, both on this machine's
@@ -152,7 +152,13 @@ def run(args) -> int:
         "",
         format_table(["minute", "Python heap MB"], [[round(s["t_s"] / 60, 1), s["heap_mb"]] for s in samples]),
     ]
-    if args.page:
+    import os
+
+    from console.bench.page import CHROMIUM
+
+    if not args.no_page and not os.path.exists(CHROMIUM):
+        lines += ["", f"page: not measured: no Chromium at {CHROMIUM} (Debian package 'chromium')"]
+    elif not args.no_page:
         page = _page_latency(args.page_seconds)
         doc["page"] = page
         doc["targets"]["predicted_pose_updates_ge_20hz"] = {"value_hz": page["pose_updates_hz"], "limit_hz": 20.0,
@@ -191,6 +197,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--flat-mb", type=float, default=2.0, metavar="MB",
                    help="largest rise of the heap peak from the first half to the second that counts as flat (2)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--page", action="store_true", help="also measure the operator page in headless Chromium")
+    p.add_argument("--no-page", action="store_true",
+                   help="skip the operator page measurement (headless Chromium, about a minute)")
     p.add_argument("--page-seconds", type=float, default=40.0, metavar="S", help="page measurement time (40)")
     p.set_defaults(func=run)
