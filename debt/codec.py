@@ -35,7 +35,7 @@ MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
 MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
 FINE_BAND_FACTOR = {0: 1.1, 1: 1.12}  # empirical: plane alignment between bands, tuned on the samples
-ROI_REACH = (1, 1)  # see _roi_ranges; tuned for ROI PSNR on the samples
+ROI_REACH = (1, 1)  # see _roi_ranges (5/3 streams; 9/7 ones weigh by energy share)
 ROI_REACH_BY_LEVEL = {1: (0, 0)}  # finest details: only what lies over the ROI
 KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
 
@@ -298,6 +298,62 @@ def _roi_ranges(a: int, b: int, n: int, levels: int):
     return out
 
 
+@lru_cache(maxsize=16)
+def _inside_fraction(n: int, levels: int, a: int, b: int):
+    """Per level j (1..levels): (low, high) arrays giving, for each 1-D 9/7
+    coefficient of that level, the share of its synthesis basis function's
+    energy that falls on samples [a, b)."""
+    from .transform import _synthesise97
+    lengths = [n]
+    for _ in range(levels):
+        lengths.append(-(-lengths[-1] // 2))
+
+    def up(x, j):
+        # Synthesise a level-j low band (columns of x) back to samples.
+        for i in range(j, 0, -1):
+            x = _synthesise97(x, np.zeros((lengths[i - 1] // 2, x.shape[1])))
+        return x
+
+    def share(x):
+        e = (x * x).sum(axis=0)
+        return np.where(e > 0, (x[a:b] ** 2).sum(axis=0) / np.maximum(e, 1e-300), 0.0)
+
+    out = []
+    for j in range(1, levels + 1):
+        nl, nh = lengths[j], lengths[j - 1] // 2
+        low = up(_synthesise97(np.eye(nl), np.zeros((nh, nl))), j - 1)
+        high = up(_synthesise97(np.zeros((nl, nh)), np.eye(nh)), j - 1) if nh else np.zeros((n, 0))
+        out.append((share(low), share(high)))
+    return out
+
+
+def _roi_raise(h: Header, levels: int) -> list[np.ndarray]:
+    """Per band of one component, the planes (real) each 9/7 coefficient is
+    raised by.  The ROI is a weighted squared error: pixels inside weigh
+    4**shift, the rest 1.  A coefficient whose synthesis energy lies a share
+    f inside therefore weighs f * 4**shift + (1 - f), i.e. is raised by half
+    the log2 of that: fully inside, `shift` planes; fully outside, none; the
+    wide coarse-level basis functions in between, by how much of them the
+    ROI sees (a hard mask either raised them all, paying for pixels outside,
+    or none, leaving the ROI's edges to the background's few bits)."""
+    x0, y0, x1, y1 = h.roi
+    rows = _inside_fraction(h.height, levels, y0, y1)
+    cols = _inside_fraction(h.width, levels, x0, x1)
+    big = 4.0 ** h.shift
+
+    def raise_(fr, fc):
+        f = np.outer(fr, fc)  # the 2-D basis is separable, so is its share
+        return 0.5 * np.log2(f * big + (1.0 - f))
+
+    out = [raise_(rows[-1][0], cols[-1][0])]
+    for j in range(levels, 0, -1):
+        r, c = rows[j - 1], cols[j - 1]
+        out.append(raise_(r[0], c[1]))  # LH: low rows, high columns
+        out.append(raise_(r[1], c[0]))  # HL
+        out.append(raise_(r[1], c[1]))  # HH
+    return out
+
+
 def _roi_masks(h: Header, levels: int) -> list[np.ndarray] | None:
     """Per band of one component, a boolean mask of ROI coefficients."""
     if h.roi is None:
@@ -393,6 +449,9 @@ class _Plan:
     inv_scale: np.ndarray | None = None
     cfloor8: np.ndarray | None = None    # cfloor as uint8, for the coder (small in cache)
     croi: np.ndarray | None = None       # coefficient raised as part of the ROI
+    cdef: np.ndarray | None = None       # planes below the top it cannot reach
+    cdef8: np.ndarray | None = None
+    node_def: np.ndarray | None = None   # min of cdef over each quadtree node
 
 
 @lru_cache(maxsize=8)
@@ -410,6 +469,7 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
     if lay.ncoef:
         ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
     cfloor = np.zeros(n, dtype=np.int64)
+    cdef = np.zeros(n, dtype=np.int64)
     plan = _Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales)
     if reversible:
         for b in range(len(lay.shapes)):
@@ -420,6 +480,7 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             f = np.full((bh, bw), scales[c][i], dtype=np.int64)
             if masks is not None:
                 f[masks[i]] += shift
+                cdef[off:off + bh * bw] = np.where(masks[i], 0, shift).ravel()
             cfloor[off:off + bh * bw] = f.ravel()
     else:
         hs, ws = [height], [width]
@@ -431,6 +492,7 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
         pos = np.zeros(n, dtype=np.int64)
         scale = np.ones(n, dtype=np.float64)
+        raises = _roi_raise(probe, levels) if masks is not None else None
         for b in range(len(lay.shapes)):
             off, bh, bw = lay.binfo[b, :3]
             if not bh or not bw:
@@ -441,7 +503,11 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
             sc = np.full((bh, bw), scales[c][i])
             if masks is not None:
-                sc[masks[i]] *= float(1 << shift)
+                t = raises[i]
+                sc *= 2.0 ** t
+                # Whole planes under the top it cannot reach: raised t, it
+                # stays below the background's ceiling times 2**t.
+                cdef[off:off + bh * bw] = np.floor(shift - t + 1e-9).astype(np.int64).clip(0, shift).ravel()
             scale[off:off + bh * bw] = sc.ravel()
         plan.pos, plan.scale, plan.inv_scale = pos, scale, 1.0 / scale
     # The coder's floor bytes: lowest coded plane, plus 128 inside the ROI.
@@ -451,7 +517,14 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             off, bh, bw = lay.binfo[b, :3]
             if bh and bw:
                 croi[off:off + bh * bw] = masks[lay.index[b]].ravel()
+    if masks is not None and not reversible:
+        # Contexts of the region: the coefficients raised within a plane of
+        # the full shift (most of their energy inside).
+        croi = (cdef == 0).astype(np.int64)
     plan.croi = croi.astype(bool)
+    plan.cdef = cdef
+    plan.cdef8 = cdef.astype(np.uint8)
+    plan.node_def = _pyramid(cdef, lay, False).astype(np.uint8)
     plan.node_floor = (_pyramid(cfloor, lay, False) | (_pyramid(croi, lay, True) << 7)).astype(np.uint8)
     plan.cfloor8 = (cfloor | (croi << 7)).astype(np.uint8)
     return plan
@@ -487,13 +560,13 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
             kernels.forward97(a, plan.levels)
             flat[c * height * width:(c + 1) * height * width] = a.ravel()
         kernels.gather97(flat, plan.pos, plan.scale, mag, neg)
-    top = max(int(mag.max()).bit_length() - 1, 0)
-    if roi is not None:
-        # Outside the ROI nothing may reach the top `shift` planes: the
-        # coder skips testing it there.
-        background = mag[~plan.croi]
-        if background.size:
-            top = max(top, int(background.max()).bit_length() - 1 + shift)
+    # Every coefficient must stay below its own ceiling, `cdef` planes under
+    # the top (the coder does not test it above): raise the top to make room.
+    nz = mag > 0
+    top = 0
+    if nz.any():
+        bits = np.frexp(mag[nz].astype(np.float64))[1] - 1  # exact below 2**53
+        top = max(int((bits + plan.cdef[nz]).max()), 0)
     header = Header(width, height, colour, reversible, top, roi, shift)
     node_max = np.zeros(max(lay.nnodes, 1), dtype=np.int64)
     kernels.max_pyramid(mag, lay.binfo, lay.noff, lay.nw, node_max)
@@ -504,7 +577,7 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     sgn = np.zeros(n, dtype=np.uint8)
     complete = coder.run(0, mag, neg, plan.cfloor8, plan.ccls, node_max, plan.node_floor,
                          lay.binfo, lay.noff, lay.nw, lay.seg, KMAX, top, buf, st, rec, pk, sgn,
-                         shift if roi is not None else 0)
+                         plan.cdef8, plan.node_def)
     if complete:
         n = coder.flush(st, buf)
         n = min(n, buf.shape[0])
@@ -570,7 +643,7 @@ def decode(data) -> np.ndarray:
     sgn = np.zeros(n, dtype=np.uint8)
     coder.run(1, dummy, np.zeros(1, dtype=np.uint8), plan.cfloor8, plan.ccls, dummy, plan.node_floor, lay.binfo,
               lay.noff, lay.nw, lay.seg, KMAX, h.top, buf, st, rec, pk, sgn,
-              h.shift if h.roi is not None else 0)
+              plan.cdef8, plan.node_def)
     if not h.reversible:
         hw = h.height * h.width
         flat = np.zeros(ncomp * hw, dtype=np.float64)

@@ -15,7 +15,10 @@
 #   sends its bit of this plane (refinement).
 # - A coefficient may carry a "floor" plane below which its bits are known to be
 #   zero (bands scaled up by a shift in the reversible mode, the region of
-#   interest there); sets whose every member lies above the plane are skipped.
+#   interest there); sets whose every member lies above the plane are skipped,
+#   and so are sets in the top planes that their members cannot reach (each
+#   coefficient has a "deficit": planes under the top it stays below, 0 in
+#   the region of interest, up to SHIFT outside it).
 # - One traversal routine serves both sides (`mode` 0 encodes, 1 decodes), so
 #   encoder and decoder can never disagree about the order of decisions.
 # - Binary decisions go through an adaptive binary range coder (LZMA-style
@@ -207,6 +210,15 @@ def _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x):
 
 
 @_jit
+def _node_deficit(cdef, node_def, noff, nw, b, k, y, x, off, w):
+    # Planes below the top in which no member of the set can be significant
+    # (0 inside the region of interest, up to the shift outside it).
+    if k == 0:
+        return cdef[off + y * w + x]
+    return node_def[noff[b, k] + y * nw[b, k] + x]
+
+
+@_jit
 def _node_max(mag, node_max, binfo, noff, nw, b, k, y, x):
     if k == 0:
         return mag[binfo[b, 0] + y * binfo[b, 2] + x]
@@ -385,7 +397,7 @@ def _drop_unfinished(lsp, nbefore, nlsp, rec, pk):
 
 
 def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-        kmax, top, buf, st, rec, pk, sgn, roi_shift):
+        kmax, top, buf, st, rec, pk, sgn, cdef, node_def):
     """Traverse the bit planes from `top` down to 0, coding every decision.
 
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
@@ -403,13 +415,13 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     cx4 = np.empty(4, dtype=np.int64)
     nsig = np.zeros(node_floor.shape[0], dtype=np.uint8)
     return _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-                     kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
+                     kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs, counts, lis, lis_len,
                      sig, sigplane, lsp, stack, cy4, cx4, nsig)
 
 
 @_jit
 def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-              kmax, top, buf, st, rec, pk, sgn, roi_shift, probs, counts, lis, lis_len,
+              kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs, counts, lis, lis_len,
               sig, sigplane, lsp, stack, cy4, cx4, nsig):
     ncoef = cfloor.shape[0]
     nb = binfo.shape[0]
@@ -436,10 +448,12 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 y = (e >> 20) & 0xFFFFF
                 x = e & 0xFFFFF
                 # Floor byte: lowest coded plane, plus 128 when the set
-                # touches the region of interest.  Outside it nothing can be
-                # significant in the top `roi_shift` planes.
+                # touches the region of interest (contexts).  Deficit: the
+                # set cannot be significant in its top `dd` planes (lower
+                # priority than the region), so it is not tested there.
                 v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x)
-                if (v & 127) > p or (roi_shift > 0 and v < 128 and p > top - roi_shift):
+                dd = _node_deficit(cdef, node_def, noff, nw, b, k, y, x, binfo[b, 0], binfo[b, 2])
+                if (v & 127) > p or p > top - dd:
                     lis[base + j] = e
                     j += 1
                     continue
@@ -506,18 +520,30 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             cy4[nchild] = yy
                             cx4[nchild] = xx
                             nchild += 1
+                    # The parent holds a significant member, and a child
+                    # skipped here (below its floor, or background in the top
+                    # planes) cannot be it: so when every tested child before
+                    # the last one that can be tested was insignificant, that
+                    # one is significant and costs no decision.
+                    last = -1
+                    for t in range(nchild):
+                        v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, cy4[t], cx4[t])
+                        dd = _node_deficit(cdef, node_def, noff, nw, b, ck, cy4[t], cx4[t], off, w)
+                        if not ((v & 127) > p or p > top - dd):
+                            last = t
                     any_sig = False
                     for t in range(nchild):
                         yy = cy4[t]
                         xx = cx4[t]
                         packed = (b << 40) | (yy << 20) | xx
                         v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx)
-                        if (v & 127) > p or (roi_shift > 0 and v < 128 and p > top - roi_shift):
+                        dd = _node_deficit(cdef, node_def, noff, nw, b, ck, yy, xx, off, w)
+                        if (v & 127) > p or p > top - dd:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
                             continue
                         cls = bcls + (16 if v >= 128 else 0)
-                        if t == nchild - 1 and not any_sig:
+                        if t == last and not any_sig:
                             r = 1  # the parent is significant, so this one is
                         else:
                             cbit = 0
@@ -569,7 +595,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 bit = (mag[c] >> p) & 1
             first = 1 if sigplane[c] == p + 1 else 0
             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                          CTX_REF + ccls[c] * 2 + first, bit)
+                                          CTX_REF + (np.int64(ccls[c]) + (16 if cfloor[c] >= 128 else 0)) * 2 + first, bit)
             if r < 0:
                 # One refinement can move a value away from the truth; a group
                 # of them almost never does.  Drop the unfinished group so that
