@@ -29,6 +29,7 @@ Decisions where PROTOCOL.md is silent:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
@@ -242,18 +243,9 @@ class Slave:
             out.events.extend(self._apply_order(poll))
         trunk_img, trunk_offset, trunk = self._serve_image(img, offset, size, out.events)
         reply = Reply(
+            **dataclasses.asdict(self.status),  # odometry and flags, named as in the reply
             ack=self.ack,
-            armed=self.status.armed,
-            mode=self.status.mode,
-            x_cm=self.status.x_cm,
-            y_cm=self.status.y_cm,
-            z_cm=self.status.z_cm,
-            roll_cdeg=self.status.roll_cdeg,
-            pitch_cdeg=self.status.pitch_cdeg,
-            yaw_cdeg=self.status.yaw_cdeg,
-            autopilot=self.status.autopilot,
             failsafe=failsafe_seen,
-            position_valid=self.status.position_valid,
             img=trunk_img,
             offset=trunk_offset,
             trunk=trunk,
