@@ -203,26 +203,14 @@ def _save(st, a0, a1, a2, a3, a4):
 
 
 @_jit
-def _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x):
+def _node_at(leaf, pyramid, binfo, noff, nw, b, k, y, x):
+    # A set's value: at level 0 the coefficient's own (leaf array), above it
+    # the block node's (pyramid).  Used for magnitudes, floors and deficits
+    # (planes below the top where no member can be significant: 0 inside the
+    # region of interest, up to the shift outside it).
     if k == 0:
-        return cfloor[binfo[b, 0] + y * binfo[b, 2] + x]
-    return node_floor[noff[b, k] + y * nw[b, k] + x]
-
-
-@_jit
-def _node_deficit(cdef, node_def, noff, nw, b, k, y, x, off, w):
-    # Planes below the top in which no member of the set can be significant
-    # (0 inside the region of interest, up to the shift outside it).
-    if k == 0:
-        return cdef[off + y * w + x]
-    return node_def[noff[b, k] + y * nw[b, k] + x]
-
-
-@_jit
-def _node_max(mag, node_max, binfo, noff, nw, b, k, y, x):
-    if k == 0:
-        return mag[binfo[b, 0] + y * binfo[b, 2] + x]
-    return node_max[noff[b, k] + y * nw[b, k] + x]
+        return leaf[binfo[b, 0] + y * binfo[b, 2] + x]
+    return pyramid[noff[b, k] + y * nw[b, k] + x]
 
 
 @_jit
@@ -423,7 +411,6 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
 def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
               kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs, counts, lis, lis_len,
               sig, sigplane, lsp, stack, cy4, cx4, nsig):
-    ncoef = cfloor.shape[0]
     nb = binfo.shape[0]
     a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
     nlsp = 0
@@ -451,8 +438,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 # touches the region of interest (contexts).  Deficit: the
                 # set cannot be significant in its top `dd` planes (lower
                 # priority than the region), so it is not tested there.
-                v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, k, y, x)
-                dd = _node_deficit(cdef, node_def, noff, nw, b, k, y, x, binfo[b, 0], binfo[b, 2])
+                v = _node_at(cfloor, node_floor, binfo, noff, nw, b, k, y, x)
+                dd = _node_at(cdef, node_def, binfo, noff, nw, b, k, y, x)
                 if (v & 127) > p or p > top - dd:
                     lis[base + j] = e
                     j += 1
@@ -464,7 +451,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 cls = bcls + (16 if v >= 128 else 0)
                 bit = 0
                 if mode == 0:
-                    bit = 1 if _node_max(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
+                    bit = 1 if _node_at(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
                     ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
@@ -527,8 +514,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     # one is significant and costs no decision.
                     last = -1
                     for t in range(nchild):
-                        v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, cy4[t], cx4[t])
-                        dd = _node_deficit(cdef, node_def, noff, nw, b, ck, cy4[t], cx4[t], off, w)
+                        v = _node_at(cfloor, node_floor, binfo, noff, nw, b, ck, cy4[t], cx4[t])
+                        dd = _node_at(cdef, node_def, binfo, noff, nw, b, ck, cy4[t], cx4[t])
                         if not ((v & 127) > p or p > top - dd):
                             last = t
                     any_sig = False
@@ -536,8 +523,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         yy = cy4[t]
                         xx = cx4[t]
                         packed = (b << 40) | (yy << 20) | xx
-                        v = _node_floor(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx)
-                        dd = _node_deficit(cdef, node_def, noff, nw, b, ck, yy, xx, off, w)
+                        v = _node_at(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx)
+                        dd = _node_at(cdef, node_def, binfo, noff, nw, b, ck, yy, xx)
                         if (v & 127) > p or p > top - dd:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
@@ -548,7 +535,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         else:
                             cbit = 0
                             if mode == 0:
-                                m = _node_max(mag, node_max, binfo, noff, nw, b, ck, yy, xx)
+                                m = _node_at(mag, node_max, binfo, noff, nw, b, ck, yy, xx)
                                 cbit = 1 if m >= thr else 0
                             if ck == 0:
                                 ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off,
