@@ -25,44 +25,101 @@ DELTA_REF = 0.45
 
 
 @_jit
-def _rows_step(a, h, w, start, coef):
-    # a[r, :w] += coef * (a[r-1, :w] + a[r+1, :w]) for r = start, start+2, ...
-    for r in range(start, h, 2):
-        up = r - 1 if r >= 1 else 1
-        dn = r + 1 if r + 1 < h else h - 2
-        for x in range(w):
+def _rows_step(a, s, e, x0, x1, start, coef):
+    # Along columns x0..x1-1 of the row segment [s, e):
+    # a[r] += coef * (a[r-1] + a[r+1]) for r = start, start+2, ... in it,
+    # mirrored inside the segment (x[s-1] = x[s+1], x[e] = x[e-2]); a
+    # one-sample segment has no neighbours and is left alone.
+    if e - s < 2 or x0 >= x1:
+        return
+    r = s + ((start - s) & 1)
+    while r < e:
+        up = r - 1 if r - 1 >= s else r + 1
+        dn = r + 1 if r + 1 < e else r - 1
+        for x in range(x0, x1):
             a[r, x] += coef * (a[up, x] + a[dn, x])
+        r += 2
 
 
 @_jit
-def _cols_step(a, h, w, start, coef):
-    # The same along rows; the mirrored edges are taken out of the inner loop.
-    for r in range(h):
-        x = start
-        if x == 0:
-            a[r, 0] += 2.0 * coef * a[r, 1]
-            x = 2
-        while x + 1 < w:
+def _cols_step(a, r0, r1, s, e, start, coef):
+    # The same along rows r0..r1-1 over the column segment [s, e); the
+    # mirrored edges are taken out of the inner loop.
+    if e - s < 2:
+        return
+    first = s + ((start - s) & 1)
+    for r in range(r0, r1):
+        x = first
+        if x == s:
+            a[r, s] += 2.0 * coef * a[r, s + 1]
+            x += 2
+        while x + 1 < e:
             a[r, x] += coef * (a[r, x - 1] + a[r, x + 1])
             x += 2
-        if x < w:
+        if x < e:
             a[r, x] += 2.0 * coef * a[r, x - 1]
 
 
 @_jit
-def forward97(a, levels):
-    """In-place multilevel CDF 9/7 analysis of a 2-D float64 array."""
+def _vertical(a, h, w, roi, start, coef):
+    # One lifting step down the columns.  With a region (roi[0] < roi[2] and
+    # roi[1] < roi[3]: x0, y0, x1, y1 at this level) its columns are lifted
+    # in three segments, above, over and below it, so no filter crosses its
+    # edge (shape-adaptive transform); the other columns whole.
+    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
+    if x0 < x1 and y0 < y1:
+        _rows_step(a, 0, h, 0, x0, start, coef)
+        _rows_step(a, 0, h, x1, w, start, coef)
+        _rows_step(a, 0, y0, x0, x1, start, coef)
+        _rows_step(a, y0, y1, x0, x1, start, coef)
+        _rows_step(a, y1, h, x0, x1, start, coef)
+    else:
+        _rows_step(a, 0, h, 0, w, start, coef)
+
+
+@_jit
+def _horizontal(a, h, w, hl, roi, start, coef):
+    # One lifting step along the rows, once the rows are split into low
+    # [0, hl) and high [hl, h): the region's rows (low rows ceil(y0/2) ..
+    # ceil(y1/2), high rows hl + floor(y0/2) .. hl + floor(y1/2)) in three
+    # segments, left of, over and right of it; the other rows whole.
+    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
+    if not (x0 < x1 and y0 < y1):
+        _cols_step(a, 0, h, 0, w, start, coef)
+        return
+    if h > 1:
+        bands = ((0, hl, (y0 + 1) // 2, (y1 + 1) // 2), (hl, h, hl + y0 // 2, hl + y1 // 2))
+    else:
+        bands = ((0, 1, 0, 1), (1, 1, 1, 1))
+    for lo, hi, i0, i1 in bands:
+        _cols_step(a, lo, i0, 0, w, start, coef)
+        _cols_step(a, i0, i1, 0, x0, start, coef)
+        _cols_step(a, i0, i1, x0, x1, start, coef)
+        _cols_step(a, i0, i1, x1, w, start, coef)
+        _cols_step(a, i1, hi, 0, w, start, coef)
+
+
+@_jit
+def forward97(a, levels, roi):
+    """In-place multilevel CDF 9/7 analysis of a 2-D float64 array.
+
+    roi: int64 (x0, y0, x1, y1); an empty rectangle means none.  With one,
+    the region and the rest are transformed apart (shape-adaptive: every
+    coefficient describes pixels of one side only), level after level on
+    the region's low-pass samples, (ceil(x0/2), ceil(y0/2), ceil(x1/2),
+    ceil(y1/2))."""
     h, w = a.shape
     tmp = np.empty(max(h, w), dtype=np.float64)
     rows = np.empty((h, w), dtype=np.float64)
+    cur = roi.copy()
     for _ in range(levels):
         hl = (h + 1) // 2
         wl = (w + 1) // 2
         if h > 1:
-            _rows_step(a, h, w, 1, _A)
-            _rows_step(a, h, w, 0, _B)
-            _rows_step(a, h, w, 1, _C)
-            _rows_step(a, h, w, 0, _D)
+            _vertical(a, h, w, cur, 1, _A)
+            _vertical(a, h, w, cur, 0, _B)
+            _vertical(a, h, w, cur, 1, _C)
+            _vertical(a, h, w, cur, 0, _D)
             # De-interleave whole rows (contiguous copies, not columns).
             for r in range(h):
                 dst = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
@@ -72,29 +129,35 @@ def forward97(a, levels):
                 for x in range(w):
                     a[r, x] = rows[r, x]
         if w > 1:
-            _cols_step(a, h, w, 1, _A)
-            _cols_step(a, h, w, 0, _B)
-            _cols_step(a, h, w, 1, _C)
-            _cols_step(a, h, w, 0, _D)
+            _horizontal(a, h, w, hl, cur, 1, _A)
+            _horizontal(a, h, w, hl, cur, 0, _B)
+            _horizontal(a, h, w, hl, cur, 1, _C)
+            _horizontal(a, h, w, hl, cur, 0, _D)
             for r in range(h):
                 for x in range(w):
                     tmp[(x >> 1) if x % 2 == 0 else wl + (x >> 1)] = a[r, x]
                 for x in range(w):
                     a[r, x] = tmp[x]
         h, w = hl, wl
+        for i in range(4):
+            cur[i] = (cur[i] + 1) // 2
 
 
 @_jit
-def inverse97(a, levels):
-    """In-place inverse of `forward97`."""
+def inverse97(a, levels, roi):
+    """In-place inverse of `forward97` (the same roi)."""
     H, W = a.shape
     hs = np.empty(levels + 1, dtype=np.int64)
     ws = np.empty(levels + 1, dtype=np.int64)
+    rois = np.empty((levels + 1, 4), dtype=np.int64)
     hs[0] = H
     ws[0] = W
+    rois[0] = roi
     for j in range(levels):
         hs[j + 1] = (hs[j] + 1) // 2
         ws[j + 1] = (ws[j] + 1) // 2
+        for i in range(4):
+            rois[j + 1, i] = (rois[j, i] + 1) // 2
     tmp = np.empty(max(H, W), dtype=np.float64)
     rows = np.empty((H, W), dtype=np.float64)
     for j in range(levels - 1, -1, -1):
@@ -102,16 +165,17 @@ def inverse97(a, levels):
         w = ws[j]
         hl = hs[j + 1]
         wl = ws[j + 1]
+        cur = rois[j]
         if w > 1:
             for r in range(h):
                 for x in range(w):
                     tmp[x] = a[r, (x >> 1) if x % 2 == 0 else wl + (x >> 1)]
                 for x in range(w):
                     a[r, x] = tmp[x]
-            _cols_step(a, h, w, 0, -_D)
-            _cols_step(a, h, w, 1, -_C)
-            _cols_step(a, h, w, 0, -_B)
-            _cols_step(a, h, w, 1, -_A)
+            _horizontal(a, h, w, hl, cur, 0, -_D)
+            _horizontal(a, h, w, hl, cur, 1, -_C)
+            _horizontal(a, h, w, hl, cur, 0, -_B)
+            _horizontal(a, h, w, hl, cur, 1, -_A)
         if h > 1:
             for r in range(h):
                 src = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
@@ -120,10 +184,10 @@ def inverse97(a, levels):
             for r in range(h):
                 for x in range(w):
                     a[r, x] = rows[r, x]
-            _rows_step(a, h, w, 0, -_D)
-            _rows_step(a, h, w, 1, -_C)
-            _rows_step(a, h, w, 0, -_B)
-            _rows_step(a, h, w, 1, -_A)
+            _vertical(a, h, w, cur, 0, -_D)
+            _vertical(a, h, w, cur, 1, -_C)
+            _vertical(a, h, w, cur, 0, -_B)
+            _vertical(a, h, w, cur, 1, -_A)
 
 
 @_jit
