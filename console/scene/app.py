@@ -23,6 +23,13 @@ Plan
   The drag callback is `async def`, so its start/update/end phases run in order
   on viser's loop; the methods it reaches only take the operator's lock briefly.
 - The panel (`console.scene.panel`) holds every GUI control and the plots.
+- Who may order: every viewer shares the scene (one gizmo, one set of
+  sliders), so an order from a viewer first asks `order_guard` (the web
+  app's control desk when served with it; none: everyone may, as when the
+  scene runs alone).  A viewer opened by the operator page carries the
+  page's scene key in its WebSocket path (`/rovlink/<key>`); the desk
+  allows it while that page holds control.  A refused viewer gets a
+  notification and the control it moved goes back; STOP is never refused.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,6 +64,29 @@ CAMERA_HFOV_DEG = 80.0
 CAMERA_TILT_DEG = 35.0
 CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electronics tube
 DEFAULT_IMAGE_PX = (320, 240)
+SCENE_KEY_PATH = "/rovlink/"  # the operator page opens the scene's WebSocket at SCENE_KEY_PATH + key
+REFUSAL_NOTICE_S = 3.0         # at most one "not sent" notification per viewer this often
+
+
+def scene_key_from_path(path: str | None) -> str | None:
+    """The scene key in a viewer's WebSocket path, or None."""
+    if not path:
+        return None
+    path = path.partition("?")[0]
+    if not path.startswith(SCENE_KEY_PATH):
+        return None
+    return path[len(SCENE_KEY_PATH):].strip("/") or None
+
+
+def viewer_path(server, client_id: int) -> str | None:
+    """The path a viewer opened its WebSocket with.  viser keeps it only in
+    its WebSocket server's connection (viser 1.1); when that changes this
+    gives None and the viewer can only watch (the safe side), and
+    tests/console/test_scene_control.py fails."""
+    try:
+        return server._websock_server._live_connections[client_id].request.path
+    except (AttributeError, KeyError, TypeError):
+        return None
 
 # The initial view: from behind the start point (south-east, a little above),
 # looking down at the vehicle, 2 m deep, and the seabed beyond.
@@ -156,6 +187,11 @@ class ConsoleScene:
         self._trail_shown = None
         self._last_preview_at = 0.0
         self._lock = threading.RLock()
+        # order_guard(scene key or None) -> None to allow, or why not.
+        self.order_guard: Callable[[str | None], str | None] | None = None
+        self.orders_refused = 0
+        self._viewer_keys: dict[int, str | None] = {}
+        self._refused_at: dict[int, float] = {}
 
     # ------------------------------------------------------------------
     # Life cycle
@@ -178,6 +214,8 @@ class ConsoleScene:
         self._build_trail()
         self._build_target()
         self.panel = ControlPanel(self.server.gui, self.operator, self)
+        self.server.on_client_connect(self._on_viewer_connect)
+        self.server.on_client_disconnect(self._on_viewer_disconnect)
         self._unsubscribe = self.operator.subscribe(self._on_operator_event)
         if self.operator.picture() is not None:
             self._image_dirty.set()
@@ -313,7 +351,47 @@ class ConsoleScene:
         if topic == "image":
             self._image_dirty.set()
 
+    def _on_viewer_connect(self, client) -> None:
+        key = scene_key_from_path(viewer_path(self.server, client.client_id))
+        with self._lock:
+            self._viewer_keys[client.client_id] = key
+
+    def _on_viewer_disconnect(self, client) -> None:
+        with self._lock:
+            self._viewer_keys.pop(client.client_id, None)
+            self._refused_at.pop(client.client_id, None)
+
+    def permit(self, client) -> bool:
+        """May this viewer order now?  (None: our own code, always.)  If not,
+        it is told why, once in a while, and the refusal is counted."""
+        if client is None or self.order_guard is None:
+            return True
+        with self._lock:
+            key = self._viewer_keys.get(client.client_id)
+        if key is None and client.client_id not in self._viewer_keys:
+            # An event that overtook the connect callback.
+            key = scene_key_from_path(viewer_path(self.server, client.client_id))
+        reason = self.order_guard(key)
+        if reason is None:
+            return True
+        now = time.monotonic()
+        with self._lock:
+            self.orders_refused += 1
+            last = self._refused_at.get(client.client_id)
+            notify = last is None or now - last >= REFUSAL_NOTICE_S
+            if notify:
+                self._refused_at[client.client_id] = now
+        if notify:
+            try:
+                client.add_notification("Not sent", reason, auto_close_seconds=5.0, color="red")
+            except Exception:  # the viewer left meanwhile
+                log.debug("could not notify viewer %s", client.client_id, exc_info=True)
+        return False
+
     def _on_screen_drag(self, event) -> None:
+        if not self.permit(event.client):
+            self.show_roi(self.operator.requested_settings.roi)
+            return
         start = np.asarray(event.start_position, float)
         end = self._pointer_on_screen(event)
         if event.phase == "end":
@@ -335,6 +413,9 @@ class ConsoleScene:
         return end if hit is None else hit
 
     def _on_gizmo(self, event) -> None:
+        if not self.permit(event.client):
+            self._place_gizmo_back()
+            return
         # The path costs ~10 ms of model time: at most ten a second while dragging.
         now = time.monotonic()
         preview = event.phase != "update" or now - self._last_preview_at >= 0.1
@@ -452,6 +533,18 @@ class ConsoleScene:
         if self.panel is not None:
             self.panel.zero_velocity_controls()
         return order_id
+
+    def _place_gizmo_back(self) -> None:
+        """A refused drag: the gizmo back on the target, or on the vehicle."""
+        with self._lock:
+            target = self.target
+        if target is not None:
+            self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(Pose(*target[:3], 0.0, 0.0, target[3]))
+            return
+        pose = self.operator.predicted_pose()
+        if pose is not None:
+            self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
+                Pose(pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg))
 
     def reset_target(self) -> None:
         with self._lock:

@@ -18,6 +18,8 @@ key presses, not releases, so keys step rather than hold.
 
 from __future__ import annotations
 
+import threading
+
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -67,6 +69,12 @@ class ControlPanel:
         self.gui = gui
         self.operator = operator
         self.scene = scene
+        # A refused viewer's slider or dropdown goes back to the last value
+        # accepted; the assignment calls our callbacks (client None) in this
+        # thread, which must not order again: `_quiet` tells them.
+        self._quiet = threading.local()
+        self._accepted: dict[str, float] = {a: 0.0 for a in AXES}
+        self._mode_accepted = "MANUAL"
         self._build_vehicle()
         self._build_velocity()
         self._build_target()
@@ -86,11 +94,28 @@ class ControlPanel:
 
         @self.arming.on_click
         def _(event) -> None:
-            self.operator.arm(event.target.value == "Arm")
+            if self.scene.permit(event.client):
+                self.operator.arm(event.target.value == "Arm")
 
         @self.mode.on_update
         def _(event) -> None:
+            if self._is_quiet():
+                return
+            if not self.scene.permit(event.client):
+                self._put_back(self.mode, self._mode_accepted)
+                return
+            self._mode_accepted = self.mode.value
             self.operator.set_mode(self.mode.value)
+
+    def _is_quiet(self) -> bool:
+        return getattr(self._quiet, "on", False)
+
+    def _put_back(self, handle, value) -> None:
+        self._quiet.on = True
+        try:
+            handle.value = value
+        finally:
+            self._quiet.on = False
 
     def _refresh_vehicle(self) -> None:
         state = self.operator.pose_state()
@@ -116,13 +141,24 @@ class ControlPanel:
             self.zero_button = self.gui.add_button("Zero velocity (X)")
             self.gui.add_markdown("Keys: W/S surge, A/D sway, R/F up/down, Q/E yaw, "
                                   f"{KEY_STEP:g} per press; X zero.")
-        for slider in self.sliders.values():
-            slider.on_update(lambda _event: self.send_velocity())
-        self.zero_button.on_click(lambda _event: self.zero_velocity())
+        for axis, slider in self.sliders.items():
+            slider.on_update(lambda event, axis=axis: self._on_slider(event, axis))
+        self.zero_button.on_click(lambda event: self.scene.permit(event.client) and self.zero_velocity())
         for key, (axis, step) in KEYS.items():
             command = self.gui.add_command(f"Velocity {axis} {step:+g}", hotkey=key)
-            command.on_trigger(lambda _event, axis=axis, step=step: self.nudge_velocity(axis, step))
-        self.gui.add_command("Zero velocity", hotkey="X").on_trigger(lambda _event: self.zero_velocity())
+            command.on_trigger(lambda event, axis=axis, step=step:
+                               self.scene.permit(event.client) and self.nudge_velocity(axis, step))
+        self.gui.add_command("Zero velocity", hotkey="X").on_trigger(
+            lambda event: self.scene.permit(event.client) and self.zero_velocity())
+
+    def _on_slider(self, event, axis: str) -> None:
+        if self._is_quiet():
+            return
+        if not self.scene.permit(event.client):
+            self._put_back(self.sliders[axis], self._accepted[axis])
+            return
+        self._accepted[axis] = float(self.sliders[axis].value)
+        self.send_velocity()
 
     def velocity_wish(self) -> tuple[float, float, float, float]:
         return tuple(float(self.sliders[a].value) for a in AXES)  # type: ignore[return-value]
@@ -153,9 +189,9 @@ class ControlPanel:
             self.send_button = self.gui.add_button("Send", color="green", disabled=True)
             self.stop_button = self.gui.add_button("Stop", color="red")
             self.reset_button = self.gui.add_button("Reset target")
-        self.send_button.on_click(lambda _event: self.scene.send_target())
-        self.stop_button.on_click(lambda _event: self.scene.stop_vehicle())
-        self.reset_button.on_click(lambda _event: self.scene.reset_target())
+        self.send_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.send_target())
+        self.stop_button.on_click(lambda _event: self.scene.stop_vehicle())  # anyone may stop
+        self.reset_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.reset_target())
 
     def show_target(self, target, order_id) -> None:
         if target is None:
@@ -187,9 +223,9 @@ class ControlPanel:
             self.clear_roi_button = self.gui.add_button("Clear ROI")
             self.next_button = self.gui.add_button("Next image")
             self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI.")
-        self.apply_button.on_click(lambda _event: self.apply_image_settings())
-        self.clear_roi_button.on_click(lambda _event: self.scene.clear_roi())
-        self.next_button.on_click(lambda _event: self.operator.next_image())
+        self.apply_button.on_click(lambda event: self.scene.permit(event.client) and self.apply_image_settings())
+        self.clear_roi_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.clear_roi())
+        self.next_button.on_click(lambda event: self.scene.permit(event.client) and self.operator.next_image())
 
     @property
     def shift(self) -> int:

@@ -47,7 +47,8 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     """The web console for `operator` (which the caller runs).
 
     `viser_url` is the 3D scene the page embeds (none shown if None); `scene`
-    is kept on `app.state.scene` for whoever needs it.  `lease_s`: a script
+    is kept on `app.state.scene` for whoever needs it, and its viewers order
+    only for the page holding control (its `order_guard` is this app's desk).  `lease_s`: a script
     holding control and silent that long loses it.  `velocity_deadman_s`: a
     velocity streamed over a WebSocket goes neutral when not repeated within it.
     """
@@ -89,6 +90,8 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     app.state.operator = operator
     app.state.scene = scene
     app.state.desk = desk
+    if scene is not None and hasattr(scene, "order_guard"):
+        scene.order_guard = desk.scene_refusal
     # Shared by all pages, but younger than a telemetry period: a snapshot
     # reused by the next tick would repeat the same predicted pose.
     app.state.snapshot = SharedSnapshot(operator, desk, max_age_s=min(0.04, 0.5 / float(telemetry_hz)))

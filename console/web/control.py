@@ -16,10 +16,18 @@ velocity the holder streams over its WebSocket falls back to neutral when
 the stream stops for `deadman_s` (a frozen tab must not keep the thrusters
 on).  A velocity sent over REST is a standing order and has no dead man; the
 lease covers it.  STOP is not an order of the holder: anyone may press it.
+
+The 3D scene (viser, its own server) orders through the same desk: a page
+makes up a random scene key, gives it on its WebSocket (`scene_key`) and
+opens the scene with it in the scene's WebSocket path; the scene asks
+`scene_refusal(key)` before every order from one of its viewers, so that a
+watcher's scene can no more drive than the watcher's page (STOP excepted).
+A scene opened on its own, without a key, only watches.
 """
 
 from __future__ import annotations
 
+import re
 import secrets
 import threading
 import time
@@ -30,6 +38,7 @@ from typing import Literal
 from console.operator import Operator
 
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
+SCENE_KEY = re.compile(r"[A-Za-z0-9_-]{16,64}")
 
 
 class NotHolder(Exception):
@@ -53,6 +62,8 @@ class Client:
     # Monotonic time of the last non-neutral velocity streamed over the
     # WebSocket, None when the last one was neutral (or came over REST).
     streamed_at: float | None = None
+    # The key of the 3D scene embedded in this page (browser clients), if any.
+    scene_key: str | None = None
 
 
 class ControlDesk:
@@ -72,10 +83,15 @@ class ControlDesk:
     # Clients
     # ------------------------------------------------------------------
 
-    def connect(self, name: str = "") -> Client:
-        """A browser page's WebSocket opened: a new watcher."""
+    def connect(self, name: str = "", scene_key: str | None = None) -> Client:
+        """A browser page's WebSocket opened: a new watcher.  `scene_key`: the
+        key its 3D scene was opened with (ignored unless 16-64 characters of
+        letters, digits, - and _)."""
+        if scene_key is not None and not SCENE_KEY.fullmatch(scene_key):
+            scene_key = None
         with self._lock:
-            client = Client(secrets.token_urlsafe(16), "browser", name or "browser", self._clock())
+            client = Client(secrets.token_urlsafe(16), "browser", name or "browser", self._clock(),
+                            scene_key=scene_key)
             self._clients[client.id] = client
             return client
 
@@ -165,6 +181,25 @@ class ControlDesk:
             client = self._clients[client_id]
             client.last_seen = self._clock()
             return client
+
+    def scene_refusal(self, scene_key: str | None) -> str | None:
+        """May a viewer of the 3D scene opened with `scene_key` order now?
+        None if so (its page holds control), else why not, in one line."""
+        try:
+            self.check_live()
+        except Replaying as exc:
+            return str(exc)
+        with self._lock:
+            holder = self._clients.get(self._holder) if self._holder else None
+            if holder is None:
+                return "nobody holds control: take control on the operator page first"
+            if scene_key is None:
+                return (f"control is held by {holder.name}; this 3D view was not opened from an operator "
+                        f"page and can only watch")
+            if holder.scene_key != scene_key:
+                return f"control is held by {holder.name}, not by this page: take control to order"
+            holder.last_seen = self._clock()
+            return None
 
     # ------------------------------------------------------------------
     # Velocity from the holder's WebSocket, and the timers

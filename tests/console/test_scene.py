@@ -318,7 +318,7 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
     # which a POSITION order cannot carry); on release it is squared up.
     scene.gizmo.position = frames.ned_to_world(*target_ned)
     scene.gizmo.wxyz = frames.body_wxyz(10.0, 0.0, 30.0)
-    scene._on_gizmo(SimpleNamespace(phase="end", target=scene.gizmo))
+    scene._on_gizmo(SimpleNamespace(phase="end", target=scene.gizmo, client=None))
     assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)
     assert np.allclose(scene.gizmo.wxyz, frames.body_wxyz(0.0, 0.0, 30.0))
 

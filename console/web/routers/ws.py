@@ -1,5 +1,9 @@
 """The WebSocket at /ws: telemetry out, the holder's velocity in.
 
+Query: `name` (how other clients see this one), `scene_key` (the key this
+page opened its 3D scene with, so that the scene may order while the page
+holds control; see `control`).
+
 Server to client (JSON text messages: "type" and the fields named, flat):
   hello      {client_id, config}: once, first; the page's id for REST and take
   telemetry  {pose, link, image, velocity_wish, orders, log, replaying, control}
@@ -57,7 +61,8 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
         await websocket.close(code=1008, reason="cross-site WebSocket refused")
         return
     await websocket.accept()
-    client = desk.connect(websocket.query_params.get("name", "")[:40])
+    client = desk.connect(websocket.query_params.get("name", "")[:40],
+                          scene_key=websocket.query_params.get("scene_key"))
     loop = asyncio.get_running_loop()
     outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
 

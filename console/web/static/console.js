@@ -43,9 +43,16 @@ const $ = (id) => document.getElementById(id);
 // WebSocket
 // ---------------------------------------------------------------------------
 
+// The key this page opens its 3D scene with; the server lets that scene
+// order while this page holds control (and only then).  One per page load,
+// so it survives our WebSocket reconnecting.
+const SCENE_KEY = Array.from(crypto.getRandomValues(new Uint8Array(16)),
+                             (b) => b.toString(16).padStart(2, "0")).join("");
+
 function connect() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
-  const ws = new WebSocket(`${scheme}://${location.host}/ws?name=${encodeURIComponent(pageName())}`);
+  const ws = new WebSocket(`${scheme}://${location.host}/ws?name=${encodeURIComponent(pageName())}` +
+                           `&scene_key=${SCENE_KEY}`);
   page.ws = ws;
   ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
   ws.onopen = () => setBadge($("connection"), "online", "good");
@@ -428,6 +435,11 @@ function setupScene(config) {
   const url = new URL(config.viser_url, location.href);
   const loopback = ["127.0.0.1", "localhost", "[::1]", "0.0.0.0"];
   if (loopback.includes(url.hostname) && !loopback.includes(location.hostname)) url.hostname = location.hostname;
+  // viser's page connects to the WebSocket named by ?websocket=; its path
+  // carries our scene key (console/scene/app.py reads it).
+  const wsScheme = url.protocol === "https:" ? "wss:" : "ws:";
+  url.pathname = "/";
+  url.search = `?websocket=${wsScheme}//${url.host}/rovlink/${SCENE_KEY}`;
   frame.src = url.href;
   frame.hidden = false;
 }

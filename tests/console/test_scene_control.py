@@ -1,0 +1,216 @@
+"""The 3D scene orders only for the page that holds control.
+
+Every viewer of the viser scene shares one gizmo and one panel, so without a
+check a watcher's embedded scene could drive the ROV.  The operator page
+opens its scene with a random key in the scene's WebSocket path and gives
+the same key on its own WebSocket; the control desk lets a viewer order
+while the page with its key holds control.  STOP stays open to everyone.
+
+Unit tests for the desk's rule and the key's path, then the whole thing in
+headless Chromium: the system (Stack), the scene and the web app in one
+event loop on a thread, as `rovlink demo` runs them, and two operator pages.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import debt
+from console.operator import Operator
+from console.scene.app import ConsoleScene, scene_key_from_path
+from console.stack import Stack, StackConfig
+from console.web.control import ControlDesk
+
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
+from .conftest import _listening_socket, wait_for
+
+KEY_A = "a" * 32
+KEY_B = "b" * 32
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_desk_lets_only_the_holders_scene_order():
+    desk = ControlDesk(Operator(None), clock=Clock())  # no link: the desk only notes and sets wishes
+    assert "nobody holds control" in desk.scene_refusal(KEY_A)
+    pilot = desk.connect("pilot", scene_key=KEY_A)
+    watcher = desk.connect("watcher", scene_key=KEY_B)
+    desk.take(pilot.id)
+    assert desk.scene_refusal(KEY_A) is None
+    assert "held by pilot" in desk.scene_refusal(KEY_B)
+    assert "only watch" in desk.scene_refusal(None)  # a scene opened on its own
+    desk.take(watcher.id)
+    assert desk.scene_refusal(KEY_B) is None and desk.scene_refusal(KEY_A) is not None
+    desk.disconnect(watcher.id)
+    assert "nobody holds control" in desk.scene_refusal(KEY_B)
+
+
+@pytest.mark.parametrize("key", ["", "short", "x" * 65, "has space" + "x" * 20, "../../" + "x" * 20])
+def test_a_malformed_scene_key_is_ignored(key):
+    desk = ControlDesk(Operator(None), clock=Clock())
+    client = desk.connect("page", scene_key=key)
+    desk.take(client.id)
+    assert client.scene_key is None
+    assert desk.scene_refusal(key) is not None
+
+
+def test_scene_key_is_read_from_the_websocket_path():
+    assert scene_key_from_path(f"/rovlink/{KEY_A}") == KEY_A
+    assert scene_key_from_path(f"/rovlink/{KEY_A}/?x=1") == KEY_A
+    assert scene_key_from_path("/") is None
+    assert scene_key_from_path("/rovlink/") is None
+    assert scene_key_from_path(None) is None
+    assert scene_key_from_path(f"/other/{KEY_A}") is None
+
+
+# ----------------------------------------------------------------------
+# The whole system in a browser
+# ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def live():
+    from console.web.app import create_app, serve
+
+    debt.decode(debt.encode(np.zeros((16, 16, 3), np.uint8), 100))  # compile the codec here, not in a wait
+    ready = threading.Event()
+    holder: dict = {}
+
+    async def main() -> None:
+        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0)) as stack:
+            scene = ConsoleScene(stack.operator, port=free_tcp_port()).start()
+            try:
+                app = create_app(stack.operator, viser_url=scene.url, scene=scene, telemetry_hz=10.0)
+                sock = _listening_socket()
+                holder["live"] = SimpleNamespace(operator=stack.operator, scene=scene, app=app,
+                                                 url=f"http://127.0.0.1:{sock.getsockname()[1]}")
+                holder["task"] = asyncio.current_task()
+                server = asyncio.create_task(serve(app, sock=sock))
+                ready.set()
+                await server
+            finally:
+                scene.stop()
+
+    def run() -> None:
+        try:
+            asyncio.run(main())
+        except asyncio.CancelledError:
+            pass
+        except BaseException as exc:  # noqa: BLE001 -- raised again by the fixture
+            holder["error"] = exc
+        finally:
+            ready.set()
+
+    thread = threading.Thread(target=run, name="live scene console", daemon=True)
+    thread.start()
+    assert ready.wait(60), "the stack did not start"
+    if "error" in holder:
+        raise holder["error"]
+    live = holder["live"]
+    assert wait_for(lambda: live.operator.last_reply is not None, 20), "no reply from the ROV"
+    yield live
+    loop_task = holder["task"]
+    loop_task.get_loop().call_soon_threadsafe(loop_task.cancel)
+    thread.join(20)
+    assert not thread.is_alive(), "the stack did not stop"
+
+
+def image_orders(live) -> list[dict]:
+    return [o for o in live.operator.orders_state() if o["kind"] == "IMAGE"]
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_a_watchers_scene_cannot_order_and_the_holders_can(live):
+    from playwright.sync_api import sync_playwright
+
+    scene = live.scene
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            pages = []
+            for _ in range(2):
+                page = browser.new_context(viewport={"width": 1400, "height": 900}).new_page()
+                page.goto(live.url)
+                page.wait_for_function("document.body.dataset.clientId !== undefined")
+                pages.append(page)
+            pilot, watcher = pages
+            # Both embedded scenes are connected, each with its page's key.
+            assert wait_for(lambda: len(scene.server.get_clients()) >= 2, 30), "the scenes did not connect"
+            assert wait_for(lambda: sum(k is not None for k in scene._viewer_keys.values()) >= 2, 10), \
+                scene._viewer_keys
+
+            def apply_in(page) -> None:
+                frame = page.frame_locator("#scene")
+                frame.get_by_role("button", name="Apply image settings").click(timeout=30000)
+
+            # Nobody holds control: neither scene may order.
+            before, refused = len(image_orders(live)), scene.orders_refused
+            apply_in(watcher)
+            assert wait_for(lambda: scene.orders_refused > refused, 10), "the click was not refused"
+            watcher.frame_locator("#scene").get_by_text("Not sent").first.wait_for(timeout=10000)
+
+            pilot.click("#take")
+            pilot.wait_for_function(
+                "document.getElementById('control-text').textContent === 'You have control.'")
+            # The watcher's scene is still refused; the pilot's orders.
+            refused = scene.orders_refused
+            apply_in(watcher)
+            assert wait_for(lambda: scene.orders_refused > refused, 10)
+            time.sleep(0.5)
+            assert len(image_orders(live)) == before
+            apply_in(pilot)
+            assert wait_for(lambda: len(image_orders(live)) == before + 1, 10), "the holder's scene did not order"
+
+            # STOP is anyone's.
+            stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
+            watcher.frame_locator("#scene").get_by_role("button", name="Stop").click(timeout=30000)
+            assert wait_for(lambda: sum(o["kind"] == "STOP" for o in live.operator.orders_state()) > stops, 10)
+
+            # Control given back: the pilot's scene only watches again.
+            pilot.click("#release")
+            pilot.wait_for_function("document.getElementById('control-text').textContent !== 'You have control.'")
+            refused = scene.orders_refused
+            apply_in(pilot)
+            assert wait_for(lambda: scene.orders_refused > refused, 10)
+            assert len(image_orders(live)) == before + 1
+        finally:
+            browser.close()
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_a_scene_opened_on_its_own_only_watches(live):
+    from playwright.sync_api import sync_playwright
+
+    desk = live.app.state.desk
+    script = desk.take(None, "script")  # somebody holds control
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1400, "height": 900})
+                before = len(live.scene.server.get_clients())
+                page.goto(live.scene.url)
+                assert wait_for(lambda: len(live.scene.server.get_clients()) > before, 30)
+                orders, refused = len(live.operator.orders_state()), live.scene.orders_refused
+                page.get_by_role("button", name="Apply image settings").click(timeout=30000)
+                assert wait_for(lambda: live.scene.orders_refused > refused, 10)
+                page.get_by_text("only watch").first.wait_for(timeout=10000)
+                assert len(live.operator.orders_state()) == orders
+            finally:
+                browser.close()
+    finally:
+        desk.release(script.id)
