@@ -49,7 +49,8 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     url = f"http://{browser_host(args.host)}:{args.port}"
     stop = _stop_on_signals()
     server = asyncio.create_task(serve(app, host=args.host, port=args.port))
-    print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url}\n  Ctrl-C stops.", flush=True)
+    print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url} (opened alone it only watches; the page embeds it)"
+          "\n  Ctrl-C stops.", flush=True)
     waiter = asyncio.create_task(stop.wait())
     try:
         await asyncio.wait([server, waiter], return_when=asyncio.FIRST_COMPLETED)
