@@ -11,6 +11,7 @@ rate), the ROV's failsafe waits 1 s instead of 3, and no bit is flipped.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import socket
 import threading
@@ -21,6 +22,8 @@ import pytest
 
 from console.operator import Operator
 from console.stack import Stack, StackConfig
+
+from ..helpers import free_tcp_port
 
 
 def wait_for(predicate, timeout_s: float, period_s: float = 0.05):
@@ -40,6 +43,7 @@ class LiveConsole:
     url: str  # http://127.0.0.1:PORT
     loop: asyncio.AbstractEventLoop
     stack: Stack
+    scene: object = None  # the ConsoleScene, when asked for
 
     @property
     def ws_url(self) -> str:
@@ -62,8 +66,11 @@ def _listening_socket() -> socket.socket:
     return sock
 
 
-@pytest.fixture(scope="module")
-def live():
+@contextlib.contextmanager
+def running_console(*, scene: bool = False, failsafe_s: float = 1.0):
+    """The stack and the web app (and, with `scene`, the viser scene the
+    page embeds, wired as `rovlink demo` wires it) in one event loop on a
+    thread; yields the LiveConsole once the ROV has answered."""
     from console.web.app import create_app, serve
 
     ready = threading.Event()
@@ -71,16 +78,25 @@ def live():
 
     async def main() -> None:
         # No bit errors: a test that waits for one particular reply must get it.
-        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0, failsafe_s=1.0)) as stack:
-            app = create_app(stack.operator, viser_url=None)
-            sock = _listening_socket()
-            port = sock.getsockname()[1]
-            holder["console"] = LiveConsole(stack.operator, app, f"http://127.0.0.1:{port}",
-                                            asyncio.get_running_loop(), stack)
-            server = asyncio.create_task(serve(app, sock=sock))
-            holder["task"] = asyncio.current_task()
-            ready.set()
-            await server
+        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0, failsafe_s=failsafe_s)) as stack:
+            view = None
+            if scene:
+                from console.scene.app import ConsoleScene
+
+                view = ConsoleScene(stack.operator, port=free_tcp_port()).start()
+            try:
+                app = create_app(stack.operator, viser_url=view.url if view else None, scene=view)
+                sock = _listening_socket()
+                port = sock.getsockname()[1]
+                holder["console"] = LiveConsole(stack.operator, app, f"http://127.0.0.1:{port}",
+                                                asyncio.get_running_loop(), stack, view)
+                server = asyncio.create_task(serve(app, sock=sock))
+                holder["task"] = asyncio.current_task()
+                ready.set()
+                await server
+            finally:
+                if view is not None:
+                    view.stop()
 
     def run() -> None:
         try:
@@ -94,7 +110,7 @@ def live():
 
     thread = threading.Thread(target=run, name="live console", daemon=True)
     thread.start()
-    assert ready.wait(30), "the stack did not start"
+    assert ready.wait(60), "the stack did not start"
     if "error" in holder:
         raise holder["error"]
     console: LiveConsole = holder["console"]
@@ -106,3 +122,9 @@ def live():
     assert not thread.is_alive(), "the stack did not stop"
     if "error" in holder:
         raise holder["error"]
+
+
+@pytest.fixture(scope="module")
+def live():
+    with running_console() as console:
+        yield console

@@ -13,22 +13,18 @@ event loop on a thread, as `rovlink demo` runs them, and two operator pages.
 
 from __future__ import annotations
 
-import asyncio
-import threading
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import debt
 from console.operator import Operator
-from console.scene.app import ConsoleScene, scene_key_from_path
-from console.stack import Stack, StackConfig
+from console.scene.app import scene_key_from_path
 from console.web.control import ControlDesk
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
-from .conftest import _listening_socket, wait_for
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from .conftest import running_console, wait_for
 
 KEY_A = "a" * 32
 KEY_B = "b" * 32
@@ -82,49 +78,9 @@ def test_scene_key_is_read_from_the_websocket_path():
 
 @pytest.fixture(scope="module")
 def live():
-    from console.web.app import create_app, serve
-
     debt.decode(debt.encode(np.zeros((16, 16, 3), np.uint8), 100))  # compile the codec here, not in a wait
-    ready = threading.Event()
-    holder: dict = {}
-
-    async def main() -> None:
-        async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0)) as stack:
-            scene = ConsoleScene(stack.operator, port=free_tcp_port()).start()
-            try:
-                app = create_app(stack.operator, viser_url=scene.url, scene=scene, telemetry_hz=10.0)
-                sock = _listening_socket()
-                holder["live"] = SimpleNamespace(operator=stack.operator, scene=scene, app=app,
-                                                 url=f"http://127.0.0.1:{sock.getsockname()[1]}")
-                holder["task"] = asyncio.current_task()
-                server = asyncio.create_task(serve(app, sock=sock))
-                ready.set()
-                await server
-            finally:
-                scene.stop()
-
-    def run() -> None:
-        try:
-            asyncio.run(main())
-        except asyncio.CancelledError:
-            pass
-        except BaseException as exc:  # noqa: BLE001 -- raised again by the fixture
-            holder["error"] = exc
-        finally:
-            ready.set()
-
-    thread = threading.Thread(target=run, name="live scene console", daemon=True)
-    thread.start()
-    assert ready.wait(60), "the stack did not start"
-    if "error" in holder:
-        raise holder["error"]
-    live = holder["live"]
-    assert wait_for(lambda: live.operator.last_reply is not None, 20), "no reply from the ROV"
-    yield live
-    loop_task = holder["task"]
-    loop_task.get_loop().call_soon_threadsafe(loop_task.cancel)
-    thread.join(20)
-    assert not thread.is_alive(), "the stack did not stop"
+    with running_console(scene=True) as console:
+        yield console
 
 
 def image_orders(live) -> list[dict]:
