@@ -60,12 +60,22 @@ if _numba is not None:
     # traversal's time in the atomic increments numba wraps around every
     # array passed to a helper.  The kernels therefore allocate nothing; the
     # Python wrappers hand them their work arrays.
-    _jit = _numba.njit(cache=_cache_ok(), nogil=True, _nrt=False)
+    # `_nrt` is a private numba option: when a numba no longer has it the
+    # kernels compile with reference counting (slower, the same streams).
+    def _nrt_option_known() -> bool:
+        try:
+            from numba.core.cpu import CPUTargetOptions
+        except ImportError:  # pragma: no cover - a numba laid out otherwise
+            return False
+        return hasattr(CPUTargetOptions, "_nrt")
+
+    _NO_NRT = {"_nrt": False} if _nrt_option_known() else {}
+    _jit = _numba.njit(cache=_cache_ok(), nogil=True, **_NO_NRT)
     _jit_nrt = _numba.njit(cache=_cache_ok(), nogil=True)  # for kernels that allocate
     # The binary coder is inlined by numba itself (its scalar state then
     # stays in registers); other helpers are left to LLVM, since inlining
     # them all tripled the first compilation for ~15 % speed.
-    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always", _nrt=False)
+    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always", **_NO_NRT)
 else:  # pragma: no cover
     def _jit(f):
         return f
