@@ -75,6 +75,7 @@ class ControlPanel:
         self._quiet = threading.local()
         self._accepted: dict[str, float] = {a: 0.0 for a in AXES}
         self._mode_accepted = "MANUAL"
+        self._settings_accepted: dict[int, object] = {}
         self._build_vehicle()
         self._build_velocity()
         self._build_target()
@@ -223,9 +224,22 @@ class ControlPanel:
             self.clear_roi_button = self.gui.add_button("Clear ROI")
             self.next_button = self.gui.add_button("Next image")
             self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI.")
+        # The settings are shared by every viewer and go out with the next
+        # Apply or ROI: a viewer who may not order may not change them either.
+        for handle in (self.budget, self.shift_slider, self.mono):
+            self._settings_accepted[id(handle)] = handle.value
+            handle.on_update(lambda event, handle=handle: self._on_setting(event, handle))
         self.apply_button.on_click(lambda event: self.scene.permit(event.client) and self.apply_image_settings())
         self.clear_roi_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.clear_roi())
         self.next_button.on_click(lambda event: self.scene.permit(event.client) and self.operator.next_image())
+
+    def _on_setting(self, event, handle) -> None:
+        if self._is_quiet():
+            return
+        if not self.scene.permit(event.client):
+            self._put_back(handle, self._settings_accepted[id(handle)])
+            return
+        self._settings_accepted[id(handle)] = handle.value
 
     @property
     def shift(self) -> int:

@@ -130,6 +130,18 @@ def test_a_watchers_scene_cannot_order_and_the_holders_can(live):
             apply_in(pilot)
             assert wait_for(lambda: len(image_orders(live)) == before + 1, 10), "the holder's scene did not order"
 
+            # The shared settings: the watcher's tick on Mono goes back, the pilot's stays.
+            mono = scene.panel.mono.value
+            refused = scene.orders_refused
+            watcher.frame_locator("#scene").get_by_role("checkbox", name="Mono").click(timeout=30000)
+            assert wait_for(lambda: scene.orders_refused > refused, 10)
+            time.sleep(0.5)
+            assert scene.panel.mono.value == mono
+            pilot.frame_locator("#scene").get_by_role("checkbox", name="Mono").click(timeout=30000)
+            assert wait_for(lambda: scene.panel.mono.value != mono, 10)
+            pilot.frame_locator("#scene").get_by_role("checkbox", name="Mono").click(timeout=30000)
+            assert wait_for(lambda: scene.panel.mono.value == mono, 10)
+
             # STOP is anyone's.
             stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
             watcher.frame_locator("#scene").get_by_role("button", name="Stop").click(timeout=30000)
