@@ -454,7 +454,6 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
     if lay.ncoef:
         ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
     cfloor = np.zeros(n, dtype=np.int64)
-    cdef = np.zeros(n, dtype=np.int64)
     plan = _Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales)
     if reversible:
         for b in range(len(lay.shapes)):
@@ -465,7 +464,6 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             f = np.full((bh, bw), scales[c][i], dtype=np.int64)
             if masks is not None:
                 f[masks[i]] += shift
-                cdef[off:off + bh * bw] = np.where(masks[i], 0, shift).ravel()
             cfloor[off:off + bh * bw] = f.ravel()
     else:
         hs, ws = [height], [width]
@@ -488,9 +486,6 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             sc = np.full((bh, bw), scales[c][i])
             if masks is not None:
                 sc[masks[i]] *= 2.0 ** shift
-                # The background stays under the top less `shift` planes:
-                # the coder does not test it there.
-                cdef[off:off + bh * bw] = np.where(masks[i], 0, shift).ravel()
             scale[off:off + bh * bw] = sc.ravel()
         plan.pos, plan.scale, plan.inv_scale = pos, scale, 1.0 / scale
         plan.roi = np.array(roi if masks is not None else (0, 0, 0, 0), dtype=np.int64)
@@ -502,6 +497,9 @@ def _plan(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int
             if bh and bw:
                 croi[off:off + bh * bw] = masks[lay.index[b]].ravel()
     plan.croi = croi.astype(bool)
+    # The background stays under the top less `shift` planes: the coder
+    # does not test it there.
+    cdef = np.where(plan.croi, 0, shift) if masks is not None else np.zeros(n, dtype=np.int64)
     plan.cdef = cdef
     plan.cdef8 = cdef.astype(np.uint8)
     plan.node_def = _pyramid(cdef, lay, False).astype(np.uint8)

@@ -190,7 +190,6 @@ class ConsoleScene:
         # order_guard(scene key or None) -> None to allow, or why not.
         self.order_guard: Callable[[str | None], str | None] | None = None
         self.orders_refused = 0
-        self._viewer_keys: dict[int, str | None] = {}
         self._refused_at: dict[int, float] = {}
 
     # ------------------------------------------------------------------
@@ -214,7 +213,6 @@ class ConsoleScene:
         self._build_trail()
         self._build_target()
         self.panel = ControlPanel(self.server.gui, self.operator, self)
-        self.server.on_client_connect(self._on_viewer_connect)
         self.server.on_client_disconnect(self._on_viewer_disconnect)
         self._unsubscribe = self.operator.subscribe(self._on_operator_event)
         if self.operator.picture() is not None:
@@ -351,14 +349,12 @@ class ConsoleScene:
         if topic == "image":
             self._image_dirty.set()
 
-    def _on_viewer_connect(self, client) -> None:
-        key = scene_key_from_path(viewer_path(self.server, client.client_id))
-        with self._lock:
-            self._viewer_keys[client.client_id] = key
+    def viewer_key(self, client_id: int) -> str | None:
+        """The scene key a viewer connected with, or None."""
+        return scene_key_from_path(viewer_path(self.server, client_id))
 
     def _on_viewer_disconnect(self, client) -> None:
         with self._lock:
-            self._viewer_keys.pop(client.client_id, None)
             self._refused_at.pop(client.client_id, None)
 
     def permit(self, client) -> bool:
@@ -366,12 +362,7 @@ class ConsoleScene:
         it is told why, once in a while, and the refusal is counted."""
         if client is None or self.order_guard is None:
             return True
-        with self._lock:
-            key = self._viewer_keys.get(client.client_id)
-        if key is None and client.client_id not in self._viewer_keys:
-            # An event that overtook the connect callback.
-            key = scene_key_from_path(viewer_path(self.server, client.client_id))
-        reason = self.order_guard(key)
+        reason = self.order_guard(self.viewer_key(client.client_id))
         if reason is None:
             return True
         now = time.monotonic()
@@ -540,7 +531,10 @@ class ConsoleScene:
             target = self.target
         if target is not None:
             self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(Pose(*target[:3], 0.0, 0.0, target[3]))
-            return
+        else:
+            self._gizmo_on_vehicle()
+
+    def _gizmo_on_vehicle(self) -> None:
         pose = self.operator.predicted_pose()
         if pose is not None:
             self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
@@ -553,10 +547,7 @@ class ConsoleScene:
             self.preview_points = []
         self.target_ghost_node.visible = False
         self.preview_node.visible = False
-        pose = self.operator.predicted_pose()
-        if pose is not None:
-            self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
-                Pose(pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg))
+        self._gizmo_on_vehicle()
         if self.panel is not None:
             self.panel.show_target(None, None)
 

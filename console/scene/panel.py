@@ -19,7 +19,6 @@ key presses, not releases, so keys step rather than hold.
 from __future__ import annotations
 
 import threading
-
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -73,9 +72,7 @@ class ControlPanel:
         # accepted; the assignment calls our callbacks (client None) in this
         # thread, which must not order again: `_quiet` tells them.
         self._quiet = threading.local()
-        self._accepted: dict[str, float] = {a: 0.0 for a in AXES}
-        self._mode_accepted = "MANUAL"
-        self._settings_accepted: dict[int, object] = {}
+        self._accepted: dict[int, object] = {}  # id(handle) -> its last accepted value
         self._build_vehicle()
         self._build_velocity()
         self._build_target()
@@ -98,25 +95,28 @@ class ControlPanel:
             if self.scene.permit(event.client):
                 self.operator.arm(event.target.value == "Arm")
 
-        @self.mode.on_update
-        def _(event) -> None:
-            if self._is_quiet():
+        self._guard(self.mode, lambda: self.operator.set_mode(self.mode.value))
+
+    def _guard(self, handle, accepted=None) -> None:
+        """A shared input: a change from a viewer who may not order goes
+        back to the last accepted value; an accepted one calls `accepted`."""
+        self._accepted[id(handle)] = handle.value
+
+        def on_update(event) -> None:
+            if getattr(self._quiet, "on", False):
                 return
             if not self.scene.permit(event.client):
-                self._put_back(self.mode, self._mode_accepted)
+                self._quiet.on = True
+                try:
+                    handle.value = self._accepted[id(handle)]
+                finally:
+                    self._quiet.on = False
                 return
-            self._mode_accepted = self.mode.value
-            self.operator.set_mode(self.mode.value)
+            self._accepted[id(handle)] = handle.value
+            if accepted is not None:
+                accepted()
 
-    def _is_quiet(self) -> bool:
-        return getattr(self._quiet, "on", False)
-
-    def _put_back(self, handle, value) -> None:
-        self._quiet.on = True
-        try:
-            handle.value = value
-        finally:
-            self._quiet.on = False
+        handle.on_update(on_update)
 
     def _refresh_vehicle(self) -> None:
         state = self.operator.pose_state()
@@ -142,8 +142,8 @@ class ControlPanel:
             self.zero_button = self.gui.add_button("Zero velocity (X)")
             self.gui.add_markdown("Keys: W/S surge, A/D sway, R/F up/down, Q/E yaw, "
                                   f"{KEY_STEP:g} per press; X zero.")
-        for axis, slider in self.sliders.items():
-            slider.on_update(lambda event, axis=axis: self._on_slider(event, axis))
+        for slider in self.sliders.values():
+            self._guard(slider, self.send_velocity)
         self.zero_button.on_click(lambda event: self.scene.permit(event.client) and self.zero_velocity())
         for key, (axis, step) in KEYS.items():
             command = self.gui.add_command(f"Velocity {axis} {step:+g}", hotkey=key)
@@ -151,15 +151,6 @@ class ControlPanel:
                                self.scene.permit(event.client) and self.nudge_velocity(axis, step))
         self.gui.add_command("Zero velocity", hotkey="X").on_trigger(
             lambda event: self.scene.permit(event.client) and self.zero_velocity())
-
-    def _on_slider(self, event, axis: str) -> None:
-        if self._is_quiet():
-            return
-        if not self.scene.permit(event.client):
-            self._put_back(self.sliders[axis], self._accepted[axis])
-            return
-        self._accepted[axis] = float(self.sliders[axis].value)
-        self.send_velocity()
 
     def velocity_wish(self) -> tuple[float, float, float, float]:
         return tuple(float(self.sliders[a].value) for a in AXES)  # type: ignore[return-value]
@@ -227,19 +218,10 @@ class ControlPanel:
         # The settings are shared by every viewer and go out with the next
         # Apply or ROI: a viewer who may not order may not change them either.
         for handle in (self.budget, self.shift_slider, self.mono):
-            self._settings_accepted[id(handle)] = handle.value
-            handle.on_update(lambda event, handle=handle: self._on_setting(event, handle))
+            self._guard(handle)
         self.apply_button.on_click(lambda event: self.scene.permit(event.client) and self.apply_image_settings())
         self.clear_roi_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.clear_roi())
         self.next_button.on_click(lambda event: self.scene.permit(event.client) and self.operator.next_image())
-
-    def _on_setting(self, event, handle) -> None:
-        if self._is_quiet():
-            return
-        if not self.scene.permit(event.client):
-            self._put_back(handle, self._settings_accepted[id(handle)])
-            return
-        self._settings_accepted[id(handle)] = handle.value
 
     @property
     def shift(self) -> int:

@@ -105,8 +105,8 @@ def test_a_watchers_scene_cannot_order_and_the_holders_can(live):
             pilot, watcher = pages
             # Both embedded scenes are connected, each with its page's key.
             assert wait_for(lambda: len(scene.server.get_clients()) >= 2, 30), "the scenes did not connect"
-            assert wait_for(lambda: sum(k is not None for k in scene._viewer_keys.values()) >= 2, 10), \
-                scene._viewer_keys
+            keys = lambda: [scene.viewer_key(c) for c in scene.server.get_clients()]
+            assert wait_for(lambda: sum(k is not None for k in keys()) >= 2, 10), keys()
 
             def apply_in(page) -> None:
                 frame = page.frame_locator("#scene")
