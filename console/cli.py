@@ -18,14 +18,14 @@ import sys
 
 # Modules that define subcommands, in the order `rovlink --help` lists them.
 COMMAND_MODULES = [
-    "console.commands.channel",
-    "console.commands.bench",
-    "console.commands.rov",
-    "console.commands.sim",
-    "console.commands.console",
-    "console.commands.demo",
-    "console.commands.replay",
-    "console.commands.debt",
+    "rovlink.console.commands.channel",
+    "rovlink.console.commands.bench",
+    "rovlink.console.commands.rov",
+    "rovlink.console.commands.sim",
+    "rovlink.console.commands.console",
+    "rovlink.console.commands.demo",
+    "rovlink.console.commands.replay",
+    "rovlink.console.commands.debt",
 ]
 
 

@@ -36,8 +36,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from link.frame import OVERHEAD
-from link.master import (
+from rovlink.link.frame import OVERHEAD
+from rovlink.link.master import (
     ImageAbandoned,
     ImageComplete,
     ImageProgress,
@@ -48,7 +48,7 @@ from link.master import (
     ReplyLost,
     RequestExpired,
 )
-from link.messages import (
+from rovlink.link.messages import (
     ImageSettings,
     Mode,
     Poll,
@@ -57,7 +57,7 @@ from link.messages import (
     Reply,
     Stop,
 )
-from link.transport import Endpoint
+from rovlink.link.transport import Endpoint
 
 log = logging.getLogger("rovlink.console.operator")
 
@@ -145,7 +145,7 @@ class Recorder:
 
 
 def _warm_up_decoder() -> None:
-    import debt
+    from rovlink import debt
 
     try:
         for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
@@ -155,8 +155,8 @@ def _warm_up_decoder() -> None:
 
 
 def _protocol_to_sub_mode(mode: int):
-    from rov.autopilot import PROTOCOL_TO_SUB
-    from rov.vehicle import SubMode
+    from rovlink.rov.autopilot import PROTOCOL_TO_SUB
+    from rovlink.rov.vehicle import SubMode
 
     return PROTOCOL_TO_SUB.get(mode, SubMode.MANUAL)
 
@@ -384,7 +384,7 @@ class Operator:
             self._decode_busy = False
 
     def _decode_loop(self) -> None:
-        import debt
+        from rovlink import debt
 
         while True:
             with self._lock:
@@ -540,7 +540,7 @@ class Operator:
         pose = Pose.from_reply(reply)
         if horizon <= 0.0:
             return pose
-        from rov.vehicle import Controls, PilotInput, VehicleModel, VehicleState
+        from rovlink.rov.vehicle import Controls, PilotInput, VehicleModel, VehicleState
 
         state = VehicleState(x_m=pose.x_m, y_m=pose.y_m, z_m=pose.z_m, yaw_rad=math.radians(pose.yaw_deg),
                              vn_mps=vel[0], ve_mps=vel[1], vd_mps=vel[2], yaw_rate_radps=math.radians(vel[3]))
@@ -553,7 +553,7 @@ class Operator:
     def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
                      step_s: float = 0.5) -> list[tuple[float, float, float]]:
         """Where a POSITION order would take the vehicle (GUIDED, from the predicted pose)."""
-        from rov.vehicle import (
+        from rovlink.rov.vehicle import (
             Controls,
             PilotInput,
             PositionTarget,

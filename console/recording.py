@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from link.frame import FrameDecoder
-from link.master import ImageComplete, ImageProgress, PoseReceived
-from link.messages import Poll, ProtocolError, Reply
+from rovlink.link.frame import FrameDecoder
+from rovlink.link.master import ImageComplete, ImageProgress, PoseReceived
+from rovlink.link.messages import Poll, ProtocolError, Reply
 
 
 class RecordingError(ValueError):

@@ -15,10 +15,10 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from link.aio import run_channel
-from link.channel import Channel, LinkParams
-from link.messages import ImageSettings
-from link.transport import inproc_pair
+from rovlink.link.aio import run_channel
+from rovlink.link.channel import Channel, LinkParams
+from rovlink.link.messages import ImageSettings
+from rovlink.link.transport import inproc_pair
 
 from .operator import Operator
 
@@ -53,11 +53,11 @@ class Stack:
         self._channel_log = None
 
     async def start(self) -> Operator:
-        from rov.autopilot import AutopilotBridge
-        from rov.camera import open_camera
-        from rov.node import RovNode
-        from rov.simulator import SimulatedVehicle
-        from rov.vehicle import VehicleState
+        from rovlink.rov.autopilot import AutopilotBridge
+        from rovlink.rov.camera import open_camera
+        from rovlink.rov.node import RovNode
+        from rovlink.rov.simulator import SimulatedVehicle
+        from rovlink.rov.vehicle import VehicleState
 
         c = self.config
         self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()

@@ -70,8 +70,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from rov.mavurl import open_mavlink, parse_mavlink_url
-from rov.vehicle import PilotInput, SubMode, wrap_angle
+from rovlink.rov.mavurl import open_mavlink, parse_mavlink_url
+from rovlink.rov.vehicle import PilotInput, SubMode, wrap_angle
 
 log = logging.getLogger(__name__)
 

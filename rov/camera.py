@@ -38,7 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from rov.scene import Seabed
+from rovlink.rov.scene import Seabed
 
 DEFAULT_SIZE = (320, 240)  # width, height
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")

@@ -38,9 +38,9 @@ from typing import Callable
 
 import numpy as np
 
-from link.aio import run_slave
-from link.messages import Arm, ImageSettings, Mode, Position, Stop
-from link.slave import (
+from rovlink.link.aio import run_slave
+from rovlink.link.messages import Arm, ImageSettings, Mode, Position, Stop
+from rovlink.link.slave import (
     FailsafeCleared,
     FailsafeEntered,
     ImageDelivered,
@@ -51,7 +51,7 @@ from link.slave import (
     VelocityCommanded,
     status_from_pose,
 )
-from link.transport import Endpoint
+from rovlink.link.transport import Endpoint
 
 log = logging.getLogger("rovlink.rov.node")
 
@@ -111,7 +111,7 @@ class RovNode:
         self.prefetch_max_age_s = prefetch_max_age_s
         self.stats = NodeStats()
         if encode is None:
-            import debt
+            from rovlink import debt
 
             encode = debt.encode
         self._encode = encode

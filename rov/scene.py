@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-ASSETS_DIR = Path(__file__).resolve().parent.parent / "assets"
+from rovlink.assets import ASSETS_DIR
+
 TEXTURE_PATH = ASSETS_DIR / "seabed.png"
 META_PATH = ASSETS_DIR / "seabed.json"
 

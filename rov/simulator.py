@@ -45,9 +45,9 @@ import threading
 import time
 from dataclasses import dataclass
 
-from rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
-from rov.scene import SEABED_DEPTH_M
-from rov.vehicle import (
+from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
+from rovlink.rov.scene import SEABED_DEPTH_M
+from rovlink.rov.vehicle import (
     FLOWN_MODES,
     NEUTRAL,
     POSITION_MODES,

@@ -14,7 +14,7 @@ import pytest
 def debt_compiled():
     import numpy as np
 
-    import debt
+    from rovlink import debt
 
     for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
         debt.decode(debt.encode(image, 200, roi=(0, 0, 8, 8), shift=4))

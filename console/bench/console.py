@@ -26,13 +26,13 @@ from .table import emit, format_table
 
 
 def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict:
-    import debt
-    from console.operator import Operator
-    from link.channel import Channel, LinkParams
-    from link.master import Master
-    from link.sim import SimLink
-    from link.slave import Slave
-    from rov.camera import SimulatedCamera
+    from rovlink import debt
+    from rovlink.console.operator import Operator
+    from rovlink.link.channel import Channel, LinkParams
+    from rovlink.link.master import Master
+    from rovlink.link.sim import SimLink
+    from rovlink.link.slave import Slave
+    from rovlink.rov.camera import SimulatedCamera
 
     camera = SimulatedCamera()
     rng = random.Random(seed)
@@ -154,7 +154,7 @@ def run(args) -> int:
     ]
     import os
 
-    from console.bench.page import CHROMIUM
+    from rovlink.console.bench.page import CHROMIUM
 
     if not args.no_page and not os.path.exists(CHROMIUM):
         lines += ["", f"page: not measured: no Chromium at {CHROMIUM} (Debian package 'chromium')"]
@@ -183,7 +183,7 @@ def run(args) -> int:
 
 
 def _page_latency(seconds: float) -> dict:
-    from console.bench.page import measure_page
+    from rovlink.console.bench.page import measure_page
 
     return measure_page(seconds)
 

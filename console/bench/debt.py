@@ -24,7 +24,8 @@ from __future__ import annotations
 import io
 import statistics
 import time
-from pathlib import Path
+
+from rovlink.assets import ASSETS_DIR
 
 from .table import emit, format_table
 
@@ -182,9 +183,9 @@ def load_images() -> dict:
     import numpy as np
     from PIL import Image
 
-    from debt import samples
+    from rovlink.debt import samples
 
-    folder = Path(__file__).resolve().parents[2] / "assets" / "images"
+    folder = ASSETS_DIR / "images"
     images = {}
     for name in IMAGES:
         path = folder / f"{name}.png"
@@ -213,7 +214,7 @@ def centre_ninth(img) -> tuple[int, int, int, int]:
 # ---------------------------------------------------------------- run
 
 def measure(runs: int = 7, curve: bool = True) -> dict:
-    import debt
+    from rovlink import debt
 
     images = load_images()
     debt.decode(debt.encode(images["grey-scene"][:16, :16], 100))  # JIT warm-up, not timed
@@ -367,7 +368,7 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from PIL import features
 
-    from console.cli import CommandError
+    from rovlink.console.cli import CommandError
 
     if not features.check("jpg_2000"):
         raise CommandError("this Pillow has no JPEG 2000 (OpenJPEG) support; the benchmark needs it")

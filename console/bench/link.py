@@ -20,10 +20,10 @@ import random
 import statistics
 from dataclasses import dataclass, field
 
-from link.channel import Channel, LinkParams
-from link.master import ImageAbandoned, ImageComplete, Master
-from link.sim import SimLink
-from link.slave import Slave, VelocityCommanded
+from rovlink.link.channel import Channel, LinkParams
+from rovlink.link.master import ImageAbandoned, ImageComplete, Master
+from rovlink.link.sim import SimLink
+from rovlink.link.slave import Slave, VelocityCommanded
 
 from .table import emit, format_table
 

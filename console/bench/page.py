@@ -63,8 +63,8 @@ def measure_page(seconds: float = 40.0, *, telemetry_hz: float = 25.0) -> dict:
 async def _measure(seconds: float, telemetry_hz: float) -> dict:
     from playwright.async_api import async_playwright
 
-    from console.stack import Stack, StackConfig
-    from console.web.app import create_app, serve
+    from rovlink.console.stack import Stack, StackConfig
+    from rovlink.console.web.app import create_app, serve
 
     trunks: list[tuple[float, int, int]] = []  # (wall time, img, stream bytes held)
     async with Stack(StackConfig()) as stack:

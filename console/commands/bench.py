@@ -9,9 +9,9 @@ from __future__ import annotations
 import importlib
 
 BENCH_MODULES = [
-    "console.bench.link",
-    "console.bench.console",
-    "console.bench.debt",
+    "rovlink.console.bench.link",
+    "rovlink.console.bench.console",
+    "rovlink.console.bench.debt",
 ]
 
 

@@ -38,10 +38,10 @@ def run(args) -> int:
     import asyncio
     import sys
 
-    from console.cli import CommandError
-    from link.aio import run_channel
-    from link.channel import Channel, LinkParams
-    from link.transport import TransportError, open_transport
+    from rovlink.console.cli import CommandError
+    from rovlink.link.aio import run_channel
+    from rovlink.link.channel import Channel, LinkParams
+    from rovlink.link.transport import TransportError, open_transport
 
     if args.queue < 1:
         raise CommandError("--queue must be at least 1 byte")

@@ -28,9 +28,9 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import asyncio
 
-    from console.cli import CommandError
-    from console.operator import Operator
-    from link.transport import TransportError, open_transport
+    from rovlink.console.cli import CommandError
+    from rovlink.console.operator import Operator
+    from rovlink.link.transport import TransportError, open_transport
 
     from .serve import default_record_path, serve_operator
 

@@ -99,8 +99,8 @@ def run_encode(args) -> int:
     import numpy as np
     from PIL import Image, UnidentifiedImageError
 
-    import debt
-    from console.cli import CommandError
+    from rovlink import debt
+    from rovlink.console.cli import CommandError
 
     try:
         with Image.open(args.input) as im:
@@ -129,8 +129,8 @@ def run_encode(args) -> int:
 def run_decode(args) -> int:
     from PIL import Image
 
-    import debt
-    from console.cli import CommandError
+    from rovlink import debt
+    from rovlink.console.cli import CommandError
 
     try:
         with open(args.input, "rb") as f:

@@ -30,8 +30,8 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import asyncio
 
-    from console.cli import CommandError
-    from console.stack import Stack, StackConfig
+    from rovlink.console.cli import CommandError
+    from rovlink.console.stack import Stack, StackConfig
 
     from .serve import default_record_path, serve_operator
 

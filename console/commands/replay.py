@@ -26,9 +26,9 @@ def add_parser(subparsers) -> None:
 def run_replay(args) -> int:
     import asyncio
 
-    from console.cli import CommandError
-    from console.operator import Operator
-    from console.recording import RecordingError, read_records, replay
+    from rovlink.console.cli import CommandError
+    from rovlink.console.operator import Operator
+    from rovlink.console.recording import RecordingError, read_records, replay
 
     from .serve import serve_operator
 
@@ -50,8 +50,8 @@ def run_replay(args) -> int:
 
 
 def run_plot(args) -> int:
-    from console.cli import CommandError
-    from console.recording import RecordingError, plot
+    from rovlink.console.cli import CommandError
+    from rovlink.console.recording import RecordingError, plot
 
     try:
         paths = plot(args.file, args.out, window_s=args.window)

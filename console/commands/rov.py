@@ -40,12 +40,12 @@ def run(args) -> int:
     import logging
     import sys
 
-    from console.cli import CommandError
-    from link.messages import ImageSettings, ProtocolError
-    from link.transport import TransportError, open_transport
-    from rov.autopilot import AutopilotBridge
-    from rov.camera import CameraError, open_camera
-    from rov.node import RovNode
+    from rovlink.console.cli import CommandError
+    from rovlink.link.messages import ImageSettings, ProtocolError
+    from rovlink.link.transport import TransportError, open_transport
+    from rovlink.rov.autopilot import AutopilotBridge
+    from rovlink.rov.camera import CameraError, open_camera
+    from rovlink.rov.node import RovNode
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s: %(message)s")
@@ -67,7 +67,7 @@ def run(args) -> int:
     sim = None
     mavlink = args.mavlink
     if mavlink is None:
-        from rov.simulator import SimulatedVehicle
+        from rovlink.rov.simulator import SimulatedVehicle
 
         sim = SimulatedVehicle("udpin:127.0.0.1:0").start()
         mavlink = sim.bridge_url

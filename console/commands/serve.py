@@ -29,9 +29,9 @@ def browser_host(host: str) -> str:
 
 async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     """Start the scene and the web app for `operator`; return when the server stops."""
-    from console.cli import CommandError
-    from console.scene.app import ConsoleScene
-    from console.web.app import create_app, serve
+    from rovlink.console.cli import CommandError
+    from rovlink.console.scene.app import ConsoleScene
+    from rovlink.console.web.app import create_app, serve
 
     if args.port == args.viser_port:
         raise CommandError("--port and --viser-port must differ")

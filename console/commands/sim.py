@@ -45,11 +45,11 @@ def run(args) -> int:
     import sys
     import time
 
-    from console.cli import CommandError
-    from rov.mavurl import parse_mavlink_url
-    from rov.scene import SEABED_DEPTH_M
-    from rov.simulator import START_STATE, SimulatedVehicle
-    from rov.vehicle import SubMode, VehicleState
+    from rovlink.console.cli import CommandError
+    from rovlink.rov.mavurl import parse_mavlink_url
+    from rovlink.rov.scene import SEABED_DEPTH_M
+    from rovlink.rov.simulator import START_STATE, SimulatedVehicle
+    from rovlink.rov.vehicle import SubMode, VehicleState
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)

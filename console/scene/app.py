@@ -47,7 +47,8 @@ import viser
 from PIL import Image
 from viser import transforms as tf
 
-from console.operator import Operator, Pose
+from rovlink.assets import ASSETS_DIR
+from rovlink.console.operator import Operator, Pose
 
 from . import frames
 from .panel import ControlPanel
@@ -56,7 +57,6 @@ from .rov_model import load_rov_mesh
 
 log = logging.getLogger("rovlink.console.scene")
 
-ASSETS_DIR = Path(__file__).resolve().parents[2] / "assets"
 
 # The simulated camera of rov/camera.py (SimulatedCamera's defaults); a test
 # checks they agree.

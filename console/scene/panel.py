@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from viser import uplot
 
-from link.messages import MAX_BUDGET
+from rovlink.link.messages import MAX_BUDGET
 
 if TYPE_CHECKING:  # the scene imports the panel; only the type goes the other way
     from .app import ConsoleScene

@@ -27,7 +27,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-ASSET_PATH = Path(__file__).resolve().parents[2] / "assets" / "rov.glb"
+from rovlink.assets import ASSETS_DIR
+
+ASSET_PATH = ASSETS_DIR / "rov.glb"
 
 FRAME_RGBA = (25, 25, 28, 255)
 FOAM_RGBA = (232, 96, 30, 255)

@@ -29,7 +29,7 @@ from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from console.operator import Operator
+from rovlink.console.operator import Operator
 
 from . import errors
 from .control import ControlDesk

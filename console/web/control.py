@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
-from console.operator import Operator
+from rovlink.console.operator import Operator
 
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
 SCENE_KEY = re.compile(r"[A-Za-z0-9_-]{16,64}")

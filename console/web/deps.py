@@ -11,7 +11,7 @@ from typing import Annotated
 from fastapi import Depends, Header
 from starlette.requests import HTTPConnection
 
-from console.operator import Operator
+from rovlink.console.operator import Operator
 
 from .control import Client, ControlDesk
 

@@ -16,7 +16,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from console.operator import OrderError
+from rovlink.console.operator import OrderError
 
 from .control import NotHolder, UnknownClient
 

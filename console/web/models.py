@@ -18,7 +18,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
-from link.messages import MAX_BUDGET
+from rovlink.link.messages import MAX_BUDGET
 
 ModeName = Literal["MANUAL", "STABILIZE", "DEPTH_HOLD", "POS_HOLD", "GUIDED", "SURFACE"]
 

@@ -10,7 +10,7 @@ import math
 import threading
 import time
 
-from console.operator import Operator
+from rovlink.console.operator import Operator
 
 from .control import ControlDesk
 

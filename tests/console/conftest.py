@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import pytest
 
-from console.operator import Operator
-from console.stack import Stack, StackConfig
+from rovlink.console.operator import Operator
+from rovlink.console.stack import Stack, StackConfig
 
 from ..helpers import free_tcp_port
 
@@ -71,7 +71,7 @@ def running_console(*, scene: bool = False, failsafe_s: float = 1.0):
     """The stack and the web app (and, with `scene`, the viser scene the
     page embeds, wired as `rovlink demo` wires it) in one event loop on a
     thread; yields the LiveConsole once the ROV has answered."""
-    from console.web.app import create_app, serve
+    from rovlink.console.web.app import create_app, serve
 
     ready = threading.Event()
     holder: dict = {}
@@ -81,7 +81,7 @@ def running_console(*, scene: bool = False, failsafe_s: float = 1.0):
         async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0, failsafe_s=failsafe_s)) as stack:
             view = None
             if scene:
-                from console.scene.app import ConsoleScene
+                from rovlink.console.scene.app import ConsoleScene
 
                 view = ConsoleScene(stack.operator, port=free_tcp_port()).start()
             try:

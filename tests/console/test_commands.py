@@ -11,13 +11,13 @@ import urllib.request
 
 import pytest
 
-from link.transport import free_udp_port
+from rovlink.link.transport import free_udp_port
 
 from ..helpers import free_tcp_port
 from ..helpers import get_json as get
 from ..helpers import wait_until_up as wait_for
 
-ROVLINK = [sys.executable, "-m", "console"]
+ROVLINK = [sys.executable, "-m", "rovlink"]
 
 
 

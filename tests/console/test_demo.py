@@ -23,7 +23,7 @@ import urllib.request
 import numpy as np
 import pytest
 
-import debt
+from rovlink import debt
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from ..helpers import wait_until_up as wait_for
@@ -43,7 +43,7 @@ def demo(tmp_path):
     port, viser_port = free_tcp_port(), free_tcp_port()
     record = tmp_path / "session.jsonl"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "console", "demo", "--port", str(port), "--viser-port", str(viser_port),
+        [sys.executable, "-m", "rovlink", "demo", "--port", str(port), "--viser-port", str(viser_port),
          "--bitrate", "9600", "--record", str(record)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     base = f"http://127.0.0.1:{port}"
@@ -155,7 +155,7 @@ def test_demo_in_the_browser(demo, tmp_path):
     assert "http://127.0.0.1:" in out
 
     # The session was recorded and plots.
-    plots = subprocess.run([sys.executable, "-m", "console", "plot", str(record), "--out", str(tmp_path / "plots")],
+    plots = subprocess.run([sys.executable, "-m", "rovlink", "plot", str(record), "--out", str(tmp_path / "plots")],
                            capture_output=True, text=True, timeout=120)
     assert plots.returncode == 0, plots.stderr
     assert (tmp_path / "plots" / "fig4_link_timelapse.png").stat().st_size > 10_000
@@ -169,7 +169,7 @@ def test_demo_refuses_a_busy_port(tmp_path):
         s.bind(("127.0.0.1", 0))
         s.listen()
         busy = s.getsockname()[1]
-        out = subprocess.run([sys.executable, "-m", "console", "demo", "--port", str(busy), "--viser-port",
+        out = subprocess.run([sys.executable, "-m", "rovlink", "demo", "--port", str(busy), "--viser-port",
                               str(free_tcp_port()), "--no-record"], capture_output=True, text=True, timeout=120,
                              cwd=tmp_path)
     assert out.returncode == 1

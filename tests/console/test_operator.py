@@ -12,10 +12,10 @@ import time
 import numpy as np
 import pytest
 
-import debt
-from console.operator import Operator, OrderError
-from console.recording import RecordingError, plot, replay, series
-from console.stack import Stack, StackConfig
+from rovlink import debt
+from rovlink.console.operator import Operator, OrderError
+from rovlink.console.recording import RecordingError, plot, replay, series
+from rovlink.console.stack import Stack, StackConfig
 
 
 def fast_config(tmp_path, **kw):
@@ -163,7 +163,7 @@ def test_bench_console_reports_the_heap_over_a_session():
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-m", "console", "bench", "console", "--duration", "240",
+    out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "240",
                           "--sample-every", "60", "--no-page", "--json"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)

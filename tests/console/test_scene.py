@@ -27,9 +27,9 @@ import pytest
 import trimesh
 from viser import transforms as tf
 
-import debt
-from console.scene import frames
-from console.scene.app import (
+from rovlink import debt
+from rovlink.console.scene import frames
+from rovlink.console.scene.app import (
     CAMERA_HFOV_DEG,
     CAMERA_TILT_DEG,
     SCREEN_CENTRE,
@@ -39,10 +39,10 @@ from console.scene.app import (
     SeabedAsset,
     as_rgb,
 )
-from console.scene.panel import link_bins, step_values
-from console.scene.roi import draw_roi, roi_from_pixels
-from console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
-from console.stack import Stack, StackConfig
+from rovlink.console.scene.panel import link_bins, step_values
+from rovlink.console.scene.roi import draw_roi, roi_from_pixels
+from rovlink.console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
+from rovlink.console.stack import Stack, StackConfig
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS
 
@@ -136,7 +136,7 @@ def test_vehicle_axes_follow_heading_and_attitude():
 
 
 def test_camera_matches_the_simulated_camera():
-    from rov.camera import SimulatedCamera
+    from rovlink.rov.camera import SimulatedCamera
 
     defaults = inspect.signature(SimulatedCamera.__init__).parameters
     assert defaults["hfov_deg"].default == CAMERA_HFOV_DEG

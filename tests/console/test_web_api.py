@@ -21,9 +21,9 @@ from fastapi.testclient import TestClient
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
-import debt
-from console.operator import Operator
-from console.web.app import create_app, serve
+from rovlink import debt
+from rovlink.console.operator import Operator
+from rovlink.console.web.app import create_app, serve
 
 from .conftest import wait_for
 

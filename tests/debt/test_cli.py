@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-import debt
-from console.cli import main
+from rovlink import debt
+from rovlink.assets import ASSETS_DIR
+from rovlink.console.cli import main
 
-ASSETS = Path(__file__).resolve().parents[2] / "assets" / "images"
+ASSETS = ASSETS_DIR / "images"
 
 
 def test_encode_then_decode_a_prefix(tmp_path, capsys):
@@ -86,7 +86,7 @@ def test_bad_arguments_exit_2(tmp_path, extra):
 
 def test_the_rovlink_command(tmp_path):
     out = tmp_path / "g.debt"
-    run = subprocess.run([sys.executable, "-m", "console", "debt", "encode",
+    run = subprocess.run([sys.executable, "-m", "rovlink", "debt", "encode",
                           str(ASSETS / "grey-scene.png"), str(out), "--bytes", "700"],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import debt
-from debt import samples
-from debt.codec import Header, header_size, pack_header, unpack_header
+from rovlink import debt
+from rovlink.debt import samples
+from rovlink.debt.codec import Header, header_size, pack_header, unpack_header
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -208,7 +208,7 @@ def test_shape_adaptive_transform_inverts_and_keeps_region_and_rest_apart(h, w, 
     # With an ROI the 9/7 is lifted apart on the rectangle and the rest: the
     # region's coefficients (the coder's ROI mask) depend on its pixels only,
     # the others on the outside only, and the inverse restores the image.
-    from debt import codec, kernels
+    from rovlink.debt import codec, kernels
 
     x0 = data.draw(st.integers(0, w - 1))
     x1 = data.draw(st.integers(x0 + 1, w))

@@ -9,10 +9,10 @@ import time
 
 import pytest
 
-from link.frame import FrameDecoder, encode_frame
-from link.transport import free_udp_port
+from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.transport import free_udp_port
 
-ROVLINK = [sys.executable, "-m", "console"]
+ROVLINK = [sys.executable, "-m", "rovlink"]
 
 
 def rovlink(*args, timeout=120):

@@ -4,8 +4,8 @@ import random
 
 import pytest
 
-from link.frame import START, FrameDecoder, encode_frame
-from link.messages import Poll, ProtocolError, Reply
+from rovlink.link.frame import START, FrameDecoder, encode_frame
+from rovlink.link.messages import Poll, ProtocolError, Reply
 
 
 def test_false_start_with_large_len_does_not_hold_back_a_true_frame():

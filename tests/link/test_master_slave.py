@@ -4,9 +4,9 @@ import random
 
 import pytest
 
-from link.channel import Channel, LinkParams
-from link.frame import FrameDecoder, encode_frame
-from link.master import (
+from rovlink.link.channel import Channel, LinkParams
+from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.master import (
     ImageComplete,
     ImageProgress,
     Master,
@@ -16,7 +16,7 @@ from link.master import (
     ReplyLost,
     RequestExpired,
 )
-from link.messages import (
+from rovlink.link.messages import (
     ImageSettings,
     Mode,
     Poll,
@@ -26,8 +26,8 @@ from link.messages import (
     Stop,
     Velocity,
 )
-from link.sim import SimLink
-from link.slave import (
+from rovlink.link.sim import SimLink
+from rovlink.link.slave import (
     FailsafeCleared,
     FailsafeEntered,
     ImageWanted,

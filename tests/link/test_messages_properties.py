@@ -4,8 +4,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from link.frame import FrameDecoder, encode_frame
-from link.messages import (
+from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.messages import (
     ImageSettings,
     NoOrder,
     Poll,

@@ -8,13 +8,13 @@ import tty
 
 import pytest
 
-from link.aio import run_channel, run_master, run_slave
-from link.channel import Channel, LinkParams
-from link.frame import FrameDecoder, encode_frame
-from link.master import ImageComplete, Master, PoseReceived
-from link.messages import Stop
-from link.slave import OrderExecuted, Slave
-from link.transport import TransportError, free_udp_port, inproc_pair, open_transport
+from rovlink.link.aio import run_channel, run_master, run_slave
+from rovlink.link.channel import Channel, LinkParams
+from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.master import ImageComplete, Master, PoseReceived
+from rovlink.link.messages import Stop
+from rovlink.link.slave import OrderExecuted, Slave
+from rovlink.link.transport import TransportError, free_udp_port, inproc_pair, open_transport
 
 
 def run(coro, timeout=60):

@@ -2,8 +2,8 @@
 
 import pytest
 
-from link.frame import FrameDecoder, crc16, encode_frame
-from link.messages import Arm, ImageSettings, Mode, Poll, Position, Reply, Velocity
+from rovlink.link.frame import FrameDecoder, crc16, encode_frame
+from rovlink.link.messages import Arm, ImageSettings, Mode, Poll, Position, Reply, Velocity
 
 VECTORS = [
     (

@@ -8,9 +8,9 @@ import time
 
 import pytest
 
-from rov.autopilot import AutopilotBridge
-from rov.simulator import SimulatedVehicle
-from rov.vehicle import VehicleState
+from rovlink.rov.autopilot import AutopilotBridge
+from rovlink.rov.simulator import SimulatedVehicle
+from rovlink.rov.vehicle import VehicleState
 
 
 def free_udp_port() -> int:

@@ -9,9 +9,9 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from rov.autopilot import AutopilotBridge, Ticket, protocol_mode, sub_mode
-from rov.simulator import SimulatedVehicle
-from rov.vehicle import PilotInput, SubMode, VehicleState
+from rovlink.rov.autopilot import AutopilotBridge, Ticket, protocol_mode, sub_mode
+from rovlink.rov.simulator import SimulatedVehicle
+from rovlink.rov.vehicle import PilotInput, SubMode, VehicleState
 
 from .conftest import free_udp_port, wait_for
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from rov.autopilot import AutopilotSnapshot
-from rov.camera import CameraError, FolderCamera, OpenCVCamera, SimulatedCamera, open_camera
-from rov.scene import META_PATH, SEABED_DEPTH_M, TEXTURE_PATH, Seabed, generate
-from rov.vehicle import VehicleState
+from rovlink.rov.autopilot import AutopilotSnapshot
+from rovlink.rov.camera import CameraError, FolderCamera, OpenCVCamera, SimulatedCamera, open_camera
+from rovlink.rov.scene import META_PATH, SEABED_DEPTH_M, TEXTURE_PATH, Seabed, generate
+from rovlink.rov.vehicle import VehicleState
 
 
 @pytest.fixture(scope="module")

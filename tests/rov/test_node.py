@@ -18,11 +18,11 @@ import time
 import numpy as np
 import pytest
 
-import debt
-from link.aio import run_master
-from link.frame import FrameDecoder, encode_frame
-from link.master import ImageComplete, Master, OrderAcknowledged, PoseReceived
-from link.messages import (
+from rovlink import debt
+from rovlink.link.aio import run_master
+from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.master import ImageComplete, Master, OrderAcknowledged, PoseReceived
+from rovlink.link.messages import (
     ImageSettings,
     Mode,
     Poll,
@@ -31,12 +31,12 @@ from link.messages import (
     ReservedOrder,
     Stop,
 )
-from link.transport import free_udp_port, open_transport
-from rov.autopilot import AutopilotBridge
-from rov.camera import SimulatedCamera
-from rov.node import RovNode
-from rov.simulator import SimulatedVehicle
-from rov.vehicle import SubMode, VehicleState
+from rovlink.link.transport import free_udp_port, open_transport
+from rovlink.rov.autopilot import AutopilotBridge
+from rovlink.rov.camera import SimulatedCamera
+from rovlink.rov.node import RovNode
+from rovlink.rov.simulator import SimulatedVehicle
+from rovlink.rov.vehicle import SubMode, VehicleState
 
 
 class CountingBridge:
@@ -257,7 +257,7 @@ def test_reserved_and_out_of_range_orders_are_answered_and_ignored():
 def test_rovlink_rov_process_answers_polls_over_udp():
     pm, pr = free_udp_port(), free_udp_port()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "console", "rov", "--link", f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{pm}",
+        [sys.executable, "-m", "rovlink", "rov", "--link", f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{pm}",
          "--failsafe", "2", "--budget", "600"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -295,9 +295,9 @@ def test_rovlink_rov_process_answers_polls_over_udp():
 
 
 def test_bad_rov_arguments():
-    out = subprocess.run([sys.executable, "-m", "console", "rov", "--link", "bogus://x"],
+    out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "bogus://x"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1 and "unknown transport" in out.stderr
-    out = subprocess.run([sys.executable, "-m", "console", "rov", "--link", "udp://127.0.0.1:1",
+    out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "udp://127.0.0.1:1",
                           "--failsafe", "-1"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def rovlink(*args: str) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.Popen(
-        [sys.executable, "-m", "console", *args],
+        [sys.executable, "-m", "rovlink", *args],
         cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
 

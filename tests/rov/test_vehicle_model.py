@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from rov.vehicle import Controls, PilotInput, PositionTarget, SubMode, VehicleModel, VehicleState
+from rovlink.rov.vehicle import Controls, PilotInput, PositionTarget, SubMode, VehicleModel, VehicleState
 
 
 def fly(model: VehicleModel, seconds: float, controls: Controls, dt_s: float = 0.05) -> VehicleState:

@@ -45,7 +45,7 @@ def preview_position(order: PositionOrder, operator: OperatorDep, request: Reque
     if order.relative:
         # The preview works in absolute coordinates; relative targets are the
         # scene's business (it knows the heading it drew them with).
-        from console.operator import OrderError
+        from rovlink.console.operator import OrderError
 
         raise OrderError("the preview takes absolute targets only (relative=false)")
     scene = getattr(request.app.state, "scene", None)

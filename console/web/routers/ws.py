@@ -37,7 +37,7 @@ import logging
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
-from console.operator import OrderError
+from rovlink.console.operator import OrderError
 
 from ..control import NotHolder
 from ..deps import DeskDep, OperatorDep
