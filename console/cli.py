@@ -1,43 +1,35 @@
 """The `rovlink` command: one entry point, one subcommand per program.
 
-Each subcommand lives in its own module under `console.commands` (or
-`console.bench` for benchmarks) and exposes `add_parser(subparsers)`, which
-registers its arguments and sets `func` to the function that runs it.  Heavy
-imports happen inside those functions so that `rovlink --help` stays fast.
+Each command lives beside its package and exposes `add_parser(subparsers)`
+(see rovlink/command.py): `rovlink.link.cli` (channel), `rovlink.debt.cli`
+(debt encode/decode), `rovlink.rov.cli` (rov, sim), and the console's own
+under `rovlink.console.commands` (console, demo, replay, plot, bench).  This
+module only dispatches and imports nothing of the console's extra, so the
+base install (what the ROV needs) runs `rovlink rov`, `sim`, `channel` and
+`debt`; the others say which command installs what they lack.
 
-Errors: a wrong argument prints one line and exits with status 2 (argparse's
-convention); a command that fails at run time raises `CommandError`, printed
-as one line with exit status 1.  Ctrl-C exits with 130 and no traceback.
+Errors: a wrong argument prints one line and exits with status 2; a command
+that fails at run time prints one line and exits with status 1 (2 when an
+optional part is missing); Ctrl-C exits with 130 and no traceback.
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import sys
 
+from rovlink.command import CommandError, Parser
+
 # Modules that define subcommands, in the order `rovlink --help` lists them.
 COMMAND_MODULES = [
-    "rovlink.console.commands.channel",
-    "rovlink.console.commands.bench",
-    "rovlink.console.commands.rov",
-    "rovlink.console.commands.sim",
+    "rovlink.rov.cli",
+    "rovlink.link.cli",
+    "rovlink.debt.cli",
     "rovlink.console.commands.console",
     "rovlink.console.commands.demo",
     "rovlink.console.commands.replay",
-    "rovlink.console.commands.debt",
+    "rovlink.console.commands.bench",
 ]
-
-
-class CommandError(Exception):
-    """A failure a user can act on; printed as one line, exit status 1."""
-
-
-class Parser(argparse.ArgumentParser):
-    """ArgumentParser whose errors are one line, with a pointer to --help."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
 def build_parser() -> Parser:
@@ -62,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         result = args.func(args)
     except CommandError as exc:
         print(f"rovlink {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_status
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -129,6 +129,9 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
 
 
 def run(args) -> int:
+    from rovlink.command import require_console_extra
+
+    require_console_extra()
     mem = _memory_session(args.duration, args.sample_every, args.seed)
     samples = mem["samples_mb"]
     # The heap swings by a few MB with the image being decoded; a leak shows

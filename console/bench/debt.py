@@ -368,7 +368,7 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     from PIL import features
 
-    from rovlink.console.cli import CommandError
+    from rovlink.command import CommandError
 
     if not features.check("jpg_2000"):
         raise CommandError("this Pillow has no JPEG 2000 (OpenJPEG) support; the benchmark needs it")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .argtypes import non_negative, positive
+from rovlink.command import non_negative, positive
 from .serve import add_server_arguments
 
 
@@ -26,9 +26,12 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
+    from rovlink.command import require_console_extra
+
+    require_console_extra()
     import asyncio
 
-    from rovlink.console.cli import CommandError
+    from rovlink.command import CommandError
     from rovlink.console.operator import Operator
     from rovlink.link.transport import TransportError, open_transport
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .argtypes import non_negative, positive, probability
+from rovlink.command import non_negative, positive, probability
 from .serve import add_server_arguments
 
 
@@ -28,9 +28,12 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
+    from rovlink.command import require_console_extra
+
+    require_console_extra()
     import asyncio
 
-    from rovlink.console.cli import CommandError
+    from rovlink.command import CommandError
     from rovlink.console.stack import Stack, StackConfig
 
     from .serve import default_record_path, serve_operator

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .argtypes import positive
+from rovlink.command import positive
 from .serve import add_server_arguments
 
 
@@ -24,9 +24,12 @@ def add_parser(subparsers) -> None:
 
 
 def run_replay(args) -> int:
+    from rovlink.command import require_console_extra
+
+    require_console_extra()
     import asyncio
 
-    from rovlink.console.cli import CommandError
+    from rovlink.command import CommandError
     from rovlink.console.operator import Operator
     from rovlink.console.recording import RecordingError, read_records, replay
 
@@ -50,7 +53,10 @@ def run_replay(args) -> int:
 
 
 def run_plot(args) -> int:
-    from rovlink.console.cli import CommandError
+    from rovlink.command import require_console_extra
+
+    require_console_extra()
+    from rovlink.command import CommandError
     from rovlink.console.recording import RecordingError, plot
 
     try:

@@ -7,7 +7,7 @@ import asyncio
 import sys
 from pathlib import Path
 
-from .argtypes import port
+from rovlink.command import port
 
 
 def add_server_arguments(p) -> None:
@@ -29,7 +29,7 @@ def browser_host(host: str) -> str:
 
 async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     """Start the scene and the web app for `operator`; return when the server stops."""
-    from rovlink.console.cli import CommandError
+    from rovlink.command import CommandError
     from rovlink.console.scene.app import ConsoleScene
     from rovlink.console.web.app import create_app, serve
 

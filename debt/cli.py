@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 
+from rovlink.command import CommandError
+
 
 def _budget(text: str) -> int:
     try:
@@ -100,7 +102,6 @@ def run_encode(args) -> int:
     from PIL import Image, UnidentifiedImageError
 
     from rovlink import debt
-    from rovlink.console.cli import CommandError
 
     try:
         with Image.open(args.input) as im:
@@ -130,7 +131,6 @@ def run_decode(args) -> int:
     from PIL import Image
 
     from rovlink import debt
-    from rovlink.console.cli import CommandError
 
     try:
         with open(args.input, "rb") as f:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .argtypes import non_negative, positive, probability
+from rovlink.command import CommandError, non_negative, positive, probability
 
 
 def add_parser(subparsers) -> None:
@@ -38,7 +38,6 @@ def run(args) -> int:
     import asyncio
     import sys
 
-    from rovlink.console.cli import CommandError
     from rovlink.link.aio import run_channel
     from rovlink.link.channel import Channel, LinkParams
     from rovlink.link.transport import TransportError, open_transport

@@ -1,0 +1,219 @@
+"""`rovlink rov` and `rovlink sim`: the programs of the ROV side.
+
+`rovlink rov` runs on the ROV's companion computer: it answers the operator's
+polls on the modem link, drives ArduSub through MAVLink, sends DEBT images of
+the camera, and stops the vehicle when the link falls silent.
+
+`rovlink sim` is the simulated ArduSub alone, as a MAVLink endpoint: a
+stand-in for the vehicle that any ground station can talk to (the ROV node,
+QGroundControl, MAVProxy, a pymavlink script).  The default copies BlueOS:
+the vehicle sends to a ground station listening on UDP 14550 of this
+machine; `--mavlink tcpin:127.0.0.1:5760` copies ArduSub SITL.  Servers bind
+to loopback unless told otherwise.
+
+Both need only the base install (no console extra).
+"""
+
+from __future__ import annotations
+
+from rovlink.command import CommandError, positive
+
+
+def add_parser(subparsers) -> None:
+    _add_rov(subparsers)
+    _add_sim(subparsers)
+
+
+def _add_rov(subparsers) -> None:
+    p = subparsers.add_parser(
+        "rov",
+        help="run the ROV node: link slave, ArduSub bridge, camera, DEBT encoder, failsafe",
+        description=(
+            "Run the ROV side: answer the operator's polls on the modem link, drive ArduSub "
+            "through MAVLink, send DEBT images of the camera, and stop the vehicle when the "
+            "link falls silent. Without --mavlink a simulated ArduSub runs in-process."
+        ),
+        epilog="example: rovlink rov --link serial:///dev/ttyUSB0?baud=9600&crlf=1 "
+        "--mavlink udpin:0.0.0.0:14550 --camera sim",
+    )
+    p.add_argument("--link", required=True, metavar="URL",
+                   help="modem link: udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1]")
+    p.add_argument("--mavlink", metavar="URL",
+                   help="ArduSub as pymavlink takes it (udpin:0.0.0.0:14550, tcp:127.0.0.1:5760, /dev/ttyACM0); "
+                   "default: a simulated vehicle in-process")
+    p.add_argument("--camera", default="sim", metavar="SPEC",
+                   help="sim (default), a folder of images, folder:PATH, or opencv:N")
+    p.add_argument("--failsafe", type=positive, default=3.0, metavar="S",
+                   help="seconds without a valid poll before the vehicle stops (default 3)")
+    p.add_argument("--system-id", type=int, default=255, metavar="N", help="our MAVLink system id (default 255)")
+    p.add_argument("--budget", type=int, default=2000, metavar="BYTES",
+                   help="image budget until the operator sets one (default 2000)")
+    p.add_argument("--colour", action="store_true", help="colour images until the operator sets otherwise")
+    p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
+    p.set_defaults(func=run_rov)
+
+
+def run_rov(args) -> int:
+    import asyncio
+    import logging
+    import sys
+
+    from rovlink.link.messages import ImageSettings, ProtocolError
+    from rovlink.link.transport import TransportError, open_transport
+    from rovlink.rov.autopilot import AutopilotBridge
+    from rovlink.rov.camera import CameraError, open_camera
+    from rovlink.rov.node import RovNode
+
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s: %(message)s")
+    try:
+        settings = ImageSettings(mono=not args.colour, budget_bytes=args.budget)
+    except ProtocolError as exc:
+        raise CommandError(f"--budget: {exc}") from None
+    if not 1 <= args.system_id <= 255:
+        raise CommandError("--system-id must be 1..255")
+    try:
+        endpoint = open_transport(args.link)
+    except TransportError as exc:
+        raise CommandError(str(exc)) from None
+    try:
+        camera = open_camera(args.camera)
+    except (CameraError, ValueError) as exc:
+        raise CommandError(f"--camera: {exc}") from None
+
+    sim = None
+    mavlink = args.mavlink
+    if mavlink is None:
+        from rovlink.rov.simulator import SimulatedVehicle
+
+        sim = SimulatedVehicle("udpin:127.0.0.1:0").start()
+        mavlink = sim.bridge_url
+    try:
+        bridge = AutopilotBridge(mavlink, gcs_system_id=args.system_id)
+    except ValueError as exc:
+        if sim:
+            sim.stop()
+        raise CommandError(f"--mavlink: {exc}") from None
+    bridge.start()
+
+    async def main() -> None:
+        try:
+            await endpoint.start()
+        except TransportError as exc:
+            raise CommandError(str(exc)) from None
+        node = RovNode(endpoint, bridge, camera.capture, failsafe_s=args.failsafe, default_settings=settings)
+        print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
+              f"camera {args.camera}, failsafe {args.failsafe:g} s", file=sys.stderr, flush=True)
+        task = asyncio.create_task(node.run())
+        try:
+            if args.duration:
+                await asyncio.sleep(args.duration)
+            else:
+                await task
+        finally:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            await endpoint.close()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bridge.stop()
+        camera.close()
+        if sim:
+            sim.stop()
+    return 0
+
+DEFAULT_URL = "udpout:127.0.0.1:14550"
+
+
+def _add_sim(subparsers) -> None:
+    p = subparsers.add_parser(
+        "sim",
+        help="run the simulated ArduSub vehicle alone, as a MAVLink endpoint",
+        description=(
+            "Run the simulated BlueROV/ArduSub (4-DOF model, ArduSub modes, pilot-input "
+            "failsafe) as a MAVLink endpoint in real time. Ground stations connect to it "
+            "like to the real vehicle, e.g. 'rovlink rov --mavlink udpin:127.0.0.1:14550' "
+            "with the default, or '--mavlink tcp:127.0.0.1:5760' with --mavlink tcpin:127.0.0.1:5760."
+        ),
+    )
+    p.add_argument("--mavlink", default=DEFAULT_URL, metavar="URL",
+                   help=f"where to serve (pymavlink syntax): udpout:HOST:PORT sends to a ground "
+                        f"station, udpin:HOST:PORT and tcpin:HOST:PORT wait for one (default {DEFAULT_URL})")
+    p.add_argument("--system-id", type=int, default=1, metavar="N", help="the vehicle's MAVLink system id (default 1)")
+    p.add_argument("--depth", type=float, default=None, metavar="M",
+                   help="starting depth in metres (default: 2 m above the simulated seabed)")
+    p.add_argument("--no-position", action="store_true",
+                   help="no position estimate (no DVL/GPS): GUIDED and POSHOLD are refused, no LOCAL_POSITION_NED")
+    p.add_argument("--pilot-timeout", type=float, default=3.0, metavar="S",
+                   help="disarm after this long without MANUAL_CONTROL while armed (ArduSub: 3 s)")
+    p.add_argument("--status-every", type=float, default=2.0, metavar="S",
+                   help="print the vehicle's state every S seconds; 0 for never (default 2)")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every mode change, arming and refusal")
+    p.set_defaults(func=run_sim)
+
+
+def run_sim(args) -> int:
+    import logging
+    import math
+    import sys
+    import time
+
+    from rovlink.rov.mavurl import parse_mavlink_url
+    from rovlink.rov.scene import SEABED_DEPTH_M
+    from rovlink.rov.simulator import START_STATE, SimulatedVehicle
+    from rovlink.rov.vehicle import SubMode, VehicleState
+
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        url = parse_mavlink_url(args.mavlink)
+    except ValueError as exc:
+        raise CommandError(f"--mavlink: {exc}") from None
+    if url.kind in ("udpin", "tcpin") and url.host not in ("127.0.0.1", "localhost", "::1"):
+        print(f"sim: warning: listening on {url.host}, reachable from other machines", file=sys.stderr)
+    if not 1 <= args.system_id <= 255:
+        raise CommandError("--system-id must be 1..255")
+    if args.pilot_timeout <= 0 or not math.isfinite(args.pilot_timeout):
+        raise CommandError("--pilot-timeout must be a positive number of seconds")
+    state = START_STATE
+    if args.depth is not None:
+        if not 0.0 <= args.depth < SEABED_DEPTH_M:
+            raise CommandError(f"--depth must be within 0..{SEABED_DEPTH_M:g} m (the seabed)")
+        state = VehicleState(z_m=args.depth)
+
+    sim = SimulatedVehicle(
+        args.mavlink,
+        system_id=args.system_id,
+        initial_state=state,
+        has_position=not args.no_position,
+        pilot_timeout_s=args.pilot_timeout,
+    )
+    try:
+        sim.start()
+    except OSError as exc:
+        raise CommandError(f"cannot open {args.mavlink}: {exc}") from None
+    print(f"sim: simulated ArduSub (system {args.system_id}) on {url.device.replace(':0', f':{sim.port}')}; "
+          f"a ground station connects with --mavlink {sim.bridge_url}; Ctrl-C stops", file=sys.stderr, flush=True)
+    try:
+        while True:
+            if args.status_every > 0:
+                time.sleep(args.status_every)
+                t = sim.truth()
+                s = t.state
+                try:
+                    mode = SubMode(t.mode).name
+                except ValueError:
+                    mode = str(t.mode)
+                print(f"sim: {'ARMED' if t.armed else 'disarmed'} {mode:9s} x {s.x_m:6.2f} y {s.y_m:6.2f} "
+                      f"z {s.z_m:5.2f} m  yaw {math.degrees(s.yaw_rad):6.1f} deg  "
+                      f"pilot x {t.pilot.x} y {t.pilot.y} z {t.pilot.z} r {t.pilot.r}", file=sys.stderr, flush=True)
+            else:
+                time.sleep(3600)
+    finally:
+        sim.stop()
+    return 0
