@@ -1,11 +1,15 @@
 """The whole system on one machine: simulated ArduSub, ROV node, emulated
-channel and the operator's session, in one asyncio loop.
+channel and the operator's session, in one asyncio loop: the link thread's
+(console/linkthread.py), never the loop of whoever starts the stack, so that
+the web server that usually runs there cannot delay a poll.
 
 Goals: `rovlink demo`, the console's tests and its benchmarks start the very
 same parts a real deployment runs (the node speaks MAVLink to the simulator
 over loopback UDP; the link bytes cross the channel emulator), with nothing
 to set up.  `Stack.start()` brings them up, `Stack.stop()` takes them down in
-reverse order.
+reverse order.  Both are coroutines of the caller's loop; the parts run on
+the link loop, and the caller reaches them (operator, node, channel, sim)
+from its own thread as the operator allows: its methods are thread-safe.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.messages import ImageSettings
 from rovlink.link.transport import inproc_pair
 
+from .linkthread import LinkThread
 from .operator import Operator
 
 log = logging.getLogger("rovlink.console.stack")
@@ -51,8 +56,18 @@ class Stack:
         self._tasks: list[asyncio.Task] = []
         self._endpoints = []
         self._channel_log = None
+        self.link: LinkThread | None = None
 
     async def start(self) -> Operator:
+        self.link = LinkThread().start()
+        try:
+            await self.link.call(self._start_parts())
+        except BaseException:
+            await self.stop()
+            raise
+        return self.operator
+
+    async def _start_parts(self) -> None:
         from rovlink.rov.autopilot import AutopilotBridge
         from rovlink.rov.camera import open_camera
         from rovlink.rov.node import RovNode
@@ -83,9 +98,15 @@ class Stack:
             loop.create_task(self.node.run(), name="rov node"),
             loop.create_task(self.operator.run(), name="operator"),
         ]
-        return self.operator
 
     async def stop(self) -> None:
+        if self.link is not None:
+            link, self.link = self.link, None
+            await link.stop(self._stop_parts())
+        else:
+            await self._stop_parts()
+
+    async def _stop_parts(self) -> None:
         for task in reversed(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)

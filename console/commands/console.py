@@ -32,6 +32,7 @@ def run(args) -> int:
     import asyncio
 
     from rovlink.command import CommandError
+    from rovlink.console.linkthread import LinkThread
     from rovlink.console.operator import Operator
     from rovlink.link.transport import TransportError, open_transport
 
@@ -44,16 +45,20 @@ def run(args) -> int:
     record = None if args.no_record else (args.record or default_record_path())
 
     async def main() -> None:
+        # The link runs in its own thread and loop: web traffic never delays a poll.
+        link = LinkThread().start()
         try:
-            await endpoint.start()
+            await link.call(endpoint.start())
         except TransportError as exc:
+            await link.stop()
             raise CommandError(str(exc)) from None
         operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        link.spawn(operator.run(), name="operator")
         try:
-            await serve_operator(operator, args, banner=f"rovlink console on {args.link}", background=[operator.run()])
+            await serve_operator(operator, args, banner=f"rovlink console on {args.link}", link=link)
         finally:
+            await link.stop(endpoint.close())
             operator.close()
-            await endpoint.close()
 
     try:
         asyncio.run(main())

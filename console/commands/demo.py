@@ -52,7 +52,7 @@ def run(args) -> int:
             raise CommandError(f"could not start the demo: {exc}") from None
         try:
             await serve_operator(
-                operator, args,
+                operator, args, link=stack.link,
                 banner=(f"rovlink demo: simulated ROV over an emulated {args.bitrate:g} bit/s link "
                         f"({args.delay * 1000:g} ms delay, BER {args.ber:g})"
                         + (f"; recording to {record}" if record else "")),

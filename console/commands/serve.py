@@ -27,8 +27,12 @@ def browser_host(host: str) -> str:
     return "127.0.0.1" if host in ("0.0.0.0", "::", "", "localhost") else host
 
 
-async def serve_operator(operator, args, *, banner: str, background=()) -> None:
-    """Start the scene and the web app for `operator`; return when the server stops."""
+async def serve_operator(operator, args, *, banner: str, background=(), link=None) -> None:
+    """Start the scene and the web app for `operator`; return when the server stops.
+
+    `background`: coroutines to run in this loop beside the server (a replay).
+    `link`: the LinkThread whose loop drives the operator; the program stops
+    with a one-line error if its link task fails."""
     from rovlink.command import CommandError
     from rovlink.console.scene.app import ConsoleScene
     from rovlink.console.web.app import create_app, serve
@@ -52,13 +56,16 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
     print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url} (opened alone it only watches; the page embeds it)"
           "\n  Ctrl-C stops.", flush=True)
     waiter = asyncio.create_task(stop.wait())
+    tasks.append(asyncio.create_task(_watch_link(link)))
     try:
-        await asyncio.wait([server, waiter], return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.wait([server, waiter, tasks[-1]], return_when=asyncio.FIRST_COMPLETED)
         if server.done() and server.exception() is not None:
             exc = server.exception()
             if isinstance(exc, OSError):
                 raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
             raise exc
+        if tasks[-1].done() and not tasks[-1].cancelled() and tasks[-1].exception() is not None:
+            raise tasks[-1].exception()
     finally:
         print("stopping...", file=sys.stderr, flush=True)
         for t in (server, waiter, *tasks):
@@ -66,6 +73,17 @@ async def serve_operator(operator, args, *, banner: str, background=()) -> None:
         await asyncio.gather(server, waiter, *tasks, return_exceptions=True)
         scene.stop()
     print("stopped.", file=sys.stderr, flush=True)
+
+
+async def _watch_link(link) -> None:
+    """Return (with a CommandError) if a task of the link thread fails; never if there is none."""
+    from rovlink.command import CommandError
+
+    while True:
+        await asyncio.sleep(0.5)
+        failure = link.failed() if link is not None else None
+        if failure is not None:
+            raise CommandError(f"the link stopped: {failure!r}")
 
 
 def _stop_on_signals() -> asyncio.Event:
