@@ -6,6 +6,9 @@
   along, the session recorded to a file), with the Python heap measured by
   tracemalloc every five simulated minutes.  Flat means: the heap's peak in
   the second half is within `--flat-mb` of its peak in the first half.
+- web load (unless `--no-load`): see console/bench/load.py: poll interval
+  and lost replies of `rovlink demo` while 300 WebSocket readers and 5
+  parallel 200 MB uploads hit its web server.
 - page (unless `--no-page`): the real demo stack at 1.9 kbit/s, the web app and
   headless Chromium on the operator page: how often the page receives a new
   predicted pose, and how long a received trunk takes to show in the page
@@ -175,6 +178,30 @@ def run(args) -> int:
             ["trunk -> page ms, median", page["trunk_latency_ms_median"]],
             ["trunk -> page ms, max", page["trunk_latency_ms_max"]],
         ])]
+    if not args.no_load:
+        from .load import measure_load
+
+        load = measure_load(args.load_seconds, args.readers, args.uploads, args.load_ber)
+        doc["load"] = load
+        doc["targets"]["poll_interval_p95_under_load_lt_0.6s"] = {
+            "p95_s": load["load"]["p95_s"], "limit_s": 0.6,
+            "met": load["load"]["p95_s"] is not None and load["load"]["p95_s"] < 0.6}
+        doc["targets"]["no_reply_lost_but_by_the_channel"] = {
+            "replies_lost": load["replies_lost"], "channel_lost": load["channel_lost_total"],
+            "met": load["replies_lost_not_by_channel"] == 0}
+        ws, up = load["websocket"], load["uploads_result"]
+        lines += ["", f"web load: demo at 1900 bit/s, BER {args.load_ber:g}, steering; {args.load_seconds:g} s "
+                      f"without and {args.load_seconds:g} s with {args.readers} WebSocket readers and "
+                      f"{args.uploads} parallel 200 MB uploads",
+                  format_table(["phase", "polls", "interval median s", "p95 s", "max s"], [
+                      [name, load[name]["polls"], load[name]["median_s"], load[name]["p95_s"], load[name]["max_s"]]
+                      for name in ("idle", "load")]),
+                  f"replies lost {load['replies_lost']}, frames the channel lost {load['channel_lost_total']} "
+                  f"({', '.join(f'{k} {v}' for k, v in sorted(load['channel_losses'].items())) or 'none'}); "
+                  f"WebSocket telemetry messages {ws['messages']}, refusals past the cap {ws['refused']}; "
+                  f"uploads started {up['attempts']}: answered "
+                  + (", ".join(f"{k[7:]} x{v}" for k, v in sorted(up.items()) if k.startswith("status_")) or "never")
+                  + f", connection reset by the server x{up['reset']}"]
     lines += ["", "targets:"]
     for name, t in doc["targets"].items():
         verdict = "NOT JUDGED (session under one hour)" if t["met"] is None else ("MET " if t["met"] else "MISSED")
@@ -203,4 +230,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--no-page", action="store_true",
                    help="skip the operator page measurement (headless Chromium, about a minute)")
     p.add_argument("--page-seconds", type=float, default=40.0, metavar="S", help="page measurement time (40)")
+    p.add_argument("--no-load", action="store_true",
+                   help="skip the web load measurement (rovlink demo under WebSocket readers and large uploads)")
+    p.add_argument("--load-seconds", type=float, default=30.0, metavar="S", help="seconds per load phase (30)")
+    p.add_argument("--readers", type=int, default=300, metavar="N", help="WebSocket readers under load (300)")
+    p.add_argument("--uploads", type=int, default=5, metavar="N", help="parallel 200 MB uploads under load (5)")
+    p.add_argument("--load-ber", type=float, default=7e-6, metavar="BER", help="channel bit error rate (7e-6)")
     p.set_defaults(func=run)

@@ -145,3 +145,23 @@ def test_three_hundred_websocket_readers_get_refused_past_the_cap_and_polls_go_o
     assert 1 <= accepted <= 64 and refused >= 236
     tx_after = sum(1 for e in list(console.operator.history.link_events) if e[1] == "tx")
     assert tx_after > tx_before
+
+
+def test_bench_console_measures_the_link_under_web_load():
+    """`rovlink bench console` runs the demo as a process, loads its web server
+    and reads the polls back from the demo's recording (a short, small run)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "60", "--sample-every",
+                          "30", "--no-page", "--load-seconds", "6", "--readers", "80", "--uploads", "2", "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    load = json.loads(out.stdout)["load"]
+    assert load["idle"]["polls"] >= 5 and load["load"]["polls"] >= 5
+    assert load["load"]["p95_s"] is not None and load["load"]["p95_s"] > 0
+    assert load["websocket"]["messages"] > 0
+    assert load["websocket"]["refused"] >= 80 - 64  # the cap held
+    assert load["uploads_result"]["attempts"] >= 2
+    assert load["uploads_result"].get("status_200", 0) == 0  # no 200 MB body was ever taken
+    assert "replies_lost_not_by_channel" in load  # judged by the benchmark, not here (it depends on the CPU)
