@@ -164,4 +164,3 @@ def test_bench_console_measures_the_link_under_web_load():
     assert load["websocket"]["refused"] >= 80 - 64  # the cap held
     assert load["uploads_result"]["attempts"] >= 2
     assert load["uploads_result"].get("status_200", 0) == 0  # no 200 MB body was ever taken
-    assert "replies_lost_not_by_channel" in load  # judged by the benchmark, not here (it depends on the CPU)
