@@ -44,3 +44,18 @@ def wait_until_up(predicate, timeout_s: float, period_s: float = 0.2):
         if value or time.monotonic() > deadline:
             return value
         time.sleep(period_s)
+
+
+def local_test_client(app, **kwargs):
+    """FastAPI's TestClient, but speaking to the app by one of its own names:
+    the console refuses any other Host (DNS rebinding), and TestClient's
+    default, "testserver", is none of them (its WebSockets use it always)."""
+    from urllib.parse import urljoin
+
+    from fastapi.testclient import TestClient
+
+    class LocalTestClient(TestClient):
+        def websocket_connect(self, url: str, *args, **kw):
+            return super().websocket_connect(urljoin("ws://127.0.0.1", url), *args, **kw)
+
+    return LocalTestClient(app, base_url="http://127.0.0.1", **kwargs)

@@ -33,7 +33,7 @@ from rovlink.console.operator import Operator
 
 from . import errors
 from .control import ControlDesk
-from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, RequestGuard
+from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
 from .routers import control, image, link, orders, state, ws
 from .routers.image import PngCache
 from .telemetry import SharedSnapshot
@@ -45,7 +45,7 @@ STATIC = Path(__file__).with_name("static")
 
 def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, telemetry_hz: float = 10.0,
                lease_s: float = 30.0, velocity_deadman_s: float = 1.0, max_body_bytes: int = MAX_BODY_BYTES,
-               max_websockets: int = MAX_WEBSOCKETS) -> FastAPI:
+               max_websockets: int = MAX_WEBSOCKETS, policy: AccessPolicy | None = None) -> FastAPI:
     """The web console for `operator` (which the caller runs).
 
     `viser_url` is the 3D scene the page embeds (none shown if None); `scene`
@@ -105,7 +105,9 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     # Outermost: a large body is refused before anything reads it (guard.py).
-    app.add_middleware(RequestGuard, max_body_bytes=max_body_bytes, max_websockets=max_websockets)
+    # `policy`: who may connect (Host names, access token); loopback only by default.
+    app.add_middleware(RequestGuard, max_body_bytes=max_body_bytes, max_websockets=max_websockets,
+                       policy=policy or AccessPolicy())
 
     @app.get("/", include_in_schema=False)
     def operator_page() -> FileResponse:

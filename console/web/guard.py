@@ -1,7 +1,24 @@
-"""Guards in front of the web console, as plain ASGI middleware.
+"""Guards in front of the web console, as plain ASGI middleware, and the
+access policy that every port the console opens applies (the app's and the
+3D scene's, see `guard_viser`).
 
-Goal: no request can make the console's server do much work for nothing.
-Nothing the page or a script sends is larger than a few kilobytes, so:
+Who may talk to the console (AccessPolicy):
+- DNS rebinding: a page of another site whose name an attacker points at
+  this machine reaches our ports with its own name in `Host`.  Every request
+  whose Host is not the bound address, a loopback name, or a name given with
+  `--allow-host` gets 403, on every port, before anything else.
+- Bound to anything but loopback, every HTTP and WebSocket request needs the
+  access token the banner prints in its URL: `?token=` once, then the cookie
+  the answer sets (HttpOnly, SameSite=Strict; cookies ignore ports, so the
+  scene's port gets it too), as Jupyter does.  Without it: 401.  On loopback
+  the token is not asked for: whoever runs code on this machine as us can
+  read our memory anyway, and the Host check keeps web pages out.
+- WebSockets from a page of another origin are refused (the app's own /ws
+  checks this itself; the scene's port here).
+
+Goal of the limits: no request can make the console's server do much work
+for nothing.  Nothing the page or a script sends is larger than a few
+kilobytes, so:
 
 - A request whose body is over `max_body_bytes` (64 KB) gets 413 before
   any of it is read: at once when its Content-Length says so, and as soon as
@@ -20,34 +37,178 @@ files and routes added later alike.
 
 from __future__ import annotations
 
+import hmac
+import ipaddress
 import json
 import logging
+import secrets
+import socket
 import time
+from dataclasses import dataclass, field
+from http.cookies import SimpleCookie
+from urllib.parse import parse_qs, urlsplit
 
 log = logging.getLogger("rovlink.console.web")
 
 MAX_BODY_BYTES = 64 * 1024
 MAX_WEBSOCKETS = 64
+TOKEN_COOKIE = "rovlink_token"
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
+
+
+def is_loopback(host: str) -> bool:
+    if host.lower() in LOOPBACK_NAMES or host.lower().endswith(".localhost"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _local_addresses() -> set[str]:
+    """This machine's own names and addresses (for a server bound to all interfaces)."""
+    names = {socket.gethostname().lower(), socket.getfqdn().lower()}
+    for name in list(names):
+        try:
+            names.update(info[4][0] for info in socket.getaddrinfo(name, None))
+        except OSError:
+            pass
+    return names
+
+
+def host_name(host_header: str | None) -> str | None:
+    """The name part of a Host header ("[::1]:8000" -> "::1"); None if malformed."""
+    if not host_header:
+        return None
+    try:
+        parts = urlsplit(f"//{host_header}")
+        name = parts.hostname
+        _ = parts.port  # a malformed port raises
+    except ValueError:
+        return None
+    return name.lower() if name else None
+
+
+@dataclass
+class AccessPolicy:
+    """Who may talk to the console's ports (see the module's docstring)."""
+
+    bound_host: str = "127.0.0.1"
+    allow_hosts: tuple[str, ...] = ()
+    token: str | None = None  # None: no token asked for (loopback)
+    allowed: set[str] = field(init=False)
+
+    def __post_init__(self) -> None:
+        bound = self.bound_host.strip("[]").lower()
+        self.allowed = set(LOOPBACK_NAMES) | {bound} | {h.strip("[]").lower() for h in self.allow_hosts}
+        if bound in ("0.0.0.0", "::", ""):
+            self.allowed |= _local_addresses()
+
+    @classmethod
+    def for_server(cls, host: str, allow_hosts=(), token: str | None = None) -> "AccessPolicy":
+        """The policy for a server bound to `host`: a new random token unless on loopback."""
+        if token is None and not is_loopback(host.strip("[]")):
+            token = secrets.token_urlsafe(24)
+        return cls(host, tuple(allow_hosts), token)
+
+    def host_allowed(self, host_header: str | None) -> bool:
+        name = host_name(host_header)
+        return name is not None and (name in self.allowed or name.endswith(".localhost"))
+
+    def origin_allowed(self, origin: str | None) -> bool:
+        """A page's Origin: absent (not a browser), or one of our allowed names (any port)."""
+        if origin is None:
+            return True
+        try:
+            name = urlsplit(origin).hostname
+        except ValueError:
+            return False
+        return name is not None and (name.lower() in self.allowed or name.lower().endswith(".localhost"))
+
+    def token_given(self, query: str, cookie_header: str | None) -> tuple[bool, bool]:
+        """(authorised, set_cookie): whether the request carries the token, and
+        whether it came in the query (the answer then sets the cookie)."""
+        if self.token is None:
+            return True, False
+        for value in parse_qs(query).get("token", ()):
+            if hmac.compare_digest(value.encode(), self.token.encode()):
+                return True, True
+        if cookie_header:
+            cookie = SimpleCookie()
+            try:
+                cookie.load(cookie_header)
+            except Exception:  # a malformed cookie header is no token
+                return False, False
+            morsel = cookie.get(TOKEN_COOKIE)
+            if morsel is not None and hmac.compare_digest(morsel.value.encode(), self.token.encode()):
+                return True, False
+        return False, False
+
+    def set_cookie_header(self) -> str:
+        return f"{TOKEN_COOKIE}={self.token}; Path=/; HttpOnly; SameSite=Strict"
+
+    def refusal(self, headers, query: str, websocket: bool) -> tuple[int, str] | None:
+        """(status, reason) when the request must be refused, else None.
+        `headers`: a mapping with .get() of lower-case names."""
+        if not self.host_allowed(headers.get("host")):
+            return 403, f"Host {headers.get('host')!r} refused (not this server's name; see --allow-host)"
+        if websocket and not self.origin_allowed(headers.get("origin")):
+            return 403, f"WebSocket from {headers.get('origin')} refused"
+        authorised, _ = self.token_given(query, headers.get("cookie"))
+        if not authorised:
+            return 401, "access token missing or wrong: open the URL the console printed (it has ?token=)"
+        return None
+
+
+class _Headers:
+    """An ASGI scope's headers as a case-insensitive mapping (first value wins)."""
+
+    def __init__(self, raw) -> None:
+        self._d: dict[str, str] = {}
+        for name, value in raw:
+            self._d.setdefault(name.decode("latin-1").lower(), value.decode("latin-1"))
+
+    def get(self, name: str, default=None):
+        return self._d.get(name.lower(), default)
 
 
 class RequestGuard:
-    def __init__(self, app, *, max_body_bytes: int = MAX_BODY_BYTES, max_websockets: int = MAX_WEBSOCKETS) -> None:
+    def __init__(self, app, *, max_body_bytes: int = MAX_BODY_BYTES, max_websockets: int = MAX_WEBSOCKETS,
+                 policy: AccessPolicy | None = None) -> None:
         if max_body_bytes < 0 or max_websockets < 1:
             raise ValueError("max_body_bytes must be >= 0 and max_websockets >= 1")
         self.app = app
+        self.policy = policy or AccessPolicy()
         self.max_body_bytes = max_body_bytes
         self.max_websockets = max_websockets
         self.open_websockets = 0
-        self.refused = {"body_too_large": 0, "websockets_over_cap": 0}
+        self.refused = {"body_too_large": 0, "websockets_over_cap": 0, "host": 0, "token": 0}
         self._last_log = 0.0
 
     async def __call__(self, scope, receive, send) -> None:
-        if scope["type"] == "http":
-            await self._http(scope, receive, send)
-        elif scope["type"] == "websocket":
+        if scope["type"] not in ("http", "websocket"):
+            await self.app(scope, receive, send)
+            return
+        headers = _Headers(scope.get("headers", ()))
+        query = scope.get("query_string", b"").decode("latin-1")
+        websocket = scope["type"] == "websocket"
+        refusal = self.policy.refusal(headers, query, websocket)
+        if refusal is not None:
+            status, reason = refusal
+            self._note("host" if status == 403 else "token", reason)
+            if websocket:
+                await receive()  # websocket.connect
+                # Closed before the handshake: the client sees HTTP 403.
+                await send({"type": "websocket.close", "code": 1008, "reason": reason})
+            else:
+                await _send_json(send, status, {"detail": reason})
+            return
+        if not websocket and self.policy.token is not None and self.policy.token_given(query, None)[1]:
+            send = _with_cookie(send, self.policy.set_cookie_header())
+        if websocket:
             await self._websocket(scope, receive, send)
         else:
-            await self.app(scope, receive, send)
+            await self._http(scope, receive, send)
 
     def _note(self, what: str, text: str) -> None:
         self.refused[what] += 1
@@ -120,9 +281,23 @@ class RequestGuard:
             self.open_websockets -= 1
 
 
-async def _send_413(send, limit: int) -> None:
-    body = json.dumps({"detail": f"request body too large: at most {limit} bytes"}).encode()
-    await send({"type": "http.response.start", "status": 413,
-                "headers": [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode()),
-                            (b"connection", b"close")]})
+async def _send_json(send, status: int, doc: dict, close: bool = False) -> None:
+    body = json.dumps(doc).encode()
+    headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+    if close:
+        headers.append((b"connection", b"close"))
+    await send({"type": "http.response.start", "status": status, "headers": headers})
     await send({"type": "http.response.body", "body": body})
+
+
+async def _send_413(send, limit: int) -> None:
+    await _send_json(send, 413, {"detail": f"request body too large: at most {limit} bytes"}, close=True)
+
+
+def _with_cookie(send, cookie: str):
+    async def send_with_cookie(message) -> None:
+        if message["type"] == "http.response.start":
+            message = {**message, "headers": [*message.get("headers", []), (b"set-cookie", cookie.encode())]}
+        await send(message)
+
+    return send_with_cookie

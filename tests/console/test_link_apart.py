@@ -77,11 +77,12 @@ def test_a_body_within_the_limit_is_served(console):
 
 
 def test_websocket_clients_past_the_cap_are_refused():
-    from fastapi.testclient import TestClient
     from starlette.websockets import WebSocketDisconnect
 
+    from ..helpers import local_test_client
+
     app = create_app(Operator(None), max_websockets=2)
-    with TestClient(app) as client:
+    with local_test_client(app) as client:
         with client.websocket_connect("/ws") as first, client.websocket_connect("/ws") as second:
             assert first.receive_json()["type"] == "hello"
             assert second.receive_json()["type"] == "hello"

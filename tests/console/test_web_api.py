@@ -17,7 +17,6 @@ import time
 import httpx
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
@@ -25,7 +24,11 @@ from rovlink import debt
 from rovlink.console.operator import Operator
 from rovlink.console.web.app import create_app, serve
 
+from ..helpers import local_test_client
 from .conftest import wait_for
+
+# The app refuses any Host but its own names (DNS rebinding).
+TestClient = local_test_client
 
 HEADER = "X-Rovlink-Client"
 
@@ -219,18 +222,18 @@ def test_a_silent_script_loses_control_and_its_velocity(operator):
 
 
 def test_other_sites_pages_cannot_order_through_the_pilots_browser(client, operator):
-    evil = {"Origin": "http://evil.example", "Host": "testserver"}
+    evil = {"Origin": "http://evil.example", "Host": "127.0.0.1"}
     r = client.post("/api/control/take", headers=evil)
     assert r.status_code == 403 and "cross-site request from http://evil.example refused" in r.json()["message"]
     assert client.post("/api/orders/stop", headers=evil).status_code == 403
     assert client.get("/api/control").json()["held"] is False and operator.orders_state() == []
     # Our own page (same origin) and scripts (no Origin) are welcome.
-    assert client.post("/api/control/take", headers={"Origin": "http://testserver"}).status_code == 200
+    assert client.post("/api/control/take", headers={"Origin": "http://127.0.0.1"}).status_code == 200
     with pytest.raises(WebSocketDisconnect) as refused, \
             client.websocket_connect("/ws", headers={"Origin": "http://evil.example"}) as ws:
         ws.receive_json()
     assert refused.value.code == 1008
-    with client.websocket_connect("/ws", headers={"Origin": "http://testserver"}) as ws:
+    with client.websocket_connect("/ws", headers={"Origin": "http://127.0.0.1"}) as ws:
         assert ws.receive_json()["type"] == "hello"
 
 
