@@ -15,6 +15,9 @@ def add_server_arguments(p) -> None:
                    help="address to serve the page on (default 127.0.0.1, this machine only; 0.0.0.0 opens it)")
     p.add_argument("--port", type=port, default=8000, help="operator page and API port (default 8000)")
     p.add_argument("--viser-port", type=port, default=8080, help="3D scene (viser) port (default 8080)")
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="a further name the browser may reach the console by (its Host header), e.g. the "
+                        "laptop's DNS name; requests naming any other host are refused (DNS rebinding). Repeatable")
 
 
 def default_record_path() -> Path:
@@ -24,7 +27,27 @@ def default_record_path() -> Path:
 
 
 def browser_host(host: str) -> str:
+    """The address a browser on this machine reaches a server bound to `host` by."""
     return "127.0.0.1" if host in ("0.0.0.0", "::", "", "localhost") else host
+
+
+def public_host(host: str) -> str:
+    """The address to print for a server bound to `host`: for all interfaces,
+    this machine's first address that is not loopback (else its name)."""
+    import ipaddress
+    import socket
+
+    if host not in ("0.0.0.0", "::", ""):
+        return f"[{host}]" if ":" in host else host
+    name = socket.gethostname()
+    try:
+        addresses = [info[4][0] for info in socket.getaddrinfo(name, None, socket.AF_INET)]
+    except OSError:
+        addresses = []
+    for address in addresses:
+        if not ipaddress.ip_address(address).is_loopback:
+            return address
+    return name
 
 
 async def serve_operator(operator, args, *, banner: str, background=(), link=None) -> None:
@@ -36,9 +59,13 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
     from rovlink.command import CommandError
     from rovlink.console.scene.app import ConsoleScene
     from rovlink.console.web.app import create_app, serve
+    from rovlink.console.web.guard import AccessPolicy, guard_viser
 
     if args.port == args.viser_port:
         raise CommandError("--port and --viser-port must differ")
+    # Every port checks the Host (and, off loopback, the token) before anything else.
+    policy = AccessPolicy.for_server(args.host, args.allow_host)
+    guard_viser(policy)
     try:
         scene = ConsoleScene(operator, host=args.host, port=args.viser_port).start()
     except OSError as exc:
@@ -48,13 +75,17 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
 
     viser_port = urlsplit(scene.url).port or args.viser_port
     viser_url = f"http://{browser_host(args.host)}:{viser_port}"
-    app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0)
+    app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0, policy=policy)
     tasks = [asyncio.create_task(coro) for coro in background]
-    url = f"http://{browser_host(args.host)}:{args.port}"
+    url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
+    if policy.token:
+        viser_url = f"http://{public_host(args.host)}:{viser_port}/?token={policy.token}"
     stop = _stop_on_signals()
     server = asyncio.create_task(serve(app, host=args.host, port=args.port))
+    access = (f"\n  bound to {args.host}: every request needs the access token in these URLs (keep it secret)"
+              if policy.token else "")
     print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url} (opened alone it only watches; the page embeds it)"
-          "\n  Ctrl-C stops.", flush=True)
+          f"{access}\n  Ctrl-C stops.", flush=True)
     waiter = asyncio.create_task(stop.wait())
     tasks.append(asyncio.create_task(_watch_link(link)))
     try:

@@ -301,3 +301,70 @@ def _with_cookie(send, cookie: str):
         await send(message)
 
     return send_with_cookie
+
+
+# ----------------------------------------------------------------------
+# The 3D scene's port
+# ----------------------------------------------------------------------
+#
+# viser serves its page and its WebSocket from a `websockets` server of its
+# own, on its own port, with no hook for checking requests.  Its HTTP handler
+# is the `process_request` it hands to `websockets.asyncio.server.serve`, so
+# `guard_viser` gives viser's module a `websockets` whose `serve` puts the
+# policy's check in front of that handler, for the page, its files and the
+# WebSocket alike.  Only viser's module sees the wrapper; uvicorn's
+# WebSockets are untouched.  One policy for every scene in the process (the
+# one of the last console started).  Tested against viser 1.1.1
+# (tests/console/test_access.py); if a future viser stops calling
+# `websockets.asyncio.server.serve` from `viser.infra._infra`, `guard_viser`
+# raises instead of serving an unguarded scene.
+
+_viser_policy: AccessPolicy | None = None
+
+
+class _Namespace:
+    """An attribute view of `real`, with some attributes replaced."""
+
+    def __init__(self, real, **replaced) -> None:
+        self._real = real
+        self.__dict__.update(replaced)
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+
+def guard_viser(policy: AccessPolicy) -> None:
+    """Make every viser server started from now on apply `policy`."""
+    global _viser_policy
+    import http
+
+    import websockets.asyncio.server
+    from viser.infra import _infra
+
+    _viser_policy = policy
+    if isinstance(_infra.websockets, _Namespace):
+        return
+    if getattr(_infra, "websockets", None) is not websockets or not hasattr(websockets.asyncio.server, "serve"):
+        raise RuntimeError("this viser does not serve through websockets.asyncio.server.serve: "
+                           "the 3D scene's port cannot be guarded")
+    real_serve = websockets.asyncio.server.serve
+
+    def serve(handler, *args, process_request=None, **kwargs):
+        def checked(connection, request):
+            policy = _viser_policy or AccessPolicy()
+            query = request.path.partition("?")[2]
+            is_websocket = (request.headers.get("Upgrade") or "").lower() == "websocket"
+            refusal = policy.refusal(request.headers, query, is_websocket)
+            if refusal is not None:
+                status, reason = refusal
+                log.warning("3D scene: %s", reason)
+                return connection.respond(http.HTTPStatus(status), reason + "\n")
+            response = process_request(connection, request) if process_request is not None else None
+            if response is not None and policy.token is not None and policy.token_given(query, None)[1]:
+                response.headers["Set-Cookie"] = policy.set_cookie_header()
+            return response
+
+        return real_serve(handler, *args, process_request=checked, **kwargs)
+
+    server = _Namespace(websockets.asyncio.server, serve=serve)
+    _infra.websockets = _Namespace(websockets, asyncio=_Namespace(websockets.asyncio, server=server))
