@@ -1,0 +1,246 @@
+"""Version 2's authenticated chain (PROTOCOL.md §8): the test vectors byte for
+byte, what each end takes and refuses, key files, and the framing that
+delivers an authentic frame early."""
+
+from __future__ import annotations
+
+import os
+import random
+import stat
+
+import pytest
+
+from rovlink.link.auth import (
+    AuthFrameDecoder,
+    HelloIn,
+    KeyFileError,
+    OperatorChain,
+    PollIn,
+    RovChain,
+    mac,
+    read_key_file,
+    write_key_file,
+)
+
+K = bytes(range(32))
+HELLO = "55 0f 40 1f ff 01 02 03 04 05 06 07 08 b9 6b 8d 9f aa c2"
+SYNC = "55 1e 01 00 00 00 00 00 00 00 00 00 00 00 00 81 12 34 56 78 9a bc de f0 11 22 33 44 e9 7f 89 c4 54 84"
+POLL = "55 0d 21 00 00 41 32 00 ec 0a 00 78 48 6e 1b b7 bb"
+REPLY = "55 12 01 00 00 00 00 00 00 00 00 00 00 00 00 b0 37 f8 51 72 a5 40"
+CHAINS = ["b96b8d9fbc458dfba83713417e76d1a1a89fa90a8b3d362c094195444064981f",
+          "e97f89c42a589677a98501ca4be290aa9338c0d0963ce4057a20f1b153c52bd9",
+          "78486e1b471099dce51b8d157c794ae19f950e43c54801e7b1326eb4d47302f1",
+          "37f85172bbe871d3260a2f81b673f1bd08d83f93cebef772d78b12668aa15486"]
+VELOCITY_PAYLOAD = bytes.fromhex("21000041320 0ec0a".replace(" ", ""))
+REPLY_PAYLOAD = bytes.fromhex("01" + "00" * 12 + "b0")
+SYNC_PAYLOAD = bytes.fromhex("01" + "00" * 12 + "81")
+
+
+def wire(text: str) -> bytes:
+    return bytes.fromhex(text.replace(" ", ""))
+
+
+def contents(frame: bytes) -> bytes:
+    return frame[2:-2]
+
+
+def scripted(*chunks: bytes):
+    """A random source that hands out the given bytes, in order."""
+    queue = list(chunks)
+
+    def take(n: int) -> bytes:
+        chunk = queue.pop(0)
+        assert len(chunk) == n
+        return chunk
+
+    return take
+
+
+def test_the_section_8_vectors_byte_for_byte():
+    op = OperatorChain(K, count=0)
+    rov = RovChain(K, boot=wire("12 34 56 78"), random_bytes=scripted(wire("9a bc de f0 11 22 33 44")))
+    hello = op.seal_hello(wire("40 1f ff"), 0.0, challenge=wire("01 02 03 04 05 06 07 08"))
+    assert hello == wire(HELLO)
+    got = rov.check_poll(contents(hello), 0.0)
+    assert isinstance(got, HelloIn) and got.chain.hex() == CHAINS[0]
+    sync = rov.seal_sync(SYNC_PAYLOAD, got, 0.01)
+    assert sync == wire(SYNC)
+    answer = op.open_reply(contents(sync), 0.02, timeout_s=1.0)
+    assert answer.sync and not answer.late and answer.boot == wire("12 34 56 78")
+    assert op.chain_to.hex() == CHAINS[1]
+    poll = op.seal_poll(VELOCITY_PAYLOAD, 0.03)
+    assert poll == wire(POLL)
+    taken = rov.check_poll(contents(poll), 0.04)
+    assert isinstance(taken, PollIn) and taken.payload == VELOCITY_PAYLOAD and taken.chain.hex() == CHAINS[2]
+    rov.take(taken, 0.04)
+    reply = rov.seal_reply(REPLY_PAYLOAD, taken, 0.05)
+    assert reply == wire(REPLY)
+    answer = op.open_reply(contents(reply), 0.06, timeout_s=1.0)
+    assert answer.payload == REPLY_PAYLOAD and not answer.late and op.chain_to.hex() == CHAINS[3]
+
+
+def test_a_mac_is_blake2s_of_kind_prev_and_data():
+    import hashlib
+
+    assert mac(K, b"R", b"x" * 32, b"abc") == hashlib.blake2s(b"R" + b"x" * 32 + b"abc", key=K).digest()
+
+
+def _session(n_polls: int = 5):
+    """An operator and a ROV chained by one HELLO/SYNC and n polls, and every frame sent."""
+    op, rov = OperatorChain(K), RovChain(K)
+    frames = []
+    hello = op.seal_hello(wire("40 1f ff"), 0.0)
+    frames.append(("hello", hello))
+    sync = rov.seal_sync(SYNC_PAYLOAD, rov.check_poll(contents(hello), 0.0), 0.0)
+    frames.append(("sync", sync))
+    op.open_reply(contents(sync), 0.0, 1.0)
+    t = 0.1
+    for _ in range(n_polls):
+        poll = op.seal_poll(VELOCITY_PAYLOAD, t)
+        frames.append(("poll", poll))
+        taken = rov.check_poll(contents(poll), t)
+        assert isinstance(taken, PollIn)
+        rov.take(taken, t)
+        reply = rov.seal_reply(REPLY_PAYLOAD, taken, t)
+        frames.append(("reply", reply))
+        assert not op.open_reply(contents(reply), t + 0.05, 1.0).late
+        t += 0.2
+    return op, rov, frames, t
+
+
+def test_a_replayed_poll_is_refused_and_a_replayed_hello_gets_nothing():
+    op, rov, frames, t = _session()
+    for kind, f in frames:
+        if kind == "poll":
+            assert rov.check_poll(contents(f), t) is None
+        if kind == "hello":
+            assert rov.check_poll(contents(f), t) is None
+    assert rov.counters.replayed_hellos == 1
+    # The honest operator goes on.
+    poll = op.seal_poll(VELOCITY_PAYLOAD, t)
+    assert isinstance(rov.check_poll(contents(poll), t), PollIn)
+
+
+def test_a_poll_held_back_is_refused_once_a_newer_one_was_taken():
+    op, rov, _, t = _session(1)
+    held = op.seal_poll(VELOCITY_PAYLOAD, t)  # the attacker keeps this one
+    newer = op.seal_poll(VELOCITY_PAYLOAD, t + 0.2)  # resent: same chain value, COUNT + 1
+    taken = rov.check_poll(contents(newer), t + 0.3)
+    rov.take(taken, t + 0.3)
+    assert rov.check_poll(contents(held), t + 0.4) is None
+    assert rov.counters.stale_count == 1
+
+
+def test_chain_values_older_than_the_failsafe_time_match_nothing():
+    op, rov, _, t = _session(2)
+    poll = op.seal_poll(VELOCITY_PAYLOAD, t + 5.0)
+    assert rov.check_poll(contents(poll), t + 5.0) is None
+
+
+def test_an_authentic_poll_that_does_not_parse_moves_no_reference():
+    op, rov, _, t = _session(1)
+    first = op.seal_poll(VELOCITY_PAYLOAD, t)
+    second = op.seal_poll(VELOCITY_PAYLOAD, t)
+    assert isinstance(rov.check_poll(contents(second), t), PollIn)  # checked, not taken (did not parse)
+    taken = rov.check_poll(contents(first), t)
+    assert isinstance(taken, PollIn)  # the reference did not move past `first`
+
+
+def test_the_operator_never_uses_a_late_or_inauthentic_reply():
+    op, rov, _, t = _session(1)
+    p1 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t)), t)
+    rov.take(p1, t)
+    r1 = rov.seal_reply(REPLY_PAYLOAD, p1, t)
+    p2 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 1.0)), t + 1.0)
+    rov.take(p2, t + 1.0)
+    r2 = rov.seal_reply(REPLY_PAYLOAD, p2, t + 1.0)
+    assert not op.open_reply(contents(r2), t + 1.1, 0.5).late
+    chained = op.chain_to
+    assert op.open_reply(contents(r1), t + 1.2, 0.5).late  # answers an older poll than one answered
+    assert op.open_reply(contents(r2), t + 1.2, 0.5).late  # answered already
+    assert op.chain_to == chained
+    p3 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 2.0)), t + 2.0)
+    rov.take(p3, t + 2.0)
+    assert op.open_reply(contents(rov.seal_reply(REPLY_PAYLOAD, p3, t + 2.0)), t + 3.0, 0.5).late  # past timeout
+    forged = bytearray(contents(r2))
+    forged[3] ^= 1
+    assert op.open_reply(bytes(forged), t + 3.1, 0.5) is None
+    assert op.counters.late == 3 and op.counters.inauthentic == 1
+
+
+def test_a_restarted_rov_is_known_by_its_boot():
+    op, _, _, t = _session(1)
+    new_rov = RovChain(K)
+    hello = op.seal_hello(wire("40 1f ff"), t)
+    sync = new_rov.seal_sync(SYNC_PAYLOAD, new_rov.check_poll(contents(hello), t), t)
+    old_boot = op.boot
+    answer = op.open_reply(contents(sync), t + 0.1, 1.0)
+    assert answer.sync and answer.boot == new_rov.boot != old_boot and op.boot == new_rov.boot
+
+
+def test_a_hundred_thousand_forged_replayed_and_flipped_frames_are_never_taken():
+    """Every frame of a session, replayed, bit-flipped, truncated, or made up,
+    at a ROV that has seen the session: none is taken, none gets a SYNC."""
+    op, rov, frames, t = _session(8)
+    rng = random.Random(7)
+    sent = [contents(f) for kind, f in frames if kind in ("hello", "poll")]
+    taken_before = rov.counters.polls_taken
+    accepted = 0
+    for i in range(100_000):
+        base = bytearray(rng.choice(sent))
+        how = i % 4
+        if how == 1:
+            bit = rng.randrange(len(base) * 8)
+            base[bit // 8] ^= 1 << (bit % 8)
+        elif how == 2:
+            base = bytearray(os.urandom(rng.randint(1, 40)))
+        elif how == 3:
+            base = base[:rng.randint(0, len(base))] + bytearray(os.urandom(rng.randint(0, 6)))
+        if rov.check_poll(bytes(base), t) is not None:
+            accepted += 1
+    assert accepted == 0
+    assert rov.counters.polls_taken == taken_before
+
+
+def test_key_files_are_made_private_and_never_overwritten(tmp_path):
+    path = tmp_path / "link.key"
+    key = write_key_file(str(path))
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    assert read_key_file(str(path)) == key and len(path.read_text().strip()) == 64
+    with pytest.raises(FileExistsError):
+        write_key_file(str(path))
+    assert read_key_file(str(path)) == key
+    path.chmod(0o640)
+    with pytest.raises(KeyFileError, match="readable by others"):
+        read_key_file(str(path))
+    bad = tmp_path / "bad.key"
+    bad.write_text("xyz\n")
+    bad.chmod(0o600)
+    with pytest.raises(KeyFileError, match="64 hex digits"):
+        read_key_file(str(bad))
+    with pytest.raises(KeyFileError, match="no such key file"):
+        read_key_file(str(tmp_path / "missing"))
+
+
+def test_an_authentic_frame_behind_an_incomplete_candidate_is_delivered_at_once():
+    op, rov, _, t = _session(1)
+    reply_frame = rov.seal_reply(REPLY_PAYLOAD, rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t)), t), t)
+
+    def authentic(c: bytes) -> bool:
+        return any(mac(K, b"R", s.value, c[:-4])[:4] == c[-4:] for s in op._polls)
+
+    decoder = AuthFrameDecoder(authentic)
+    noise = bytes([0x55, 200])  # a false start whose LEN would swallow the reply
+    assert decoder.feed(noise + reply_frame) == [contents(reply_frame)]
+    # The false candidate completes later; nothing is delivered twice.
+    assert decoder.feed(os.urandom(200)) == []
+    assert decoder.counters.frames == 1
+
+
+def test_a_crc_valid_frame_with_a_wrong_tag_is_dropped_like_a_crc_failure():
+    from rovlink.link.auth import frame
+
+    decoder = AuthFrameDecoder(lambda c: False)
+    forged = frame(REPLY_PAYLOAD + b"\0\0\0\0")
+    assert decoder.feed(forged) == []
+    assert decoder.counters.rejected >= 1
