@@ -1,4 +1,5 @@
-"""`rovlink channel`: the channel emulator as a process between two endpoints."""
+"""`rovlink channel`: the channel emulator as a process between two endpoints.
+`rovlink keygen`: a new key for the authenticated link (PROTOCOL.md §8)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,45 @@ from rovlink.command import CommandError, non_negative, positive, probability
 
 
 def add_parser(subparsers) -> None:
+    _add_channel(subparsers)
+    _add_keygen(subparsers)
+
+
+def _add_keygen(subparsers) -> None:
+    p = subparsers.add_parser(
+        "keygen",
+        help="write a new key for the authenticated link",
+        description=(
+            "Write 32 random bytes from the operating system's cryptographic source as 64 hex digits "
+            "to a new file that only its owner may read (mode 0600). Copy it to the ROV and to the "
+            "operator's laptop and give it to both with --key. An existing file is never overwritten."
+        ),
+        epilog="example: rovlink keygen ~/.config/rovlink/link.key",
+    )
+    p.add_argument("file", metavar="FILE", help="the key file to create")
+    p.set_defaults(func=run_keygen)
+
+
+def run_keygen(args) -> int:
+    import os
+
+    from rovlink.link.auth import write_key_file
+
+    folder = os.path.dirname(os.path.abspath(args.file))
+    if not os.path.isdir(folder):
+        raise CommandError(f"no such folder: {folder}")
+    try:
+        write_key_file(args.file)
+    except FileExistsError:
+        raise CommandError(f"{args.file} exists already: a key is never overwritten (remove it first "
+                           "if you mean to rotate the key; see SECURITY.md)") from None
+    except OSError as exc:
+        raise CommandError(f"cannot write {args.file}: {exc.strerror}") from None
+    print(f"wrote a new link key to {args.file} (mode 0600)")
+    return 0
+
+
+def _add_channel(subparsers) -> None:
     p = subparsers.add_parser(
         "channel",
         help="emulate a narrow wireless channel between two endpoints",

@@ -148,7 +148,8 @@ def test_the_base_install_is_complete_and_has_no_console(base_venv):
 
 def test_the_base_install_runs_the_rov_side(base_venv):
     rovlink = str(base_venv / "bin" / "rovlink")
-    for command in (["rov", "--help"], ["sim", "--help"], ["channel", "--help"], ["debt", "encode", "--help"]):
+    for command in (["rov", "--help"], ["sim", "--help"], ["channel", "--help"], ["keygen", "--help"],
+                    ["debt", "encode", "--help"]):
         out = _run(base_venv, rovlink, *command)
         assert out.returncode == 0, (command, out.stderr)
         assert "usage: rovlink" in out.stdout

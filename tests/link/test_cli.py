@@ -106,3 +106,21 @@ def test_bench_link_prints_a_table_and_json():
             assert r["idle_image_s_median"] >= r["floor_s"]
     assert set(doc["targets"]) == {"idle_2000B_at_ber_7e-6_le_1.4x_floor", "steering_median_poll_interval_le_0.5s",
                                    "every_image_completes_at_ber_1e-3"}
+
+
+def test_keygen_writes_a_private_key_once(tmp_path):
+    import stat
+
+    from rovlink.link.auth import read_key_file
+
+    path = tmp_path / "link.key"
+    out = subprocess.run(ROVLINK + ["keygen", str(path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
+    key = read_key_file(str(path))
+    again = subprocess.run(ROVLINK + ["keygen", str(path)], capture_output=True, text=True, timeout=60)
+    assert again.returncode == 1 and "never overwritten" in again.stderr and len(again.stderr.splitlines()) == 1
+    assert read_key_file(str(path)) == key
+    other = tmp_path / "other.key"
+    subprocess.run(ROVLINK + ["keygen", str(other)], check=True, capture_output=True, timeout=60)
+    assert read_key_file(str(other)) != key
