@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rovlink.command import non_negative, positive
-from .serve import add_server_arguments
+from .serve import add_gcs_arguments, add_server_arguments
 
 
 def add_parser(subparsers) -> None:
@@ -16,6 +16,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--link", required=True, metavar="URL",
                    help="udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1][&mtu=N]")
     add_server_arguments(p)
+    add_gcs_arguments(p)
     p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS",
                    help="the link's bit/s, for reply timeouts (default 1900)")
     p.add_argument("--delay", type=non_negative, default=0.085, metavar="S",

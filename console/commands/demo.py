@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rovlink.command import non_negative, positive, probability
-from .serve import add_server_arguments
+from .serve import add_gcs_arguments, add_server_arguments
 
 
 def add_parser(subparsers) -> None:
@@ -17,6 +17,7 @@ def add_parser(subparsers) -> None:
         ),
     )
     add_server_arguments(p)
+    add_gcs_arguments(p)
     p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS", help="channel bit/s (default 1900)")
     p.add_argument("--delay", type=non_negative, default=0.085, metavar="S", help="intrinsic delay, s (default 0.085)")
     p.add_argument("--ber", type=probability, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")

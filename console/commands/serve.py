@@ -20,6 +20,40 @@ def add_server_arguments(p) -> None:
                         "laptop's DNS name; requests naming any other host are refused (DNS rebinding). Repeatable")
 
 
+def gcs_url(text: str) -> str:
+    import argparse
+
+    from rovlink.rov.mavurl import parse_mavlink_url
+
+    try:
+        parse_mavlink_url(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def lat_lon(text: str) -> tuple[float, float]:
+    import argparse
+    import math
+
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be LAT,LON in degrees, got {text!r}") from None
+    if not (math.isfinite(lat) and math.isfinite(lon) and -90 < lat < 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"must be a latitude in -90..90 and a longitude in -180..180, got {text!r}")
+    return lat, lon
+
+
+def add_gcs_arguments(p) -> None:
+    p.add_argument("--gcs", action="append", default=[], type=gcs_url, metavar="URL",
+                   help="serve a MAVLink ground station (QGroundControl, Cockpit, MAVProxy) here, as an ArduSub "
+                        "vehicle: udpout:127.0.0.1:14550 (QGroundControl's port), udpin:HOST:PORT, tcpin:HOST:PORT. "
+                        "Repeatable")
+    p.add_argument("--gcs-home", type=lat_lon, default=(0.0, 0.0), metavar="LAT,LON",
+                   help="where the local NED origin lies on the ground station's map (default 0,0)")
+
+
 def default_record_path() -> Path:
     import time
 
@@ -86,6 +120,19 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
               if policy.token else "")
     print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url} (opened alone it only watches; the page embeds it)"
           f"{access}\n  Ctrl-C stops.", flush=True)
+    gateway = None
+    if getattr(args, "gcs", None):
+        from rovlink.console.gcs import DeskCommands, GcsGateway
+
+        try:
+            gateway = GcsGateway(args.gcs, operator, DeskCommands(operator, app.state.desk),
+                                 home=args.gcs_home).start()
+        except (OSError, ValueError) as exc:
+            server.cancel()
+            scene.stop()
+            raise CommandError(f"--gcs: {exc}") from None
+        print("  ground station: " + ", ".join(args.gcs) + f" (MAVLink 2, ArduSub; pictures at {url.split('?')[0]}"
+              "api/image/latest.png)", flush=True)
     waiter = asyncio.create_task(stop.wait())
     tasks.append(asyncio.create_task(_watch_link(link)))
     try:
@@ -102,6 +149,8 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
         for t in (server, waiter, *tasks):
             t.cancel()
         await asyncio.gather(server, waiter, *tasks, return_exceptions=True)
+        if gateway is not None:
+            gateway.stop()
         scene.stop()
     print("stopped.", file=sys.stderr, flush=True)
 
