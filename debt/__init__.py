@@ -8,8 +8,9 @@ longer prefix is a better one.
 
     data = debt.encode(image, budget, roi=(x0, y0, x1, y1), shift=6)
     picture = debt.decode(data[:n])
+    debt.warm_up()   # compile the kernels ahead of the first image
 """
 
-from .codec import Header, decode, encode, unpack_header
+from .codec import Header, decode, encode, unpack_header, warm_up
 
-__all__ = ["encode", "decode", "Header", "unpack_header"]
+__all__ = ["encode", "decode", "Header", "unpack_header", "warm_up"]

@@ -644,3 +644,19 @@ def decode(data) -> np.ndarray:
         comp_bands[lay.comp[b]][lay.index[b]] = val[off:off + bh * bw].reshape(bh, bw)
     comps = [inverse(bands, plan.levels, "53") for bands in comp_bands]
     return _image(comps, h.colour, True)
+
+
+# ---------------------------------------------------------------- warm-up
+
+def warm_up() -> None:
+    """Compile every numba kernel DEBT uses (the first call takes seconds).
+
+    Encodes and decodes tiny grey and colour images, lossy and lossless, with
+    and without a region of interest, so that the first real image does not
+    wait for the compiler.  Safe to call from any thread, any number of times."""
+    rng = np.random.default_rng(0)
+    for image in (rng.integers(0, 256, (16, 16), dtype=np.uint8),
+                  rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)):
+        for roi, shift in ((None, 0), ((0, 0, 8, 8), 4)):
+            decode(encode(image, 60, roi=roi, shift=shift))     # 9/7
+            decode(encode(image, 4000, roi=roi, shift=shift))   # lossless 5/3
