@@ -393,6 +393,7 @@ class OperatorChain:
 class AuthDecoderCounters:
     frames: int = 0
     rejected: int = 0  # candidates dropped: CRC failed, LEN out of bounds, or not authentic
+    inauthentic: int = 0  # of those: the CRC held but the tag did not (forged, replayed, stale)
     bytes_skipped: int = 0
 
 
@@ -410,8 +411,9 @@ class AuthFrameDecoder:
         self._delivered_starts: set[int] = set()  # buffer positions of early frames' starts
         self.counters = AuthDecoderCounters()
 
-    def _valid_at(self, i: int, end_limit: int) -> bytes | None:
-        """The contents of a complete, CRC-valid, authentic frame starting at i, if any."""
+    def _valid_at(self, i: int, end_limit: int, count: bool = False) -> bytes | None:
+        """The contents of a complete, CRC-valid, authentic frame starting at i, if any.
+        `count`: count a CRC-valid frame whose tag fails as inauthentic."""
         buf = self._buf
         if i + 1 >= len(buf):
             return None
@@ -425,7 +427,11 @@ class AuthFrameDecoder:
         if crc16(body) != int.from_bytes(buf[i + 2 + n:end], "big"):
             return None
         contents = body[1:]
-        return contents if self._authentic(contents) else None
+        if self._authentic(contents):
+            return contents
+        if count:
+            self.counters.inauthentic += 1
+        return None
 
     def feed(self, data: bytes) -> list[bytes]:
         """Bytes in, the contents of every frame now complete out."""
@@ -452,7 +458,7 @@ class AuthFrameDecoder:
                 continue
             end = 2 + n + 2
             if len(buf) >= end:
-                contents = self._valid_at(0, len(buf))
+                contents = self._valid_at(0, len(buf), count=0 not in self._delivered_starts)
                 if contents is not None:
                     if 0 not in self._delivered_starts:
                         out.append(contents)

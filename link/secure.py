@@ -1,0 +1,257 @@
+"""Version 2 of the link around the version 1.1 state machines (PROTOCOL.md §8).
+
+Goals: the master and the slave keep deciding everything version 1.1
+decides (orders, ACK, images, failsafe); version 2 only decides which frames
+exist for them.  A frame that is not authentic, is replayed, or arrives late
+never reaches them.
+
+Plan: `SecureSlave` and `SecureMaster` have the interface of `Slave` and
+`Master` that the drivers and `SimLink` use (`receive_bytes`, `next_poll`,
+`take_events`, `deadline`, `tick`, ...; everything else is passed through),
+and put `link.auth`'s chain and framing between the bytes and the machine
+they wrap:
+
+- ROV: an authentic HELLO is answered with a SYNC (the slave's status and
+  ACK, no trunk) and touches nothing else; an authentic, fresh poll goes to
+  the slave as its payload, and is taken (it moves the chain) only when the
+  slave answers it, i.e. when it parsed; the answer is sealed on that poll.
+- Operator: sends HELLOs until a SYNC comes, and again, alternating with
+  polls, after two poll timeouts (at least 2 s) without an authentic reply;
+  a SYNC gives the master its ACK and status, and a new BOOT tells it that
+  the ROV restarted; replies that are late or inauthentic are counted and
+  dropped: the master then sees its poll unanswered, as §8 asks.
+
+Decisions where §8 is silent:
+- The SYNC is handed to the master as the reply to a HELLO (`on_sync` when
+  the master has it, else as an ordinary reply with SYNC cleared, which gives
+  it the ACK and the status the SYNC carries).
+- The master's timeouts count the 5 (poll) and 4 (reply) bytes version 2
+  adds: its margin grows by their air time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .auth import (
+    HELLO_BIT,
+    SYNC_BIT,
+    TAG_BYTES,
+    AuthFrameDecoder,
+    HelloIn,
+    OperatorChain,
+    PollIn,
+    RovChain,
+)
+from .frame import OVERHEAD
+
+POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
+REPLY_EXTRA = TAG_BYTES
+HELLO_PAYLOAD = bytes((HELLO_BIT, 0x1F, 0xFF))  # SEQ 0, SIZE 0, ORDER NONE, no image data
+HELLO_FRAME_BYTES = OVERHEAD + 3 + 8 + TAG_BYTES
+SYNC_FRAME_BYTES = OVERHEAD + 14 + 12 + TAG_BYTES
+MAX_POLL_LEN = 3 + 9 + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
+
+
+@dataclass(frozen=True)
+class InauthenticFrame:
+    """A frame whose CRC held but whose tag no kept chain value makes (counted, dropped)."""
+
+    side: str  # "reply" (operator) or "poll" (ROV)
+
+
+@dataclass(frozen=True)
+class LateReply:
+    """An authentic reply to a poll already answered, older than one answered, or past its timeout."""
+
+    sync: bool
+
+
+@dataclass(frozen=True)
+class Synced:
+    """A SYNC taken: the chain is (re)started; `restarted` when the ROV's BOOT changed."""
+
+    boot: bytes
+    restarted: bool
+    first: bool
+
+
+@dataclass
+class SecureStats:
+    hellos_sent: int = 0
+    syncs: int = 0
+    inauthentic: int = 0
+    late: int = 0
+    restarts_seen: int = 0
+
+
+class SecureSlave:
+    def __init__(self, slave, key: bytes, *, boot: bytes | None = None) -> None:
+        self.slave = slave
+        # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2).
+        slave.max_frame = min(slave.max_frame, 259 - REPLY_EXTRA)
+        self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
+        self.decoder = AuthFrameDecoder(self._authentic, max_len=MAX_POLL_LEN)
+
+    def __getattr__(self, name):
+        return getattr(self.slave, name)
+
+    def _authentic(self, contents: bytes) -> bool:
+        # A pure check for the framing (no state moves): the chain decides again below.
+        from .auth import KIND_HELLO, KIND_POLL, _tag_matches
+
+        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
+        if len(contents) <= TAG_BYTES:
+            return False
+        if contents[0] & HELLO_BIT and _tag_matches(self.chain.key, KIND_HELLO, b"", signed, tag):
+            return True
+        kept = [v for v, _ in (*self.chain._replies, *self.chain._syncs)]
+        return any(_tag_matches(self.chain.key, KIND_POLL, prev, signed, tag) for prev in kept)
+
+    def _sync_payload(self) -> bytes:
+        from .messages import Reply
+
+        status = self.slave.status
+        reply = Reply(**{k: getattr(status, k) for k in status.__dataclass_fields__}, ack=self.slave.ack,
+                      failsafe=self.slave.failsafe)
+        payload = bytearray(reply.encode())
+        payload[13] |= SYNC_BIT
+        return bytes(payload)
+
+    def receive_bytes(self, data: bytes, now: float):
+        from .slave import SlaveOutput
+
+        out = SlaveOutput(events=self.slave.tick(now))
+        replies = []
+        before = self.decoder.counters.inauthentic
+        for contents in self.decoder.feed(data):
+            got = self.chain.check_poll(contents, now)
+            if isinstance(got, HelloIn):
+                replies.append(self.chain.seal_sync(self._sync_payload(), got, now))
+            elif isinstance(got, PollIn):
+                one = self.slave.receive(got.payload, now)
+                out.events.extend(one.events)
+                if one.reply:  # it parsed: the poll is taken
+                    self.chain.take(got, now)
+                    replies.append(self.chain.seal_reply(one.reply[2:-2], got, now))
+            else:
+                out.events.append(InauthenticFrame("poll"))
+        out.events.extend(InauthenticFrame("poll") for _ in range(self.decoder.counters.inauthentic - before))
+        out.reply = b"".join(replies) or None
+        return out
+
+
+class SecureMaster:
+    def __init__(self, master, key: bytes) -> None:
+        self.master = master
+        master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
+        self.chain = OperatorChain(key)
+        self.decoder = AuthFrameDecoder(self._authentic, max_len=self._max_reply_len)
+        self.stats2 = SecureStats()
+        self._hello_deadline: float | None = None
+        self._last_was_hello = False
+        self._events: list[object] = []
+        self._last_size = 3
+
+    def __getattr__(self, name):
+        return getattr(self.master, name)
+
+    # -- timing -------------------------------------------------------------
+
+    def hello_timeout(self) -> float:
+        m = self.master
+        return m.tx_time(HELLO_FRAME_BYTES) + m.tx_time(SYNC_FRAME_BYTES) + 2 * m.delay_s + m.margin_s
+
+    def _poll_timeout(self) -> float:
+        m = self.master
+        return m.timeout_for(OVERHEAD + 12 + POLL_EXTRA, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA)
+
+    def deadline(self) -> float | None:
+        if self._hello_deadline is not None:
+            return self._hello_deadline
+        return self.master.deadline()
+
+    def _silent_too_long(self, now: float) -> bool:
+        heard = self.chain.last_authentic_at
+        return heard is not None and now - heard > max(2.0, 2 * self._poll_timeout())
+
+    def _max_reply_len(self) -> int:
+        m = self.master
+        return max(SYNC_FRAME_BYTES, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA) - OVERHEAD
+
+    # -- sending -----------------------------------------------------------
+
+    def next_poll(self, now: float) -> bytes | None:
+        if self._hello_deadline is not None:
+            if now < self._hello_deadline:
+                return None
+            self._hello_deadline = None  # no SYNC in time
+        hello = not self.chain.synced or (self._silent_too_long(now) and not self._last_was_hello)
+        if hello:
+            self._last_was_hello = True
+            self._hello_deadline = now + self.hello_timeout()
+            self.stats2.hellos_sent += 1
+            return self.chain.seal_hello(HELLO_PAYLOAD, now)
+        frame = self.master.next_poll(now)
+        if frame is None:
+            return None
+        self._last_was_hello = False
+        payload = frame[2:-2]
+        self._last_size = (payload[0] >> 4) & 0x03
+        return self.chain.seal_poll(payload, now)
+
+    def take_events(self) -> list[object]:
+        events, self._events = self._events, []
+        return events + self.master.take_events()
+
+    # -- receiving ---------------------------------------------------------
+
+    def _authentic(self, contents: bytes) -> bool:
+        from .auth import KIND_REPLY, KIND_SYNC, _tag_matches
+
+        if len(contents) <= TAG_BYTES:
+            return False
+        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
+        key = self.chain.key
+        return (any(_tag_matches(key, KIND_REPLY, s.value, signed, tag) for s in self.chain._polls)
+                or any(_tag_matches(key, KIND_SYNC, s.value, signed, tag) for s in self.chain._hellos))
+
+    def receive_bytes(self, data: bytes, now: float) -> list[object]:
+        self.master.stats.bytes_received += len(data)
+        events: list[object] = []
+        before = self.decoder.counters.inauthentic
+        for contents in self.decoder.feed(data):
+            events.extend(self.receive(contents, now))
+        forged = self.decoder.counters.inauthentic - before
+        self.stats2.inauthentic += forged
+        events.extend(InauthenticFrame("reply") for _ in range(forged))
+        return events
+
+    def receive(self, contents: bytes, now: float) -> list[object]:
+        timeout = self.hello_timeout() if self._hello_deadline is not None else self._poll_timeout()
+        got = self.chain.open_reply(contents, now, max(timeout, self.hello_timeout()))
+        if got is None:
+            self.stats2.inauthentic += 1
+            return [InauthenticFrame("reply")]
+        if got.late:
+            self.stats2.late += 1
+            return [LateReply(got.sync)]
+        if not got.sync:
+            return self.master.receive(got.payload, now)
+        self._hello_deadline = None
+        first = self.stats2.syncs == 0
+        restarted = not first and got.boot != self._boot
+        self._boot = got.boot
+        self.stats2.syncs += 1
+        self.stats2.restarts_seen += restarted
+        events: list[object] = [Synced(got.boot, restarted, first)]
+        on_sync = getattr(self.master, "on_sync", None)
+        if on_sync is not None:
+            events.extend(on_sync(got.payload, restarted, now))
+        else:
+            payload = bytearray(got.payload)
+            payload[13] &= ~SYNC_BIT & 0xFF
+            events.extend(self.master.receive(bytes(payload), now))
+        return events
+
+    _boot: bytes | None = None
