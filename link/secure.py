@@ -145,6 +145,7 @@ class SecureMaster:
     def __init__(self, master, key: bytes) -> None:
         self.master = master
         master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
+        master.max_frame = min(master.max_frame, 259 - REPLY_EXTRA)  # the trunks the slave will send
         self.chain = OperatorChain(key)
         self.decoder = AuthFrameDecoder(self._authentic, max_len=self._max_reply_len)
         self.stats2 = SecureStats()

@@ -1,8 +1,10 @@
 """`rovlink bench link`: the protocol over the paper's link, in simulated time.
 
-For each bit error rate and for two protocol modes ("rovlink": adaptive SIZE
-classes and receiver-driven retransmission; "paper": fixed 40-byte trunks and
-no retransmission, one lost trunk losing the image) two sessions are run with
+For each bit error rate and for three protocol modes ("rovlink": adaptive SIZE
+classes and receiver-driven retransmission, version 1.1; "rovlink v2": the
+same with every frame authenticated, PROTOCOL.md §8, 9 bytes more per cycle
+and a HELLO/SYNC to start; "paper": fixed 40-byte trunks and no
+retransmission, one lost trunk losing the image) two sessions are run with
 the real Master, Slave and Channel:
 
 - idle: the pilot does nothing, images stream with the idle SIZE class;
@@ -65,6 +67,11 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
     else:
         master = Master(bitrate_bps=bitrate, delay_s=delay_s, rng=random.Random(seed))
         slave = Slave(image_source=lambda img, s: stream)
+    if mode == "rovlink v2":
+        from rovlink.link.secure import SecureMaster, SecureSlave
+
+        key = random.Random(seed).randbytes(32)
+        master, slave = SecureMaster(master, key), SecureSlave(slave, key)
     channel = Channel(LinkParams(bitrate_bps=bitrate, delay_s=delay_s, ber=ber), seed=seed)
     result = Session()
     pending_wish: list[tuple[float, tuple[int, int, int, int]]] = []
@@ -121,7 +128,7 @@ def run(args) -> int:
     floor_s = 8 * OBJECT_BYTES / args.bitrate
     rows = []
     results = []
-    for mode in ("rovlink", "paper"):
+    for mode in ("rovlink", "rovlink v2", "paper"):
         for ber in BERS:
             idle = run_session(mode, ber, False, args.duration, args.seed, bitrate=args.bitrate, delay_s=args.delay)
             steer = run_session(mode, ber, True, args.duration, args.seed + 1, bitrate=args.bitrate,
@@ -183,6 +190,24 @@ def run(args) -> int:
             and r3["steering_images_completed"] == r3["steering_images_finished"],
         },
     }
+    a7, a3 = find("rovlink v2", 7e-6), find("rovlink v2", 1e-3)
+    targets.update({
+        "v2_idle_2000B_at_ber_7e-6_le_1.45x_floor": {
+            "value_s": a7["idle_image_s_median"], "limit_s": 1.45 * floor_s,
+            "met": a7["idle_image_s_median"] is not None and a7["idle_image_s_median"] <= 1.45 * floor_s,
+        },
+        "v2_steering_median_poll_interval_lt_0.5s": {
+            "value_s": a7["poll_interval_s_median"], "limit_s": 0.5,
+            "met": a7["poll_interval_s_median"] is not None and a7["poll_interval_s_median"] < 0.5,
+        },
+        "v2_every_image_completes_at_ber_1e-3": {
+            "completed": a3["idle_images_completed"] + a3["steering_images_completed"],
+            "finished": a3["idle_images_finished"] + a3["steering_images_finished"],
+            "met": a3["idle_images_completed"] > 0
+            and a3["idle_images_completed"] == a3["idle_images_finished"]
+            and a3["steering_images_completed"] == a3["steering_images_finished"],
+        },
+    })
     doc = {
         "link": {"bitrate_bps": args.bitrate, "delay_s": args.delay, "object_bytes": OBJECT_BYTES,
                  "session_s": args.duration, "seed": args.seed},
