@@ -98,14 +98,17 @@ def test_bench_link_prints_a_table_and_json():
     assert "idle img s" in out.stdout and "targets:" in out.stdout
     out = rovlink("bench", "link", "--duration", "120", "--json")
     doc = json.loads(out.stdout)
-    assert {r["mode"] for r in doc["results"]} == {"rovlink", "paper"}
+    assert {r["mode"] for r in doc["results"]} == {"rovlink", "rovlink v2", "paper"}
     assert {r["ber"] for r in doc["results"]} == {0.0, 7e-6, 1e-4, 1e-3}
-    for r in doc["results"]:
-        if r["mode"] == "rovlink" and r["ber"] == 0.0:
-            # Never faster than physics: 2000 bytes at 1900 bit/s.
-            assert r["idle_image_s_median"] >= r["floor_s"]
+    by = {(r["mode"], r["ber"]): r for r in doc["results"]}
+    for mode in ("rovlink", "rovlink v2"):
+        # Never faster than physics: 2000 bytes at 1900 bit/s.
+        assert by[(mode, 0.0)]["idle_image_s_median"] >= by[(mode, 0.0)]["floor_s"]
+    # Authentication costs bytes: never faster than version 1.1 on a clean link.
+    assert by[("rovlink v2", 0.0)]["poll_interval_s_median"] > by[("rovlink", 0.0)]["poll_interval_s_median"]
     assert set(doc["targets"]) == {"idle_2000B_at_ber_7e-6_le_1.4x_floor", "steering_median_poll_interval_le_0.5s",
-                                   "every_image_completes_at_ber_1e-3"}
+                                   "every_image_completes_at_ber_1e-3", "v2_idle_2000B_at_ber_7e-6_le_1.45x_floor",
+                                   "v2_steering_median_poll_interval_lt_0.5s", "v2_every_image_completes_at_ber_1e-3"}
 
 
 def test_keygen_writes_a_private_key_once(tmp_path):
