@@ -21,8 +21,8 @@
 #   the region of interest, up to SHIFT outside it).
 # - One traversal routine serves both sides (`mode` 0 encodes, 1 decodes), so
 #   encoder and decoder can never disagree about the order of decisions.
-# - Binary decisions go through an adaptive binary range coder (LZMA-style
-#   carry handling) with contexts: coefficient significance by band class and
+# - Binary decisions go through the adaptive binary range coder of
+#   `rangecoder` with contexts: coefficient significance by band class and
 #   number of significant neighbours, set significance by band class and block
 #   size, sign, and refinement (first or later).
 # - The decoder reads a truncated stream with interval arithmetic: it tracks
@@ -32,54 +32,10 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
-try:  # numba is a dependency, but the pure-Python path keeps things working.
-    import numba as _numba
-except ImportError:  # pragma: no cover - exercised only without numba
-    _numba = None
-
-
-def _cache_ok() -> bool:
-    # numba's on-disk cache needs a writable __pycache__ beside this file (or
-    # NUMBA_CACHE_DIR); without one it raises, so compile each process instead.
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return True
-    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
-    try:
-        os.makedirs(here, exist_ok=True)
-        return os.access(here, os.W_OK)
-    except OSError:
-        return False
-
-
-if _numba is not None:
-    # No reference counting (_nrt=False): profiling showed two thirds of the
-    # traversal's time in the atomic increments numba wraps around every
-    # array passed to a helper.  The kernels therefore allocate nothing; the
-    # Python wrappers hand them their work arrays.
-    # `_nrt` is a private numba option: when a numba no longer has it the
-    # kernels compile with reference counting (slower, the same streams).
-    def _nrt_option_known() -> bool:
-        try:
-            from numba.core.cpu import CPUTargetOptions
-        except ImportError:  # pragma: no cover - a numba laid out otherwise
-            return False
-        return hasattr(CPUTargetOptions, "_nrt")
-
-    _NO_NRT = {"_nrt": False} if _nrt_option_known() else {}
-    _jit = _numba.njit(cache=_cache_ok(), nogil=True, **_NO_NRT)
-    _jit_nrt = _numba.njit(cache=_cache_ok(), nogil=True)  # for kernels that allocate
-    # The binary coder is inlined by numba itself (its scalar state then
-    # stays in registers); other helpers are left to LLVM, since inlining
-    # them all tripled the first compilation for ~15 % speed.
-    _inline = _numba.njit(cache=_cache_ok(), nogil=True, inline="always", **_NO_NRT)
-else:  # pragma: no cover
-    def _jit(f):
-        return f
-    _inline = _jit_nrt = _jit
+from .jit import _jit
+from .rangecoder import PROB_ONE, _code, _save
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
 # times 8 plus resolution level (0 = low band, j = level-j details), plus 16
@@ -90,126 +46,8 @@ CTX_SET = CTX_SIG + NCLS * 16    # + cls * 32 + min(k, 7) * 4 + set context (0..
 CTX_SIGN = CTX_SET + NCLS * 32   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
-
-PROB_BITS = 15
-PROB_ONE = 1 << PROB_BITS
-# Adaptation speed per context as it sees more decisions: fast at first (few
-# decisions at low budgets), then steadier.
-RATE = np.array([1, 2, 2, 3, 3, 3, 3] + [4] * 9 + [5] * 48, dtype=np.int64)
-RATE_LAST = RATE.shape[0] - 1
 REF_GROUP = 32
 SIG_GROUP = 8
-
-
-@_jit
-def _shift_low(st, buf):
-    low = st[0]
-    if low < 0xFF000000 or low >= 0x100000000:
-        carry = low >> 32
-        temp = st[2]
-        while True:
-            pos = st[4]
-            if pos < buf.shape[0]:
-                buf[pos] = (temp + carry) & 0xFF
-            st[4] = pos + 1
-            temp = 0xFF
-            st[3] -= 1
-            if st[3] == 0:
-                break
-        st[2] = (low >> 24) & 0xFF
-    st[3] += 1
-    st[0] = (low & 0x00FFFFFF) << 8
-
-
-@_inline
-def _shift_low_t(low, cache, cache_size, pos, buf):
-    # `_shift_low` on scalars, so that the coder state stays in registers.
-    if low < 0xFF000000 or low >= 0x100000000:
-        carry = low >> 32
-        temp = cache
-        while True:
-            if pos < buf.shape[0]:
-                buf[pos] = (temp + carry) & 0xFF
-            pos += 1
-            temp = 0xFF
-            cache_size -= 1
-            if cache_size == 0:
-                break
-        cache = (low >> 24) & 0xFF
-    cache_size += 1
-    low = (low & 0x00FFFFFF) << 8
-    return low, cache, cache_size, pos
-
-
-@_inline
-def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
-    """Encode `bit` (mode 0) or decode one (mode 1) in context `ctx`.
-
-    The coder state travels as scalars (five times faster than an array):
-    encoder (low, range, cache, cache size, bytes out), decoder (range,
-    lowest code, highest code, next byte, unused); `lim` is the encoder's
-    byte limit or the number of bytes the decoder holds.  Returns the new
-    state and the bit, or -1 when the encoder reached its byte limit or the
-    decoder cannot be sure of the decision from the bytes it has."""
-    p = probs[ctx]
-    if mode == 0:
-        if a4 >= lim:
-            return a0, a1, a2, a3, a4, -1
-        bound = (a1 >> PROB_BITS) * p
-        if bit == 0:
-            a1 = bound
-        else:
-            a0 += bound
-            a1 -= bound
-        while a1 < 0x1000000:
-            a1 <<= 8
-            a0, a2, a3, a4 = _shift_low_t(a0, a2, a3, a4, buf)
-    else:
-        bound = (a0 >> PROB_BITS) * p
-        if a2 < bound:
-            bit = 0
-            a0 = bound
-        elif a1 >= bound:
-            bit = 1
-            a1 -= bound
-            a2 -= bound
-            a0 -= bound
-        else:
-            return a0, a1, a2, a3, a4, -1
-        while a0 < 0x1000000:
-            a0 <<= 8
-            if a3 < lim:
-                byte = np.int64(buf[a3])
-                a1 = (a1 << 8) | byte
-                a2 = (a2 << 8) | byte
-            else:
-                a1 = a1 << 8
-                a2 = (a2 << 8) | 0xFF
-            a3 += 1
-    n = counts[ctx]
-    shift = RATE[n]
-    if n < RATE_LAST:
-        counts[ctx] = n + 1
-    if bit == 0:
-        p += (PROB_ONE - p) >> shift
-    else:
-        p -= p >> shift
-    if p < 32:
-        p = 32
-    elif p > PROB_ONE - 32:
-        p = PROB_ONE - 32
-    probs[ctx] = p
-    return a0, a1, a2, a3, a4, bit
-
-
-@_jit
-def _save(st, a0, a1, a2, a3, a4):
-    st[0] = a0
-    st[1] = a1
-    st[2] = a2
-    st[3] = a3
-    st[4] = a4
-    return 0
 
 
 @_jit
@@ -607,28 +445,3 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
             pk[c] = p
     _save(st, a0, a1, a2, a3, a4)
     return 1
-
-
-@_jit
-def flush(st, buf):
-    for _ in range(5):
-        _shift_low(st, buf)
-    return st[4]
-
-
-def encoder_state(limit: int) -> np.ndarray:
-    # [low, range, cache, cache size, bytes out, byte limit]
-    return np.array([0, 0xFFFFFFFF, 0, 1, 0, limit], dtype=np.int64)
-
-
-def decoder_state(data: np.ndarray) -> np.ndarray:
-    # [range, lowest code, highest code, next byte, unused, bytes held]
-    lo = 0
-    hi = 0
-    for i in range(4):
-        byte = int(data[i]) if i < data.shape[0] else None
-        lo = (lo << 8) | (0 if byte is None else byte)
-        hi = (hi << 8) | (0xFF if byte is None else byte)
-    rng = 0xFFFFFFFF
-    hi = min(hi, rng - 1)
-    return np.array([rng, lo, hi, 4, 0, data.shape[0]], dtype=np.int64)

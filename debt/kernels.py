@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .coder import _jit_nrt as _jit
+from .jit import _jit_nrt as _jit
 from .transform import _A, _B, _C, _D
 
 DELTA_SIG = 0.375

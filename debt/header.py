@@ -1,0 +1,119 @@
+# The DEBT stream header: what the decoder must know before the first coded bit.
+#
+# Header, most significant bit first, then padded to a byte with a check:
+#     MAGIC:4 (1011)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
+#     if ROI:  SHIFT:4  X0:10  Y0:10  X1:10  Y1:10
+#     CHECK: the remaining bits of the last byte (7 without ROI, 3 with),
+#            the low bits of a CRC-8 of the header with CHECK zero
+# so 5 bytes without a region of interest and 10 with one.  The decomposition
+# depth follows from the size (`transform.levels_for`); TOP is the highest
+# bit plane coded.
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+MAGIC = 0b1011
+MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
+MAX_SHIFT = 15
+FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
+
+
+@dataclass(frozen=True)
+class Header:
+    width: int
+    height: int
+    colour: bool
+    reversible: bool
+    top: int
+    roi: tuple[int, int, int, int] | None = None
+    shift: int = 0
+
+    @property
+    def size(self) -> int:
+        return header_size(self.roi is not None)
+
+
+def header_size(has_roi: bool) -> int:
+    return 10 if has_roi else 5
+
+
+def _crc8(data: bytes) -> int:
+    crc = 0
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+def pack_header(h: Header) -> bytes:
+    fields = [(MAGIC, 4), (int(h.colour), 1), (int(h.reversible), 1), (int(h.roi is not None), 1),
+              (h.width, 10), (h.height, 10), (h.top, 6)]
+    if h.roi is not None:
+        fields.append((h.shift, 4))
+        fields.extend((v, 10) for v in h.roi)
+    value = 0
+    nbits = 0
+    for v, n in fields:
+        value = (value << n) | v
+        nbits += n
+    size = h.size
+    check_bits = 8 * size - nbits
+    value <<= check_bits
+    raw = value.to_bytes(size, "big")
+    check = _crc8(raw) & ((1 << check_bits) - 1)
+    return (value | check).to_bytes(size, "big")
+
+
+def unpack_header(data: bytes) -> Header:
+    if len(data) < 1:
+        raise ValueError("empty DEBT stream")
+    if data[0] >> 4 != MAGIC:
+        raise ValueError("not a DEBT stream (bad magic)")
+    has_roi = bool(data[0] & 0x02)
+    size = header_size(has_roi)
+    if len(data) < size:
+        raise ValueError(f"DEBT stream of {len(data)} bytes is shorter than its {size}-byte header")
+    value = int.from_bytes(data[:size], "big")
+    nbits = 8 * size
+
+    pos = 0
+
+    def take(n: int) -> int:
+        nonlocal pos
+        pos += n
+        return (value >> (nbits - pos)) & ((1 << n) - 1)
+
+    take(4)
+    colour = bool(take(1))
+    reversible = bool(take(1))
+    take(1)
+    width = take(10)
+    height = take(10)
+    top = take(6)
+    roi = None
+    shift = 0
+    if has_roi:
+        shift = take(4)
+        roi = (take(10), take(10), take(10), take(10))
+    check_bits = nbits - pos
+    check = value & ((1 << check_bits) - 1)
+    expected = _crc8((value & ~((1 << check_bits) - 1)).to_bytes(size, "big")) & ((1 << check_bits) - 1)
+    if check != expected:
+        raise ValueError("corrupted DEBT header (check bits do not match)")
+    if width < 1 or height < 1:
+        raise ValueError("corrupted DEBT header (zero image size)")
+    if roi is not None:
+        x0, y0, x1, y1 = roi
+        if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
+            raise ValueError("corrupted DEBT header (region of interest outside the image)")
+    h = Header(width, height, colour, reversible, top, roi, shift)
+    if top > _max_top(h):
+        raise ValueError("corrupted DEBT header (bit-plane count out of range)")
+    return h
+
+
+def _max_top(h: Header) -> int:
+    # Generous bound on the top plane a real image can produce.
+    return 20 + FRACTION_BITS + h.shift + (3 if h.reversible else 0)

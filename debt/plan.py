@@ -1,0 +1,295 @@
+# Everything about a stream that follows from its header alone, shared by the
+# encoder and the decoder: the band layout and block trees of the coder, each
+# band's scale (the norm of its synthesis basis, so that coefficient error
+# stands for pixel error), the region of interest's coefficients, and the
+# colour transform.  Cached per header: the ROV sends image after image of one
+# size, and the console decodes prefix after prefix of one stream.
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from .header import FRACTION_BITS, Header
+from .transform import band_levels, band_shapes, band_weights, levels_for
+
+FINE_BAND_FACTOR = {0: 1.1, 1: 1.12}  # empirical: plane alignment between bands, tuned on the samples
+ROI_REACH = (1, 1)  # see _roi_ranges (5/3 streams only, sent when lossless; 9/7 ones: sa_masks)
+ROI_REACH_BY_LEVEL = {1: (0, 0)}  # finest details: only what lies over the ROI
+KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
+
+# Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT).
+ICT = np.array([[0.299, 0.587, 0.114],
+                 [-0.168736, -0.331264, 0.5],
+                 [0.5, -0.418688, -0.081312]])
+ICT_INV = np.linalg.inv(ICT)
+CHROMA = 1.0  # chroma weight beyond the RGB-error weighting (1.0 measured best)
+# Weight of each component so that its error counts as it does in RGB squared
+# error (norm of its column of the inverse over sqrt(3)); chroma then gets
+# fewer bits simply because it holds less energy.
+COLOUR_WEIGHTS = np.sqrt((ICT_INV ** 2).sum(axis=0) / 3.0) * np.array([1.0, CHROMA, CHROMA])
+
+
+# ---------------------------------------------------------------- layout
+
+@dataclass
+class Layout:
+    shapes: list            # per global band: (h, w)
+    comp: list              # per global band: component index
+    index: list             # per global band: band index within its component
+    binfo: np.ndarray
+    noff: np.ndarray
+    nw: np.ndarray
+    seg: np.ndarray
+    ncoef: int
+    nnodes: int
+
+
+def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
+    shapes1 = band_shapes(height, width, levels)
+    res = band_levels(levels)
+    order = [(c, i) for i in range(len(shapes1)) for c in range(ncomp)]
+    nb = len(order)
+    binfo = np.zeros((nb, 7), dtype=np.int64)
+    noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    count = np.zeros(KMAX + 2, dtype=np.int64)
+    off = 0
+    noffset = 0
+    for b, (c, i) in enumerate(order):
+        h, w = shapes1[i]
+        k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
+        parent = (i - 3) * ncomp + c if i > 3 else -1
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + res[i], 0 if i == 0 else (i - 1) % 3 + 1,
+                    parent)
+        off += h * w
+        if h and w:
+            count[0] += h * w
+            for k in range(1, k_root + 1):
+                hk, wk = -(-h // (1 << k)), -(-w // (1 << k))
+                noff[b, k] = noffset
+                nw[b, k] = wk
+                noffset += hk * wk
+                count[k] += hk * wk
+    seg = np.zeros(KMAX + 2, dtype=np.int64)
+    seg[1:] = np.cumsum(count[:KMAX + 1])
+    return Layout(
+        [shapes1[i] for _, i in order], [c for c, _ in order], [i for _, i in order],
+        binfo, noff, nw, seg, off, noffset,
+    )
+
+
+def pyramid(values: np.ndarray, lay: Layout, use_max: bool) -> np.ndarray:
+    """Per quadtree node the max (or min) of `values` over its block."""
+    out = np.zeros(max(lay.nnodes, 1), dtype=np.int64)
+    pad = 0 if use_max else np.iinfo(np.int64).max
+    reduce = np.maximum if use_max else np.minimum
+    for b in range(len(lay.shapes)):
+        off, h, w, k_root = lay.binfo[b, :4]
+        if not h or not w:
+            continue
+        level = values[off:off + h * w].reshape(h, w)
+        for k in range(1, k_root + 1):
+            hh, ww = level.shape
+            if hh % 2 or ww % 2:
+                padded = np.full((hh + hh % 2, ww + ww % 2), pad, dtype=np.int64)
+                padded[:hh, :ww] = level
+                level = padded
+            level = reduce(reduce(level[0::2, 0::2], level[0::2, 1::2]),
+                           reduce(level[1::2, 0::2], level[1::2, 1::2]))
+            start = lay.noff[b, k]
+            out[start:start + level.size] = level.ravel()
+    return out
+
+
+def _roi_ranges(a: int, b: int, n: int, levels: int):
+    # Per level, the low and high coefficient ranges whose synthesis basis
+    # reaches pixels [a, b) within ROI_REACH samples: low coefficient m
+    # shapes pixels 2m +- reach, high coefficient m pixels 2m + 1 +- reach.
+    # (The full 9/7 supports are 3 and 4; the far tails weigh little and
+    # would make every coarse coefficient part of the region.)
+    out = []
+    for level in range(levels):
+        rl, rh = ROI_REACH_BY_LEVEL.get(level + 1, ROI_REACH)
+        nl, nh = -(-n // 2), n // 2
+        low = (max(0, -((rl - a) // 2)), min(nl, (b - 1 + rl) // 2 + 1))
+        high = (max(0, -((1 + rh - a) // 2)), min(nh, (b - 2 + rh) // 2 + 1))
+        if low[0] >= low[1]:
+            low = (min(max(0, a // 2), nl - 1), min(max(0, a // 2), nl - 1) + 1)
+        out.append((low, high))
+        a, b, n = low[0], low[1], nl
+    return out
+
+
+def _rect_mask(shape, rows, cols) -> np.ndarray:
+    m = np.zeros(shape, dtype=bool)
+    m[rows[0]:rows[1], cols[0]:cols[1]] = True
+    return m
+
+
+def sa_masks(h: Header, levels: int) -> list[np.ndarray]:
+    """Per band of one component, the 9/7 coefficients of the region.
+
+    The 9/7 transform of a stream with an ROI is shape-adaptive
+    (`kernels.forward97`): the rectangle and the rest are lifted apart, so
+    every coefficient belongs wholly to one side and the region is exactly
+    the coefficients at its positions, level after level on its low-pass
+    samples.  (Before this, the transform ran across the edge and each
+    coefficient was raised by the share of its energy inside: the wide
+    coarse coefficients over the edge then carried the outside too, and the
+    seabed's ROI at 1000 B SHIFT 6 was 0.75 dB below its crop coded alone.)"""
+    shapes = band_shapes(h.height, h.width, levels)
+    x0, y0, x1, y1 = h.roi
+    if levels == 0:
+        full = np.zeros(shapes[0], dtype=bool)
+        full[y0:y1, x0:x1] = True
+        return [full]
+    details = []
+    for _ in range(levels):
+        if x0 < x1 and y0 < y1:
+            lo_r, hi_r = ((y0 + 1) // 2, (y1 + 1) // 2), (y0 // 2, y1 // 2)
+            lo_c, hi_c = ((x0 + 1) // 2, (x1 + 1) // 2), (x0 // 2, x1 // 2)
+        else:
+            lo_r = hi_r = lo_c = hi_c = (0, 0)
+        details.append(((lo_r, hi_c), (hi_r, lo_c), (hi_r, hi_c)))  # LH, HL, HH
+        x0, y0, x1, y1 = ((v + 1) // 2 for v in (x0, y0, x1, y1))
+        last = (lo_r, lo_c)
+
+    masks = [_rect_mask(shapes[0], *last)]
+    for j, trio in enumerate(reversed(details)):
+        masks.extend(_rect_mask(shapes[1 + 3 * j + k], *rc) for k, rc in enumerate(trio))
+    return masks
+
+
+def roi_masks(h: Header, levels: int) -> list[np.ndarray] | None:
+    """Per band of one component, a boolean mask of ROI coefficients."""
+    if h.roi is None:
+        return None
+    x0, y0, x1, y1 = h.roi
+    rows = _roi_ranges(y0, y1, h.height, levels)
+    cols = _roi_ranges(x0, x1, h.width, levels)
+    shapes = band_shapes(h.height, h.width, levels)
+    masks = []
+
+    if levels == 0:
+        full = np.zeros(shapes[0], dtype=bool)
+        full[y0:y1, x0:x1] = True
+        return [full]
+    masks.append(_rect_mask(shapes[0], rows[-1][0], cols[-1][0]))
+    for j in range(levels, 0, -1):
+        r, c = rows[j - 1], cols[j - 1]
+        i = 1 + 3 * (levels - j)
+        masks.append(_rect_mask(shapes[i], r[0], c[1]))      # LH: low rows, high columns
+        masks.append(_rect_mask(shapes[i + 1], r[1], c[0]))  # HL
+        masks.append(_rect_mask(shapes[i + 2], r[1], c[1]))  # HH
+    return masks
+
+
+def scales_for(h: Header, levels: int, ncomp: int) -> list[float] | list[int]:
+    """Per (component, band): the factor (9/7) or left shift (5/3) applied."""
+    if h.reversible:
+        w = band_weights(levels, "53")
+        lo = min(w)
+        shifts = [max(0, int(round(math.log2(v / lo)))) for v in w]
+        return [[s for s in shifts] for _ in range(ncomp)]
+    w = band_weights(levels, "97")
+    res = band_levels(levels)
+    w = [v * FINE_BAND_FACTOR.get(r, 1.0) for v, r in zip(w, res)]
+    comp_w = COLOUR_WEIGHTS if ncomp == 3 else [1.0]
+    return [[v * comp_w[c] * 2.0 ** FRACTION_BITS for v in w] for c in range(ncomp)]
+
+
+@dataclass
+class Plan:
+    """Everything that depends only on the header, shared by encode and decode."""
+    levels: int
+    lay: Layout
+    ccls: np.ndarray        # band class of each coefficient (contexts), uint8
+    cfloor: np.ndarray      # lowest coded plane of each coefficient
+    node_floor: np.ndarray  # min of cfloor over each quadtree node, uint8
+    masks: list | None      # ROI mask per band of one component
+    scales: list            # per component and band: factor (9/7) or shift (5/3)
+    roi: np.ndarray | None = None        # 9/7: the kernels' (x0, y0, x1, y1), zeros for none
+    pos: np.ndarray | None = None        # 9/7: index of each coefficient in the Mallat arrays
+    scale: np.ndarray | None = None      # 9/7: its scale (band weight, ROI raise)
+    inv_scale: np.ndarray | None = None
+    cfloor8: np.ndarray | None = None    # cfloor as uint8, for the coder (small in cache)
+    croi: np.ndarray | None = None       # coefficient raised as part of the ROI
+    cdef: np.ndarray | None = None       # planes below the top it cannot reach
+    cdef8: np.ndarray | None = None
+    node_def: np.ndarray | None = None   # min of cdef over each quadtree node
+
+
+@lru_cache(maxsize=8)
+def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int) -> Plan:
+    # Cached: the ROV sends image after image of one size, and the console
+    # decodes prefix after prefix of one stream.
+    levels = levels_for(height, width)
+    probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
+    lay = layout_for(height, width, levels, ncomp)
+    if roi is None:
+        masks = None
+    else:
+        masks = roi_masks(probe, levels) if reversible else sa_masks(probe, levels)
+    scales = scales_for(probe, levels, ncomp)
+    n = max(lay.ncoef, 1)
+    sizes = lay.binfo[:, 1] * lay.binfo[:, 2]
+    ccls = np.zeros(n, dtype=np.uint8)
+    if lay.ncoef:
+        ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
+    cfloor = np.zeros(n, dtype=np.int64)
+    plan = Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales)
+    if reversible:
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            c, i = lay.comp[b], lay.index[b]
+            f = np.full((bh, bw), scales[c][i], dtype=np.int64)
+            if masks is not None:
+                f[masks[i]] += shift
+            cfloor[off:off + bh * bw] = f.ravel()
+    else:
+        hs, ws = [height], [width]
+        for _ in range(levels):
+            hs.append(-(-hs[-1] // 2))
+            ws.append(-(-ws[-1] // 2))
+        origins = [(0, 0)]
+        for j in range(levels, 0, -1):
+            origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
+        pos = np.zeros(n, dtype=np.int64)
+        scale = np.ones(n, dtype=np.float64)
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if not bh or not bw:
+                continue
+            c, i = lay.comp[b], lay.index[b]
+            y0, x0 = origins[i]
+            yy, xx = np.mgrid[0:bh, 0:bw]
+            pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
+            sc = np.full((bh, bw), scales[c][i])
+            if masks is not None:
+                sc[masks[i]] *= 2.0 ** shift
+            scale[off:off + bh * bw] = sc.ravel()
+        plan.pos, plan.scale, plan.inv_scale = pos, scale, 1.0 / scale
+        plan.roi = np.array(roi if masks is not None else (0, 0, 0, 0), dtype=np.int64)
+    # The coder's floor bytes: lowest coded plane, plus 128 inside the ROI.
+    croi = np.zeros(n, dtype=np.int64)
+    if masks is not None:
+        for b in range(len(lay.shapes)):
+            off, bh, bw = lay.binfo[b, :3]
+            if bh and bw:
+                croi[off:off + bh * bw] = masks[lay.index[b]].ravel()
+    plan.croi = croi.astype(bool)
+    # The background stays under the top less `shift` planes: the coder
+    # does not test it there.
+    cdef = np.where(plan.croi, 0, shift) if masks is not None else np.zeros(n, dtype=np.int64)
+    plan.cdef = cdef
+    plan.cdef8 = cdef.astype(np.uint8)
+    plan.node_def = pyramid(cdef, lay, False).astype(np.uint8)
+    plan.node_floor = (pyramid(cfloor, lay, False) | (pyramid(croi, lay, True) << 7)).astype(np.uint8)
+    plan.cfloor8 = (cfloor | (croi << 7)).astype(np.uint8)
+    return plan
