@@ -1,7 +1,7 @@
-"""The bridge from the ROV node to ArduSub, over MAVLink with pymavlink.
+"""The bridge from the ROV node to ArduSub, over MAVLink with pymavlink: the I/O part.
 
 Goals
-- Turn the node's wishes (velocity, arm, mode, position orders, stop, failsafe)
+- Turn the node's wishes (velocity, arm, mode, position orders, brake, failsafe)
   into what ArduSub understands, and ArduSub's telemetry into one small snapshot
   the node can put in its reply.  MAVLink stays on the ROV: it is far too heavy for
   the radio, so we ask the autopilot only for what the link needs.
@@ -10,28 +10,36 @@ Goals
   `udpin:0.0.0.0:14550`, SITL `tcp:127.0.0.1:5760`, a serial device) and the
   simulator in `rov.simulator`.
 
-Plan
-- One I/O thread owns the pymavlink connection; the public methods only take a
+Plan (the logic lives in sans-I/O modules; this one owns the socket and the thread)
+- `rov.commands.CommandTracker`: arm, mode and message-interval requests,
+  resent every 0.5 s until COMMAND_ACK, failed after 2 s; `Ticket`s for the node.
+- `rov.telemetry.Telemetry`: the autopilot's state with its freshness, and the
+  `AutopilotSnapshot`.
+- `rov.goto.GotoDriver`: the position order in GUIDED.
+- Here: one I/O thread owns the pymavlink connection; the public methods take a
   lock, record a wish or queue a request, and return.  The thread acts as a ground
-  station (system id 255 by default): HEARTBEAT at 1 Hz; MAV_CMD_SET_MESSAGE_INTERVAL
-  for ATTITUDE, LOCAL_POSITION_NED and SYS_STATUS (asked again when a stream goes
-  quiet); MANUAL_CONTROL from the current velocity wish at 10 Hz whatever the radio
-  does, since ArduSub disarms after 3 s without pilot input.
-- Armed state and mode are read from the autopilot's HEARTBEAT, never assumed.
-  Requests (arm, mode) go out as COMMAND_LONG, are resent every 0.5 s until
-  answered by COMMAND_ACK (or seen in the HEARTBEAT), and resolve a `Ticket` the
-  node can poll; without an answer within 5 s they fail.  A newer request of the
-  same kind cancels the older one.
-- A position order switches to GUIDED (if needed), resolves relative and body-frame
-  offsets against the latest pose, and sends SET_POSITION_TARGET_LOCAL_NED
-  (position and yaw, resent every second) once GUIDED is acknowledged.  ArduSub
-  does not acknowledge targets, so "accepted" means: GUIDED confirmed and the
-  target sent; a refused GUIDED (no position estimate) fails the order.  The order
-  ends with STOP, another mode request, a newer order, or when the autopilot leaves
-  GUIDED by itself.
-- No HEARTBEAT for 3 s: AUTOPILOT is reported lost, and the connection is closed
-  and reopened with a growing backoff (0.5 s doubling to 8 s), as is any
-  connection that fails to open or breaks.
+  station (system id 255 by default): HEARTBEAT at 1 Hz; MANUAL_CONTROL from the
+  current velocity wish at 10 Hz whatever the radio does, since ArduSub disarms
+  after 3 s without pilot input; SET_MESSAGE_INTERVAL for HEARTBEAT (5 Hz),
+  ATTITUDE and LOCAL_POSITION_NED (10 Hz) and SYS_STATUS (1 Hz) whenever an
+  autopilot is (re)found or a stream goes quiet.
+- No HEARTBEAT for 3 s, a connection that fails to open, or one the peer closes
+  (pymavlink's TCP EOF, turned into `MavlinkClosed` by `rov.mavurl`): the
+  connection is closed and reopened with a growing backoff (0.5 s doubling to
+  8 s, back to 0.5 s once a heartbeat is heard), one log line per attempt.
+
+Decisions
+- The reported mode (and armed state) is taken from an accepted DO_SET_MODE's
+  (ARM_DISARM's) COMMAND_ACK at once (ArduSub acknowledges after the change), and from every HEARTBEAT, asked at 5 Hz,
+  so a change the bridge did not make shows within 0.2 s plus the poll.  MAVLink's
+  ACK names no request: two mode requests in flight (a STOP right after a
+  POSITION) can be credited in the wrong order; the next heartbeat corrects it.
+- Braking (STOP, failsafe): neutral sticks first (sent at once), then POSHOLD when
+  the position estimate is valid, else ALT_HOLD; a refused POSHOLD falls back to
+  ALT_HOLD.  ArduSub's ALT_HOLD holds depth but coasts (0.6-0.9 m measured);
+  POSHOLD brakes.
+- A position order is refused by the bridge itself (REASON 1) while disarmed,
+  without a position estimate or without an autopilot; see `rov.goto`.
 
 API (all methods thread-safe and non-blocking, safe to call from asyncio code)
     bridge = AutopilotBridge("udpin:0.0.0.0:14550", gcs_system_id=255)
@@ -47,215 +55,73 @@ API (all methods thread-safe and non-blocking, safe to call from asyncio code)
     bridge.goto(x_m, y_m, z_m, yaw_rad=None, relative=False, body=False) -> GotoTicket
         absolute: local NED; relative: offsets from the current pose (yaw too);
         body (with relative): the x/y offset is in the vehicle's frame, else NED.
-        yaw None keeps the heading.
-        Non-finite numbers: failed at once; a relative order without a valid
-        position: failed by the I/O thread (within ~20 ms).
-    bridge.stop_motion() -> Ticket       # the protocol's STOP: neutral velocity,
-                                          # cancel any position order, ALT_HOLD.
-    bridge.failsafe(active)               # link lost: stop_motion() once, then hold
-                                          # neutral velocity until failsafe(False).
-    bridge.snapshot() -> AutopilotSnapshot   # frozen; see its fields.
-  Ticket.status is "pending", "accepted", "failed" or "cancelled"; .reason says why;
-  .done once it is not pending; .wait(timeout_s) blocks (threads and tests only).
-  GotoTicket adds .target (the resolved absolute target) and .reached.
+        yaw None keeps the heading.  Failed at once (reject_reason 1) when
+        disarmed, without a position estimate or autopilot; non-finite numbers:
+        failed at once (reject_reason 0).
+    bridge.brake() -> BrakeTicket         # the protocol's STOP: neutral velocity, cancel
+                                          # any position order, POSHOLD with a valid position
+                                          # estimate, else ALT_HOLD (ticket.hold_mode says which).
+    bridge.stop_motion()                  # the same (older name)
+    bridge.failsafe(active)               # link lost: brake() once, then hold neutral
+                                          # velocity until failsafe(False).
+    bridge.snapshot() -> AutopilotSnapshot   # frozen; see rov.telemetry.
+  Ticket.status is "pending", "accepted", "failed" or "cancelled"; .reason says why
+  in words; .reject_reason is PROTOCOL.md §3's REASON for a failed one (1 impossible
+  now, 2 the autopilot refused or did not answer within 2 s); .done once it is not
+  pending; .wait(timeout_s) blocks (threads and tests only).  GotoTicket adds
+  .target (the resolved absolute target) and .reached.  "cancelled" means
+  abandoned (a newer request, STOP, the failsafe, the bridge stopping).
 """
 
 from __future__ import annotations
 
 import collections
-import dataclasses
 import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
 
+from rovlink.rov.ardusub import (  # noqa: F401  (PROTOCOL_TO_SUB ... re-exported for older callers)
+    MAV_RESULT_NAMES,
+    PROTOCOL_MODE_OTHER,
+    PROTOCOL_MODE_UNKNOWN,
+    PROTOCOL_TO_SUB,
+    SUB_TO_PROTOCOL,
+    TYPEMASK_POSITION_AND_YAW,
+    TYPEMASK_YAW_IGNORE,
+    SubMode,
+    mavlink,
+    mode_name,
+    protocol_mode,
+    sub_mode,
+)
+from rovlink.rov.commands import (  # noqa: F401
+    REASON_IMPOSSIBLE,
+    REASON_INVALID,
+    REASON_REFUSED,
+    CommandTracker,
+    GotoTicket,
+    Ticket,
+)
+from rovlink.rov.goto import GotoDriver, GotoOrder, goto_refusal
 from rovlink.rov.mavurl import open_mavlink, parse_mavlink_url
-from rovlink.rov.vehicle import PilotInput, SubMode, wrap_angle
+from rovlink.rov.telemetry import HEARTBEAT_TIMEOUT_S, AutopilotSnapshot, Telemetry  # noqa: F401
+from rovlink.rov.vehicle import PilotInput
 
 log = logging.getLogger(__name__)
-
-# The protocol's MODE numbers (PROTOCOL.md §2 VELOCITY, §5 reply) and ArduSub's.
-PROTOCOL_TO_SUB = {
-    1: SubMode.MANUAL,
-    2: SubMode.STABILIZE,
-    3: SubMode.ALT_HOLD,
-    4: SubMode.POSHOLD,
-    5: SubMode.GUIDED,
-    6: SubMode.SURFACE,
-}
-SUB_TO_PROTOCOL = {int(sub): proto for proto, sub in PROTOCOL_TO_SUB.items()}
-PROTOCOL_MODE_OTHER = 7
-PROTOCOL_MODE_UNKNOWN = 0
-MODE_NAMES = {
-    "MANUAL": SubMode.MANUAL,
-    "STABILIZE": SubMode.STABILIZE,
-    "DEPTH_HOLD": SubMode.ALT_HOLD,
-    "ALT_HOLD": SubMode.ALT_HOLD,
-    "POS_HOLD": SubMode.POSHOLD,
-    "POSHOLD": SubMode.POSHOLD,
-    "GUIDED": SubMode.GUIDED,
-    "SURFACE": SubMode.SURFACE,
-}
-
-# MAVLink numbers (common dialect).
-MAV_TYPE_GCS = 6
-MAV_AUTOPILOT_INVALID = 8
-MAV_STATE_ACTIVE = 4
-MAV_COMP_ID_MISSIONPLANNER = 190
-MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MODE_FLAG_SAFETY_ARMED = 128
-CMD_DO_SET_MODE = 176
-CMD_COMPONENT_ARM_DISARM = 400
-CMD_SET_MESSAGE_INTERVAL = 511
-FRAME_LOCAL_NED = 1
-TYPEMASK_POSITION_AND_YAW = 0b0000_1001_1111_1000  # ignore velocity, accel, yaw rate
-TYPEMASK_YAW_IGNORE = 1024
-MAV_RESULT_NAMES = {0: "accepted", 1: "temporarily rejected", 2: "denied", 3: "unsupported", 4: "failed", 5: "in progress"}
-
-MSG_IDS = {"ATTITUDE": 30, "LOCAL_POSITION_NED": 32, "SYS_STATUS": 1}
 
 HEARTBEAT_PERIOD_S = 1.0
 MANUAL_CONTROL_PERIOD_S = 0.1  # 10 Hz: twice the 5 Hz ArduSub needs to feel "fed"
 MANUAL_CONTROL_MIN_GAP_S = 0.02  # a changed wish goes out at once, but not faster than this
-HEARTBEAT_TIMEOUT_S = 3.0
-POSITION_TIMEOUT_S = 2.0
-COMMAND_RESEND_S = 0.5
-COMMAND_DEADLINE_S = 5.0
-REACHED_DISTANCE_M = 0.3
-REACHED_YAW_RAD = math.radians(10)
+AUTOPILOT_HEARTBEAT_INTERVAL_S = 0.2  # asked of the autopilot: a mode change shows within 0.2 s
 BACKOFF_FIRST_S = 0.5
 BACKOFF_MAX_S = 8.0
 
 
-def protocol_mode(custom_mode: int | None) -> int:
-    """The protocol's reported MODE for an ArduSub custom mode (None: unknown)."""
-    if custom_mode is None:
-        return PROTOCOL_MODE_UNKNOWN
-    return SUB_TO_PROTOCOL.get(int(custom_mode), PROTOCOL_MODE_OTHER)
-
-
-def sub_mode(mode: str | int | SubMode) -> SubMode:
-    """ArduSub's mode for a protocol name, a protocol number or a SubMode."""
-    if isinstance(mode, SubMode):
-        return mode
-    if isinstance(mode, str):
-        key = mode.strip().upper().replace("-", "_").replace(" ", "_")
-        if key in MODE_NAMES:
-            return MODE_NAMES[key]
-        raise ValueError(f"unknown mode name {mode!r}; expected one of {', '.join(MODE_NAMES)}")
-    if isinstance(mode, int) and not isinstance(mode, bool) and mode in PROTOCOL_TO_SUB:
-        return PROTOCOL_TO_SUB[mode]
-    raise ValueError(f"unknown mode {mode!r}; expected a protocol mode 1..6 or a name")
-
-
-@dataclass(frozen=True)
-class AutopilotSnapshot:
-    """What the node reports: the autopilot's own view, never the bridge's wishes."""
-
-    x_m: float = 0.0  # local NED: north
-    y_m: float = 0.0  # east
-    z_m: float = 0.0  # down (depth)
-    roll_rad: float = 0.0
-    pitch_rad: float = 0.0
-    yaw_rad: float = 0.0  # 0 north, clockwise positive
-    vx_mps: float = 0.0  # NED velocities from LOCAL_POSITION_NED
-    vy_mps: float = 0.0
-    vz_mps: float = 0.0
-    yaw_rate_radps: float = 0.0
-    armed: bool = False  # HEARTBEAT base_mode SAFETY_ARMED; False while the autopilot is lost
-    custom_mode: int | None = None  # ArduSub's mode number, None until known
-    mode: int = PROTOCOL_MODE_UNKNOWN  # the protocol's MODE 0..7
-    autopilot_alive: bool = False  # a HEARTBEAT within the last 3 s
-    position_valid: bool = False  # LOCAL_POSITION_NED within the last 2 s
-    connected: bool = False  # the MAVLink connection is open
-    failsafe: bool = False  # failsafe(True) in force
-    battery_v: float | None = None
-    updated_s: float = 0.0  # time.monotonic() of the last telemetry received
-    status_text: str = ""  # the autopilot's last STATUSTEXT
-
-
-class Ticket:
-    """A request the node can poll.  Resolved once by the I/O thread."""
-
-    PENDING, ACCEPTED, FAILED, CANCELLED = "pending", "accepted", "failed", "cancelled"
-
-    def __init__(self, kind: str) -> None:
-        self.kind = kind
-        self._status = Ticket.PENDING
-        self._reason = ""
-        self._event = threading.Event()
-
-    @property
-    def status(self) -> str:
-        return self._status
-
-    @property
-    def reason(self) -> str:
-        return self._reason
-
-    @property
-    def done(self) -> bool:
-        return self._status != Ticket.PENDING
-
-    @property
-    def ok(self) -> bool:
-        return self._status == Ticket.ACCEPTED
-
-    def wait(self, timeout_s: float | None = None) -> str:
-        """Block until resolved (not for the asyncio loop: poll `.status` there)."""
-        self._event.wait(timeout_s)
-        return self._status
-
-    def _resolve(self, status: str, reason: str = "") -> bool:
-        if self._status != Ticket.PENDING:
-            return False
-        self._reason = reason
-        self._status = status
-        self._event.set()
-        if status == Ticket.FAILED:
-            log.warning("%s failed: %s", self.kind, reason)
-        return True
-
-    def __repr__(self) -> str:
-        return f"<{type(self).__name__} {self.kind} {self._status}{': ' + self._reason if self._reason else ''}>"
-
-
-class GotoTicket(Ticket):
-    def __init__(self, kind: str) -> None:
-        super().__init__(kind)
-        self.target: tuple[float, float, float, float | None] | None = None  # x, y, z m, yaw rad
-        self.reached = False
-
-
-@dataclass
-class _Request:
-    """A COMMAND_LONG in flight."""
-
-    ticket: Ticket
-    command: int
-    params: tuple[float, ...]
-    created_s: float
-    sent_s: float = -math.inf
-    sends: int = 0
-    acked: bool = False
-    want_mode: int | None = None  # resolve when the HEARTBEAT shows this mode
-    want_armed: bool | None = None
-
-
-@dataclass
-class _Goto:
-    ticket: GotoTicket
-    x_m: float
-    y_m: float
-    z_m: float
-    yaw_rad: float | None
-    relative: bool
-    body: bool
-    created_s: float
-    mode_request: _Request | None = None
-    target_sent_s: float = -math.inf
-    seen_guided: bool = False
+class BrakeTicket(Ticket):
+    def __init__(self) -> None:
+        super().__init__("brake")
+        self.hold_mode: SubMode | None = None  # POSHOLD or ALT_HOLD, once chosen
 
 
 class AutopilotBridge:
@@ -264,7 +130,7 @@ class AutopilotBridge:
         url: str,
         *,
         gcs_system_id: int = 255,
-        gcs_component_id: int = MAV_COMP_ID_MISSIONPLANNER,
+        gcs_component_id: int = mavlink.MAV_COMP_ID_MISSIONPLANNER,
         target_system: int | None = None,
         telemetry_hz: float = 10.0,
     ) -> None:
@@ -278,27 +144,27 @@ class AutopilotBridge:
         self._lock = threading.Lock()
         self._stop_event = threading.Event()
         self._thread: threading.Thread | None = None
-        self._snap = AutopilotSnapshot()
+        # Shared with the caller, under the lock:
+        self._telemetry = Telemetry()
         self._pilot = PilotInput()
         self._pilot_changed = False
-        self._last_manual_s = -math.inf
         self._failsafe = False
         self._queue: collections.deque = collections.deque()
-        # I/O-thread state below (touched only by the thread, or under the lock)
+        # The I/O thread's own:
         self._conn = None
+        self._tracker = CommandTracker()
+        self._goto = GotoDriver(self._tracker)
+        self._brake: tuple[BrakeTicket, Ticket] | None = None  # the node's ticket, the mode request's
         self._target_system = target_system if target_system is not None else 1
         self._target_component = 1
-        self._last_heartbeat_s = -math.inf
-        self._last_position_s = -math.inf
-        self._last_seen_s: dict[str, float] = {}
-        self._stream_asked_s: dict[str, float] = {}
-        self._requests: list[_Request] = []
-        self._goto: _Goto | None = None
+        self._last_seen_s: dict[int, float] = {}
+        self._stream_asked_s: dict[int, float] = {}
         self._opened_s = 0.0
         self._backoff_s = BACKOFF_FIRST_S
         self._reopen_at_s = 0.0
         self._next_heartbeat_s = 0.0
         self._next_manual_s = 0.0
+        self._last_manual_s = -math.inf
         self.manual_controls_sent = 0  # counters for tests and diagnostics
         self.reconnects = 0
 
@@ -312,6 +178,7 @@ class AutopilotBridge:
         return self
 
     def stop(self, timeout_s: float = 3.0) -> None:
+        """Send neutral sticks, close the connection, cancel what is pending."""
         self._stop_event.set()
         thread, self._thread = self._thread, None
         if thread is not None and thread is not threading.current_thread():
@@ -363,31 +230,41 @@ class AutopilotBridge:
         except (TypeError, ValueError):
             values = [math.nan]
         if not all(math.isfinite(v) for v in values):
-            ticket._resolve(Ticket.FAILED, "target is not a finite number")
+            ticket.fail("target is not a finite number", REASON_INVALID)
             return ticket
-        order = _Goto(
-            ticket, float(x_m), float(y_m), float(z_m), None if yaw_rad is None else float(yaw_rad),
-            bool(relative), bool(body), time.monotonic(),
-        )
+        # Impossible now: refuse at once, before anything is asked of the autopilot
+        # (the I/O thread checks again when it takes the order).
+        why = goto_refusal(self.snapshot())
+        if why is not None:
+            ticket.fail(why, REASON_IMPOSSIBLE)
+            return ticket
+        order = GotoOrder(float(x_m), float(y_m), float(z_m), None if yaw_rad is None else float(yaw_rad),
+                          bool(relative), bool(body))
         with self._lock:
             self._set_pilot(PilotInput())  # a position order replaces the velocity wish
             self._queue.append(("goto", order, ticket))
         return ticket
 
-    def stop_motion(self) -> Ticket:
-        ticket = Ticket("stop")
+    def brake(self) -> BrakeTicket:
+        """STOP: neutral at once, any position order cancelled, then POSHOLD when the
+        position estimate is valid, else ALT_HOLD.  Accepted once the autopilot
+        confirms the hold mode."""
+        ticket = BrakeTicket()
         with self._lock:
             self._set_pilot(PilotInput())
-            self._queue.append(("stop", None, ticket))
+            self._queue.append(("brake", None, ticket))
         return ticket
+
+    stop_motion = brake  # the older name
 
     def failsafe(self, active: bool) -> None:
         with self._lock:
             was, self._failsafe = self._failsafe, bool(active)
-            self._snap = dataclasses.replace(self._snap, failsafe=self._failsafe)
+            if active:
+                self._set_pilot(PilotInput())
         if active and not was:
-            log.warning("failsafe: stopping and holding depth")
-            self.stop_motion()
+            log.warning("failsafe: neutral and brake")
+            self.brake()
         elif was and not active:
             log.info("failsafe cleared")
 
@@ -401,16 +278,7 @@ class AutopilotBridge:
     def snapshot(self) -> AutopilotSnapshot:
         now = time.monotonic()
         with self._lock:
-            snap = self._snap
-            alive = now - self._last_heartbeat_s < HEARTBEAT_TIMEOUT_S
-            position_valid = alive and now - self._last_position_s < POSITION_TIMEOUT_S
-        if alive:
-            return dataclasses.replace(snap, autopilot_alive=True, position_valid=position_valid)
-        # Without a fresh heartbeat we know nothing about arming or mode.
-        return dataclasses.replace(
-            snap, autopilot_alive=False, position_valid=False, armed=False,
-            custom_mode=None, mode=PROTOCOL_MODE_UNKNOWN,
-        )
+            return self._telemetry.snapshot(now, connected=self._conn is not None, failsafe=self._failsafe)
 
     # --- the I/O thread ---------------------------------------------------------
 
@@ -419,15 +287,17 @@ class AutopilotBridge:
             while not self._stop_event.is_set():
                 now = time.monotonic()
                 if self._conn is None:
+                    self._take_queue(now)
+                    self._tracker.expire(now, reachable=False)
+                    self._step_brake(now)
                     if now < self._reopen_at_s:
                         self._stop_event.wait(min(self._reopen_at_s - now, 0.1))
-                        self._expire_requests(now)
                         continue
                     self._open(now)
                     continue
                 try:
                     msg = self._conn.recv_match(blocking=True, timeout=0.02)
-                except Exception as exc:  # serial unplugged, socket error, parser trouble
+                except Exception as exc:  # closed by the peer, serial unplugged, parser trouble
                     self._drop(f"receive failed: {exc}")
                     continue
                 now = time.monotonic()
@@ -452,13 +322,14 @@ class AutopilotBridge:
             return
         try:
             for _ in range(2):  # two datagrams: one loss must not leave the stick deflected
-                self._conn.mav.manual_control_send(self._target_system, 0, 0, 500, 0, 0)
+                neutral = PilotInput()
+                self._conn.mav.manual_control_send(self._target_system, neutral.x, neutral.y, neutral.z, neutral.r, 0)
         except Exception as exc:
             log.debug("could not send the final neutral input: %s", exc)
 
     def _open(self, now: float) -> None:
         try:
-            self._conn = open_mavlink(self.url, self.gcs_system_id, self.gcs_component_id)
+            conn = open_mavlink(self.url, self.gcs_system_id, self.gcs_component_id)
         except Exception as exc:
             log.warning("cannot open %s: %s; retrying in %.1f s", self.url.device, exc, self._backoff_s)
             self._schedule_reopen(now)
@@ -470,23 +341,24 @@ class AutopilotBridge:
         self._last_seen_s.clear()
         self._stream_asked_s.clear()
         with self._lock:
-            self._snap = dataclasses.replace(self._snap, connected=True)
+            self._conn = conn
 
     def _schedule_reopen(self, now: float) -> None:
         self._reopen_at_s = now + self._backoff_s
         self._backoff_s = min(self._backoff_s * 2.0, BACKOFF_MAX_S)
 
     def _close(self) -> None:
-        conn, self._conn = self._conn, None
+        with self._lock:
+            conn, self._conn = self._conn, None
+            self._telemetry.lost()
         if conn is not None:
             try:
                 conn.close()
             except Exception:
                 pass
-        with self._lock:
-            self._snap = dataclasses.replace(self._snap, connected=False)
 
     def _drop(self, why: str) -> None:
+        """The one log line of a failed attempt: why, and when the next comes."""
         log.warning("%s: closing %s, reopening in %.1f s", why, self.url.device, self._backoff_s)
         self._close()
         self.reconnects += 1
@@ -494,151 +366,152 @@ class AutopilotBridge:
 
     # incoming
 
-    def _from_autopilot(self, msg) -> bool:
-        return msg.get_srcSystem() == self._target_system
-
     def _handle(self, msg, now: float) -> None:
         kind = msg.get_type()
         if kind == "HEARTBEAT":
             self._on_heartbeat(msg, now)
             return
-        if kind == "BAD_DATA" or not self._from_autopilot(msg):
+        if kind == "BAD_DATA" or msg.get_srcSystem() != self._target_system:
             return
-        self._last_seen_s[kind] = now
+        msg_id = msg.get_msgId()
+        self._last_seen_s[msg_id] = now
         if kind == "ATTITUDE":
             with self._lock:
-                self._snap = dataclasses.replace(
-                    self._snap, roll_rad=float(msg.roll), pitch_rad=float(msg.pitch),
-                    yaw_rad=float(msg.yaw), yaw_rate_radps=float(msg.yawspeed), updated_s=now,
-                )
+                self._telemetry.on_attitude(float(msg.roll), float(msg.pitch), float(msg.yaw), float(msg.yawspeed), now)
         elif kind == "LOCAL_POSITION_NED":
-            values = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-            if all(math.isfinite(v) for v in values):
-                with self._lock:
-                    self._last_position_s = now
-                    self._snap = dataclasses.replace(
-                        self._snap, x_m=float(msg.x), y_m=float(msg.y), z_m=float(msg.z),
-                        vx_mps=float(msg.vx), vy_mps=float(msg.vy), vz_mps=float(msg.vz), updated_s=now,
-                    )
+            with self._lock:
+                self._telemetry.on_position(float(msg.x), float(msg.y), float(msg.z),
+                                            float(msg.vx), float(msg.vy), float(msg.vz), now)
         elif kind == "SYS_STATUS":
             volts = None if msg.voltage_battery in (0, 0xFFFF) else msg.voltage_battery / 1000.0
             with self._lock:
-                self._snap = dataclasses.replace(self._snap, battery_v=volts, updated_s=now)
+                self._telemetry.on_battery(volts, now)
         elif kind == "COMMAND_ACK":
-            self._on_ack(msg)
+            self._on_ack(msg, now)
         elif kind == "STATUSTEXT":
             text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode(errors="replace")
             text = text.rstrip("\x00")
             log.info("autopilot says: %s", text)
             with self._lock:
-                self._snap = dataclasses.replace(self._snap, status_text=text)
+                self._telemetry.on_text(text, now)
 
     def _on_heartbeat(self, msg, now: float) -> None:
-        if msg.type == MAV_TYPE_GCS or msg.autopilot == MAV_AUTOPILOT_INVALID:
+        if msg.type == mavlink.MAV_TYPE_GCS or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
             return  # another ground station, or a companion component
         system = msg.get_srcSystem()
         if self._fixed_target is not None and system != self._fixed_target:
             return
-        if now - self._last_heartbeat_s >= HEARTBEAT_TIMEOUT_S or system != self._target_system:
+        armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        custom = int(msg.custom_mode) if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
+        with self._lock:
+            before = self._telemetry.values
+            found = self._telemetry.on_heartbeat(system, armed, custom, now)
+        if found:
             log.info("autopilot found: system %d component %d", system, msg.get_srcComponent())
             self._stream_asked_s.clear()  # a (re)found autopilot gets asked for streams
+        if armed != before.armed:
+            log.info("autopilot %s", "armed" if armed else "disarmed")
+        if custom != before.custom_mode:
+            log.info("autopilot mode %s", mode_name(custom))
         self._target_system = system
         self._target_component = msg.get_srcComponent()
-        self._last_heartbeat_s = now
+        self._last_seen_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
         self._backoff_s = BACKOFF_FIRST_S
-        armed = bool(msg.base_mode & MODE_FLAG_SAFETY_ARMED)
-        custom = int(msg.custom_mode) if msg.base_mode & MODE_FLAG_CUSTOM_MODE_ENABLED else None
-        with self._lock:
-            if armed != self._snap.armed:
-                log.info("autopilot %s", "armed" if armed else "disarmed")
-            if custom != self._snap.custom_mode:
-                log.info("autopilot mode %s", _mode_name(custom))
-            self._snap = dataclasses.replace(
-                self._snap, armed=armed, custom_mode=custom, mode=protocol_mode(custom), updated_s=now
-            )
-        self._check_requests(now)
+        self._tracker.on_state(armed, custom)
 
-    def _on_ack(self, msg) -> None:
+    def _on_ack(self, msg, now: float) -> None:
         command, result = int(msg.command), int(msg.result)
-        if command == CMD_SET_MESSAGE_INTERVAL and result != 0:
-            log.warning("autopilot refused a message interval: %s", MAV_RESULT_NAMES.get(result, result))
-        for request in list(self._requests):
-            if request.command != command or request.acked:
-                continue
-            if result == 0:
-                # ArduSub acknowledges after the change took effect; the HEARTBEAT
-                # that shows it may come a second later (and the snapshot waits for it).
-                request.acked = True
-                request.ticket._resolve(Ticket.ACCEPTED)
-                self._requests.remove(request)
-            elif result == 5:  # in progress: keep waiting
-                request.acked = True
-            else:
-                request.ticket._resolve(Ticket.FAILED, f"autopilot answered {MAV_RESULT_NAMES.get(result, result)}")
-                self._requests.remove(request)
-            break
-        self._check_requests(time.monotonic())
-
-    def _check_requests(self, now: float) -> None:
-        """Resolve requests whose effect the HEARTBEAT now shows."""
         with self._lock:
-            snap = self._snap
-        for request in list(self._requests):
-            done = (request.want_mode is not None and snap.custom_mode == request.want_mode) or (
-                request.want_armed is not None and snap.armed == request.want_armed
-            )
-            if done and (request.acked or request.sends > 0):
-                request.ticket._resolve(Ticket.ACCEPTED)
-                self._requests.remove(request)
+            detail = self._telemetry.recent_text(now)
+        request = self._tracker.on_ack(command, result, now, detail)
+        if request is None:
+            return
+        if command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL and result != mavlink.MAV_RESULT_ACCEPTED:
+            log.warning("autopilot refused a message interval: %s", MAV_RESULT_NAMES.get(result, result))
+        if command == mavlink.MAV_CMD_DO_SET_MODE and result == mavlink.MAV_RESULT_ACCEPTED:
+            # ArduSub acknowledges after the change: report it now, not at the next beat.
+            with self._lock:
+                self._telemetry.on_mode_accepted(request.want_mode, now)
+        if command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM and result == mavlink.MAV_RESULT_ACCEPTED:
+            with self._lock:
+                self._telemetry.on_armed_accepted(request.want_armed, now)
 
     # outgoing
 
+    def _alive(self, now: float) -> bool:
+        with self._lock:
+            return self._telemetry.alive(now)
+
     def _periodic(self, now: float) -> None:
         conn = self._conn
-        alive = now - self._last_heartbeat_s < HEARTBEAT_TIMEOUT_S
-        if not alive and now - max(self._last_heartbeat_s, self._opened_s) >= HEARTBEAT_TIMEOUT_S:
+        alive = self._alive(now)
+        if not alive:
             with self._lock:
-                was_known = self._snap.custom_mode is not None
-            if was_known or self._last_heartbeat_s > self._opened_s:
-                log.warning("autopilot heartbeat lost")
-            self._drop("no heartbeat for %.0f s" % HEARTBEAT_TIMEOUT_S)
-            return
+                last_heartbeat_s = self._telemetry.last_heartbeat_s
+            if now - max(last_heartbeat_s, self._opened_s) >= HEARTBEAT_TIMEOUT_S:
+                self._drop("no heartbeat for %.0f s" % HEARTBEAT_TIMEOUT_S)
+                return
         if now >= self._next_heartbeat_s:
             self._next_heartbeat_s = now + HEARTBEAT_PERIOD_S
-            conn.mav.heartbeat_send(MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID, 0, 0, MAV_STATE_ACTIVE)
+            conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE)
         with self._lock:
             changed = self._pilot_changed and now - self._last_manual_s >= MANUAL_CONTROL_MIN_GAP_S
-            if now >= self._next_manual_s or changed:
-                pilot = PilotInput() if self._failsafe else self._pilot
-                self._pilot_changed = False
-            else:
-                pilot = None
-        if pilot is not None:
-            self._next_manual_s = max(self._next_manual_s + MANUAL_CONTROL_PERIOD_S, now - MANUAL_CONTROL_PERIOD_S)
-            self._last_manual_s = now
-            conn.mav.manual_control_send(self._target_system, pilot.x, pilot.y, pilot.z, pilot.r, 0)
-            self.manual_controls_sent += 1
+        if now >= self._next_manual_s or changed:
+            self._send_manual(now)
         if alive:
             self._ask_streams(now)
         self._take_queue(now)
-        self._drive_goto(now)
-        self._send_requests(now)
-        self._expire_requests(now)
+        snap = self.snapshot()
+        target = self._goto.step(snap, now)
+        if target is not None:
+            self._send_target(target)
+        if self._goto.brake_wanted:
+            self._goto.brake_wanted = False
+            self._start_brake(BrakeTicket(), now)
+        if alive:  # nobody to talk to otherwise; the deadlines run meanwhile
+            for request in self._tracker.due(now):
+                conn.mav.command_long_send(self._target_system, self._target_component, request.command, 0,
+                                           *request.params)
+        self._tracker.expire(now, reachable=alive)
+        self._step_brake(now)
+
+    def _send_manual(self, now: float) -> None:
+        if self._conn is None:
+            return
+        with self._lock:
+            pilot = PilotInput() if self._failsafe else self._pilot
+            self._pilot_changed = False
+        self._next_manual_s = max(self._next_manual_s + MANUAL_CONTROL_PERIOD_S, now - MANUAL_CONTROL_PERIOD_S)
+        self._last_manual_s = now
+        self._conn.mav.manual_control_send(self._target_system, pilot.x, pilot.y, pilot.z, pilot.r, 0)
+        self.manual_controls_sent += 1
 
     def _ask_streams(self, now: float) -> None:
         rates = {
-            "ATTITUDE": self.telemetry_interval_s,
-            "LOCAL_POSITION_NED": self.telemetry_interval_s,
-            "SYS_STATUS": 1.0,
+            mavlink.MAVLINK_MSG_ID_HEARTBEAT: AUTOPILOT_HEARTBEAT_INTERVAL_S,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: self.telemetry_interval_s,
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self.telemetry_interval_s,
+            mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
         }
-        for name, interval_s in rates.items():
-            quiet_s = now - max(self._last_seen_s.get(name, -math.inf), self._stream_asked_s.get(name, -math.inf))
-            if quiet_s > 3 * interval_s + 1.0:
-                self._stream_asked_s[name] = now
-                self._command(CMD_SET_MESSAGE_INTERVAL, (MSG_IDS[name], interval_s * 1e6, 0, 0, 0, 0, 0))
+        for msg_id, interval_s in rates.items():
+            asked = self._stream_asked_s.get(msg_id)
+            last = max(self._last_seen_s.get(msg_id, -math.inf), -math.inf if asked is None else asked)
+            # Asked when an autopilot is (re)found, again when the stream goes quiet
+            # (an autopilot restarted within the heartbeat timeout forgets them).
+            if asked is None or now - last > 3 * interval_s + 1.0:
+                self._stream_asked_s[msg_id] = now
+                self._tracker.request(
+                    Ticket(f"interval {msg_id}"), mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                    (msg_id, interval_s * 1e6), now, kind=f"interval {msg_id}",
+                )
 
-    def _command(self, command: int, params: tuple[float, ...]) -> None:
-        self._conn.mav.command_long_send(self._target_system, self._target_component, command, 0, *params)
+    def _send_target(self, target: tuple[float, float, float, float | None]) -> None:
+        x, y, z, yaw = target
+        mask = TYPEMASK_POSITION_AND_YAW | (TYPEMASK_YAW_IGNORE if yaw is None else 0)
+        self._conn.mav.set_position_target_local_ned_send(
+            0, self._target_system, self._target_component, mavlink.MAV_FRAME_LOCAL_NED, mask,
+            x, y, z, 0, 0, 0, 0, 0, 0, 0.0 if yaw is None else yaw, 0,
+        )
 
     def _take_queue(self, now: float) -> None:
         while True:
@@ -647,143 +520,54 @@ class AutopilotBridge:
                     return
                 kind, value, ticket = self._queue.popleft()
             if kind == "arm":
-                self._supersede("arm")
-                self._add_request(ticket, CMD_COMPONENT_ARM_DISARM, (1.0 if value else 0.0,), now, want_armed=value)
+                self._tracker.arm(ticket, value, now)
             elif kind == "mode":
-                self._cancel_goto("another mode was requested")
-                self._request_mode(ticket, value, now)
-            elif kind == "stop":
-                self._cancel_goto("stopped")
-                self._request_mode(ticket, SubMode.ALT_HOLD, now)
+                self._goto.cancel("another mode was requested")
+                self._cancel_brake("another mode was requested")
+                self._tracker.mode(ticket, value, now)
+            elif kind == "brake":
+                self._start_brake(ticket, now)
             elif kind == "goto":
-                self._cancel_goto("replaced by a newer position order")
-                self._goto = value
+                self._cancel_brake("a position order was taken")
+                self._goto.start(ticket, value, self.snapshot(), now)
 
-    def _request_mode(self, ticket: Ticket, mode: SubMode, now: float) -> _Request:
-        self._supersede("mode")
-        return self._add_request(
-            ticket, CMD_DO_SET_MODE, (float(MODE_FLAG_CUSTOM_MODE_ENABLED), float(mode)), now, want_mode=int(mode)
-        )
+    def _start_brake(self, ticket: BrakeTicket, now: float) -> None:
+        self._send_manual(now)  # neutral before the mode change, whatever the 10 Hz slot
+        self._goto.cancel("stopped")
+        self._cancel_brake("a newer brake")
+        snap = self.snapshot()
+        hold = SubMode.POSHOLD if snap.position_valid else SubMode.ALT_HOLD
+        ticket.hold_mode = hold
+        self._brake = (ticket, self._tracker.mode(Ticket(f"mode {hold.name} to brake"), hold, now).ticket)
 
-    def _add_request(self, ticket, command, params, now, want_mode=None, want_armed=None) -> _Request:
-        params = tuple(params) + (0.0,) * (7 - len(params))
-        request = _Request(ticket, command, params, now, want_mode=want_mode, want_armed=want_armed)
-        self._requests.append(request)
-        return request
+    def _step_brake(self, now: float) -> None:
+        if self._brake is None:
+            return
+        ticket, request = self._brake
+        if not request.done:
+            return
+        if request.status == Ticket.FAILED and ticket.hold_mode == SubMode.POSHOLD:
+            log.warning("POSHOLD refused (%s): braking in ALT_HOLD", request.reason)
+            ticket.hold_mode = SubMode.ALT_HOLD
+            self._brake = (ticket, self._tracker.mode(Ticket("mode ALT_HOLD to brake"), SubMode.ALT_HOLD, now).ticket)
+            return
+        self._brake = None
+        if request.status == Ticket.FAILED:
+            ticket.fail(request.reason, request.reject_reason)
+        else:
+            ticket._resolve(request.status, request.reason)
 
-    def _supersede(self, what: str) -> None:
-        command = CMD_COMPONENT_ARM_DISARM if what == "arm" else CMD_DO_SET_MODE
-        for request in list(self._requests):
-            if request.command == command:
-                request.ticket._resolve(Ticket.CANCELLED, "superseded by a newer request")
-                self._requests.remove(request)
-
-    def _send_requests(self, now: float) -> None:
-        if now - self._last_heartbeat_s >= HEARTBEAT_TIMEOUT_S:
-            return  # nobody to talk to yet; the deadline runs meanwhile
-        for request in self._requests:
-            if not request.acked and now - request.sent_s >= COMMAND_RESEND_S:
-                request.sent_s = now
-                request.sends += 1
-                self._command(request.command, request.params)
-        self._check_requests(now)
-
-    def _expire_requests(self, now: float) -> None:
-        for request in list(self._requests):
-            if now - request.created_s > COMMAND_DEADLINE_S:
-                alive = now - self._last_heartbeat_s < HEARTBEAT_TIMEOUT_S
-                why = "autopilot did not confirm" if alive else "autopilot not reachable"
-                request.ticket._resolve(Ticket.FAILED, why)
-                self._requests.remove(request)
-        goto = self._goto
-        if goto is not None and not goto.ticket.done and now - goto.created_s > COMMAND_DEADLINE_S + 1.0:
-            goto.ticket._resolve(Ticket.FAILED, "GUIDED not confirmed in time")
-            self._goto = None
-
-    def _cancel_goto(self, why: str) -> None:
-        goto, self._goto = self._goto, None
-        if goto is not None:
-            goto.ticket._resolve(Ticket.CANCELLED, why)
-            if goto.mode_request is not None and goto.mode_request in self._requests:
-                self._requests.remove(goto.mode_request)
+    def _cancel_brake(self, why: str) -> None:
+        brake, self._brake = self._brake, None
+        if brake is not None:
+            brake[0]._resolve(Ticket.CANCELLED, why)
 
     def _cancel_all(self, why: str) -> None:
-        self._cancel_goto(why)
-        for request in self._requests:
-            request.ticket._resolve(Ticket.CANCELLED, why)
-        self._requests.clear()
+        self._goto.cancel(why)
+        self._cancel_brake(why)
+        self._tracker.cancel_all(why)
         with self._lock:
             queued = list(self._queue)
             self._queue.clear()
         for _, _, ticket in queued:
             ticket._resolve(Ticket.CANCELLED, why)
-
-    def _drive_goto(self, now: float) -> None:
-        goto = self._goto
-        if goto is None:
-            return
-        snap = self.snapshot()
-        ticket = goto.ticket
-        if ticket.target is None:
-            if goto.relative and not snap.position_valid:
-                ticket._resolve(Ticket.FAILED, "no position estimate to resolve a relative order")
-                self._goto = None
-                return
-            ticket.target = self._resolve_target(goto, snap)
-        if goto.mode_request is None and snap.custom_mode != SubMode.GUIDED:
-            goto.mode_request = self._request_mode(Ticket("mode GUIDED for goto"), SubMode.GUIDED, now)
-        if goto.mode_request is not None and goto.mode_request.ticket.status in (Ticket.FAILED, Ticket.CANCELLED):
-            ticket._resolve(Ticket.FAILED, f"autopilot refused GUIDED ({goto.mode_request.ticket.reason})")
-            self._goto = None
-            return
-        if snap.custom_mode == SubMode.GUIDED:
-            goto.seen_guided = True
-        elif goto.seen_guided:
-            # The autopilot left GUIDED on its own (a failsafe, another ground
-            # station): the order is over; do not keep sending targets it ignores.
-            log.info("autopilot left GUIDED: position order ended")
-            self._goto = None
-            return
-        guided_acked = goto.mode_request is not None and goto.mode_request.ticket.status == Ticket.ACCEPTED
-        if snap.custom_mode != SubMode.GUIDED and not guided_acked:
-            return
-        # Resend the target every second: ArduSub keeps it, and a lost datagram costs one second.
-        if now - goto.target_sent_s >= 1.0:
-            goto.target_sent_s = now
-            x, y, z, yaw = ticket.target
-            mask = TYPEMASK_POSITION_AND_YAW | (TYPEMASK_YAW_IGNORE if yaw is None else 0)
-            self._conn.mav.set_position_target_local_ned_send(
-                0, self._target_system, self._target_component, FRAME_LOCAL_NED, mask,
-                x, y, z, 0, 0, 0, 0, 0, 0, 0.0 if yaw is None else yaw, 0,
-            )
-            if ticket._resolve(Ticket.ACCEPTED):
-                log.info("GUIDED target sent: x %.2f y %.2f z %.2f m yaw %s", x, y, z,
-                         "keep" if yaw is None else f"{math.degrees(yaw):.0f} deg")
-        if snap.position_valid:
-            x, y, z, yaw = ticket.target
-            close = math.dist((snap.x_m, snap.y_m, snap.z_m), (x, y, z)) < REACHED_DISTANCE_M
-            facing = yaw is None or abs(wrap_angle(yaw - snap.yaw_rad)) < REACHED_YAW_RAD
-            ticket.reached = close and facing
-
-    @staticmethod
-    def _resolve_target(goto: _Goto, snap: AutopilotSnapshot) -> tuple[float, float, float, float | None]:
-        x, y, z, yaw = goto.x_m, goto.y_m, goto.z_m, goto.yaw_rad
-        if goto.relative:
-            if goto.body:
-                c, s = math.cos(snap.yaw_rad), math.sin(snap.yaw_rad)
-                x, y = c * x - s * y, s * x + c * y
-            x, y, z = snap.x_m + x, snap.y_m + y, snap.z_m + z
-            yaw = wrap_angle(snap.yaw_rad + yaw) if yaw is not None else None
-        elif yaw is not None:
-            yaw = wrap_angle(yaw)
-        # The vehicle cannot fly above the surface; ArduSub would clamp too.
-        return x, y, max(z, 0.0), yaw
-
-
-def _mode_name(custom_mode: int | None) -> str:
-    if custom_mode is None:
-        return "unknown"
-    try:
-        return SubMode(custom_mode).name
-    except ValueError:
-        return str(custom_mode)

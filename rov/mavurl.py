@@ -9,6 +9,14 @@ happen because of a typo in `--mavlink`.
 Accepted: `udpin:HOST:PORT`, `udpout:HOST:PORT`, `udp:HOST:PORT` (pymavlink's
 "listen" spelling), `tcp:HOST:PORT`, `tcpin:HOST:PORT`, and serial devices
 `/dev/...` or `COMn`, optionally followed by `,BAUD` (default 115200).
+
+Closed TCP connections: pymavlink's `tcp:` client answers the peer's close (EOF,
+reset) by printing "EOF on TCP socket" and returning nothing, again and again, as
+fast as the caller asks (a spinning core, 730 000 lines until the heartbeat
+timeout).  `open_mavlink` makes such a connection raise `MavlinkClosed` instead,
+so that its owner closes it and reopens with its own backoff.  Its `tcpin:`
+server likewise spins on a client's EOF; there the client is dropped at once and
+the next one accepted.
 """
 
 from __future__ import annotations
@@ -57,8 +65,45 @@ def parse_mavlink_url(url: str) -> MavlinkUrl:
     )
 
 
+class MavlinkClosed(ConnectionError):
+    """The peer closed a TCP MAVLink connection."""
+
+
+def _raise_closed(why: str):
+    def handler() -> None:
+        raise MavlinkClosed(why)
+
+    return handler
+
+
+def _drop_client_on_eof(conn) -> None:
+    """A tcpin server: on a client's EOF, close it and wait for the next one."""
+    accept = conn.recv
+
+    def recv(n=None):
+        port = conn.port
+        if port is None:
+            return accept(n)
+        if n is None:
+            n = conn.mav.bytes_needed()
+        try:
+            data = port.recv(n)
+        except BlockingIOError:
+            return b""
+        except OSError:
+            data = b""
+        if not data:
+            port.close()
+            conn.port = None
+            conn.fd = conn.listen.fileno()
+        return data
+
+    conn.recv = recv
+
+
 def open_mavlink(url: str | MavlinkUrl, source_system: int, source_component: int):
-    """Open a pymavlink connection with the ardupilotmega dialect."""
+    """Open a pymavlink connection with the ardupilotmega dialect.  A `tcp:` one raises
+    MavlinkClosed (a ConnectionError) from recv and send once the peer has closed."""
     from pymavlink import mavutil
 
     parsed = url if isinstance(url, MavlinkUrl) else parse_mavlink_url(url)
@@ -71,7 +116,7 @@ def open_mavlink(url: str | MavlinkUrl, source_system: int, source_component: in
         # One attempt per open: the caller owns retrying (with backoff), and a
         # blocking retry loop inside pymavlink would delay a clean stop.
         extra["retries"] = 0
-    return mavutil.mavlink_connection(
+    conn = mavutil.mavlink_connection(
         parsed.device,
         baud=parsed.baud,
         dialect="ardupilotmega",
@@ -79,6 +124,12 @@ def open_mavlink(url: str | MavlinkUrl, source_system: int, source_component: in
         source_component=source_component,
         **extra,
     )
+    if parsed.kind == "tcp":
+        conn.handle_eof = _raise_closed("closed by the peer (EOF)")
+        conn.handle_disconnect = _raise_closed("connection reset by the peer")
+    elif parsed.kind == "tcpin":
+        _drop_client_on_eof(conn)
+    return conn
 
 
 def bound_port(conn) -> int | None:

@@ -11,18 +11,25 @@ Plan
 - One thread owns the pymavlink connection and the model: it waits for messages
   until the next tick (50 Hz), then steps the model by the real time elapsed,
   checks the pilot-input failsafe and sends whatever streams are due.
-- What ArduSub does and we copy: HEARTBEAT at 1 Hz as MAV_TYPE_SUBMARINE with
+- What ArduSub does and we copy (../shared/ARDUSUB.md): HEARTBEAT at 1 Hz (or
+  the interval a SET_MESSAGE_INTERVAL asks for) as MAV_TYPE_SUBMARINE with
   ArduSub's custom modes (base_mode carries CUSTOM_MODE_ENABLED and SAFETY_ARMED);
   COMMAND_LONG ARM_DISARM, DO_SET_MODE, SET_MESSAGE_INTERVAL, REQUEST_MESSAGE and
   the SET_MODE message, each answered by COMMAND_ACK (SET_MODE's ack names message
-  id 11, as ArduPilot does); MANUAL_CONTROL addressed to us is the pilot input;
+  id 11, as ArduPilot does); an accepted mode change is followed at once by an
+  extra HEARTBEAT showing it; MANUAL_CONTROL addressed to us is the pilot input;
   without it for 3 s an armed vehicle disarms ("Lost manual control");
   SET_POSITION_TARGET_LOCAL_NED is taken only in GUIDED and only as a position
   (optionally with yaw), in LOCAL_NED, LOCAL_OFFSET_NED, BODY_NED or
   BODY_OFFSET_NED, otherwise silently ignored as ArduSub does; GUIDED and POSHOLD
-  are refused (ACK FAILED) without a position estimate (`has_position=False`,
-  like a BlueROV without DVL or underwater GPS), in which case no
-  LOCAL_POSITION_NED is sent either.
+  are refused without a position estimate: STATUSTEXT "GUIDED requires position"
+  (as ArduSub says it; "POSHOLD requires position" is our guess) then ACK FAILED.
+  The estimate comes `position_after_s` after start (ArduSub SITL: ~41 s; default
+  0 here; None: never, like a BlueROV without DVL or underwater GPS), and
+  `position_available` can take it away or give it back; without it no
+  LOCAL_POSITION_NED is sent.  Disarmed, GUIDED is accepted (and the vehicle sits).
+- Flying: the model's POSHOLD brakes and holds position; ALT_HOLD holds depth and
+  coasts (0.6-0.9 m from ~0.6 m/s, as measured on ArduSub).
 - ATTITUDE, LOCAL_POSITION_NED and SYS_STATUS are silent until asked for with
   MAV_CMD_SET_MESSAGE_INTERVAL, so the bridge has to ask like it must on the radio.
 - Not simulated: ACRO, AUTO, CIRCLE (refused), velocity/acceleration targets,
@@ -45,6 +52,7 @@ import threading
 import time
 from dataclasses import dataclass
 
+from rovlink.rov.ardusub import TYPEMASK_POSITION_IGNORE, TYPEMASK_YAW_IGNORE, mavlink
 from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
 from rovlink.rov.scene import SEABED_DEPTH_M
 from rovlink.rov.vehicle import (
@@ -61,31 +69,24 @@ from rovlink.rov.vehicle import (
 
 log = logging.getLogger(__name__)
 
-# MAVLink numbers used here (common dialect; spelled out so the loop reads plainly).
-MSG_HEARTBEAT = 0
-MSG_SYS_STATUS = 1
-MSG_SET_MODE = 11
-MSG_ATTITUDE = 30
-MSG_LOCAL_POSITION_NED = 32
-CMD_DO_SET_MODE = 176
-CMD_COMPONENT_ARM_DISARM = 400
-CMD_SET_MESSAGE_INTERVAL = 511
-CMD_REQUEST_MESSAGE = 512
-FRAME_LOCAL_NED = 1
-FRAME_LOCAL_OFFSET_NED = 7
-FRAME_BODY_NED = 8
-FRAME_BODY_OFFSET_NED = 9
-MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MODE_FLAG_MANUAL_INPUT_ENABLED = 64
-MODE_FLAG_SAFETY_ARMED = 128
-TYPEMASK_POSITION_IGNORE = 0b111
-TYPEMASK_YAW_IGNORE = 1024
+MSG_HEARTBEAT = mavlink.MAVLINK_MSG_ID_HEARTBEAT
+MSG_SYS_STATUS = mavlink.MAVLINK_MSG_ID_SYS_STATUS
+MSG_SET_MODE = mavlink.MAVLINK_MSG_ID_SET_MODE
+MSG_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
+MSG_LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE
+CMD_COMPONENT_ARM_DISARM = mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+CMD_SET_MESSAGE_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+CMD_REQUEST_MESSAGE = mavlink.MAV_CMD_REQUEST_MESSAGE
+MODE_FLAG_CUSTOM_MODE_ENABLED = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+ACCEPTED, UNSUPPORTED, FAILED = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED
 
 PILOT_TIMEOUT_S = 3.0  # ArduSub's FS_PILOT_TIMEOUT default
 # By default the vehicle starts 2 m above the simulated seabed, facing north, with
 # the amphorae of `rov.scene` in view ahead and the wreck to the north-west.
 START_STATE = VehicleState(z_m=SEABED_DEPTH_M - 2.0)
 TICK_S = 0.02
+HEARTBEAT_INTERVAL_S = 1.0  # ArduSub's default stream rate
 STREAMABLE = (MSG_SYS_STATUS, MSG_ATTITUDE, MSG_LOCAL_POSITION_NED)
 
 
@@ -110,13 +111,16 @@ class SimulatedVehicle:
         initial_state: VehicleState | None = None,
         floor_depth_m: float | None = SEABED_DEPTH_M,
         has_position: bool = True,
+        position_after_s: float | None = 0.0,
         pilot_timeout_s: float = PILOT_TIMEOUT_S,
         mode: int = SubMode.MANUAL,
     ) -> None:
         self._url = parse_mavlink_url(url)
         self.system_id = system_id
         self.component_id = component_id
-        self.has_position = has_position
+        # When the position estimate comes (seconds after start), None: never.
+        self.position_after_s = position_after_s if has_position else None
+        self._position_override: bool | None = None
         self.pilot_timeout_s = pilot_timeout_s
         self._model = VehicleModel(state=initial_state or START_STATE, floor_depth_m=floor_depth_m)
         self._lock = threading.Lock()
@@ -131,6 +135,7 @@ class SimulatedVehicle:
         self._thread: threading.Thread | None = None
         self._conn = None
         self._boot_s = time.monotonic()
+        self._heartbeat_interval_s = HEARTBEAT_INTERVAL_S
         self._last_gcs_s = -math.inf
         self._tcp_client = None
         self._tcp_client_since_s = 0.0
@@ -175,6 +180,27 @@ class SimulatedVehicle:
         return {"udpin": f"udpout:{host}:{port}", "udpout": f"udpin:{host}:{port}", "tcpin": f"tcp:{host}:{port}"}.get(
             kind, f"{kind}:{host}:{port}"
         )
+
+    @property
+    def position_available(self) -> bool:
+        """The simulated EKF has a horizontal position now."""
+        if self._position_override is not None:
+            return self._position_override
+        after = self.position_after_s
+        return after is not None and self._now() - self._boot_s >= after
+
+    @position_available.setter
+    def position_available(self, value: bool) -> None:
+        self._position_override = bool(value)
+
+    @property
+    def has_position(self) -> bool:  # the older name
+        return self.position_available
+
+    def stream_intervals(self) -> dict[int, float]:
+        """Message id -> seconds between sends, as ground stations asked (HEARTBEAT included)."""
+        with self._lock:
+            return {**self._intervals_s, MSG_HEARTBEAT: self._heartbeat_interval_s}
 
     def truth(self) -> SimTruth:
         with self._lock:
@@ -221,7 +247,7 @@ class SimulatedVehicle:
                     self._check_pilot_failsafe(now)
                 self._drop_silent_tcp_client(now)
                 if now >= next_heartbeat:
-                    next_heartbeat = now + 1.0
+                    next_heartbeat = now + self._heartbeat_interval_s
                     self._send_heartbeat()
                 self._send_streams(now)
         finally:
@@ -257,7 +283,7 @@ class SimulatedVehicle:
         if self._armed and now - self._last_pilot_s > self.pilot_timeout_s:
             self._armed = False
             log.warning("no pilot input for %.1f s: disarmed", self.pilot_timeout_s)
-            self._send_text(4, "Lost manual control")
+            self._send_text(mavlink.MAV_SEVERITY_WARNING, "Lost manual control")
 
     # --- incoming ------------------------------------------------------------
 
@@ -286,7 +312,9 @@ class SimulatedVehicle:
             elif kind == "SET_MODE":
                 if self._for_us(msg.target_system):
                     ok = bool(msg.base_mode & MODE_FLAG_CUSTOM_MODE_ENABLED) and self._set_mode(int(msg.custom_mode))
-                    self._ack(MSG_SET_MODE, 0 if ok else 4)
+                    self._ack(MSG_SET_MODE, ACCEPTED if ok else FAILED)
+                    if ok:
+                        self._send_heartbeat()
             elif kind == "SET_POSITION_TARGET_LOCAL_NED":
                 if self._for_us(msg.target_system):
                     self._position_target(msg)
@@ -304,7 +332,7 @@ class SimulatedVehicle:
     def _command(self, cmd: int, msg, now: float) -> None:
         if cmd == CMD_COMPONENT_ARM_DISARM:
             if msg.param1 not in (0.0, 1.0):
-                self._ack(cmd, 3)  # like ArduPilot: only exactly 1 (arm) or 0 (disarm)
+                self._ack(cmd, UNSUPPORTED)  # like ArduPilot: only exactly 1 (arm) or 0 (disarm)
                 return
             arm = msg.param1 == 1.0
             with self._lock:
@@ -314,31 +342,37 @@ class SimulatedVehicle:
                     self._last_pilot_s = max(self._last_pilot_s, now)
                 self._armed = arm
             log.info("%s", "armed" if arm else "disarmed")
-            self._ack(cmd, 0)
+            self._ack(cmd, ACCEPTED)
         elif cmd == CMD_DO_SET_MODE:
             ok = (int(msg.param1) & MODE_FLAG_CUSTOM_MODE_ENABLED) and self._set_mode(int(msg.param2))
-            self._ack(cmd, 0 if ok else 4)
+            self._ack(cmd, ACCEPTED if ok else FAILED)
+            if ok:  # ArduSub sends the new mode at once, not at the next beat
+                self._send_heartbeat()
         elif cmd == CMD_SET_MESSAGE_INTERVAL:
             msg_id, interval_us = int(msg.param1), float(msg.param2)
             if msg_id not in STREAMABLE and msg_id != MSG_HEARTBEAT:
-                self._ack(cmd, 4)
+                self._ack(cmd, FAILED)
                 return
-            if msg_id != MSG_HEARTBEAT:
-                if interval_us <= 0:  # -1 disables; 0 means "default", which is off here
+            with self._lock:
+                if msg_id == MSG_HEARTBEAT:
+                    self._heartbeat_interval_s = (
+                        max(interval_us * 1e-6, TICK_S) if interval_us > 0 else HEARTBEAT_INTERVAL_S
+                    )
+                elif interval_us <= 0:  # -1 disables; 0 means "default", which is off here
                     self._intervals_s.pop(msg_id, None)
                 else:
                     self._intervals_s[msg_id] = max(interval_us * 1e-6, TICK_S)
                     self._next_send_s[msg_id] = now
-            self._ack(cmd, 0)
+            self._ack(cmd, ACCEPTED)
         elif cmd == CMD_REQUEST_MESSAGE:
             msg_id = int(msg.param1)
             if msg_id in STREAMABLE or msg_id == MSG_HEARTBEAT:
-                self._ack(cmd, 0)
+                self._ack(cmd, ACCEPTED)
                 self._send_message(msg_id)
             else:
-                self._ack(cmd, 4)
+                self._ack(cmd, FAILED)
         else:
-            self._ack(cmd, 3)  # MAV_RESULT_UNSUPPORTED
+            self._ack(cmd, UNSUPPORTED)
 
     def _set_mode(self, custom_mode: int) -> bool:
         try:
@@ -349,9 +383,9 @@ class SimulatedVehicle:
         if mode not in FLOWN_MODES:
             log.info("refused mode %s: not simulated", mode.name)
             return False
-        if mode in POSITION_MODES and not self.has_position:
+        if mode in POSITION_MODES and not self.position_available:
             log.info("refused mode %s: no position estimate", mode.name)
-            self._send_text(4, "Mode change failed: requires position")
+            self._send_text(mavlink.MAV_SEVERITY_WARNING, f"{mode.name} requires position")
             return False
         with self._lock:
             if mode != self._mode:
@@ -372,15 +406,15 @@ class SimulatedVehicle:
             s = self._model.state
             x, y, z = float(msg.x), float(msg.y), float(msg.z)
             frame = int(msg.coordinate_frame)
-            if frame in (FRAME_BODY_NED, FRAME_BODY_OFFSET_NED):
+            if frame in (mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED):
                 c, sn = math.cos(s.yaw_rad), math.sin(s.yaw_rad)
                 x, y = c * x - sn * y, sn * x + c * y
-            if frame in (FRAME_LOCAL_OFFSET_NED, FRAME_BODY_NED, FRAME_BODY_OFFSET_NED):
+            if frame in (mavlink.MAV_FRAME_LOCAL_OFFSET_NED, mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED):
                 x, y, z = s.x_m + x, s.y_m + y, s.z_m + z
-            elif frame != FRAME_LOCAL_NED:
+            elif frame != mavlink.MAV_FRAME_LOCAL_NED:
                 return
             yaw = None if msg.type_mask & TYPEMASK_YAW_IGNORE else float(msg.yaw)
-            if yaw is not None and frame == FRAME_BODY_OFFSET_NED:
+            if yaw is not None and frame == mavlink.MAV_FRAME_BODY_OFFSET_NED:
                 yaw = s.yaw_rad + yaw
             self._target = PositionTarget(x, y, max(z, 0.0), yaw)
 
@@ -398,9 +432,15 @@ class SimulatedVehicle:
     def _send_heartbeat(self) -> None:
         with self._lock:
             armed, mode = self._armed, self._mode
-        base = MODE_FLAG_CUSTOM_MODE_ENABLED | MODE_FLAG_MANUAL_INPUT_ENABLED | (MODE_FLAG_SAFETY_ARMED if armed else 0)
-        # MAV_TYPE_SUBMARINE 12, MAV_AUTOPILOT_ARDUPILOTMEGA 3, MAV_STATE_ACTIVE 4 / STANDBY 3
-        self._conn.mav.heartbeat_send(12, 3, base, mode, 4 if armed else 3)
+        base = (
+            MODE_FLAG_CUSTOM_MODE_ENABLED
+            | mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+        )
+        self._conn.mav.heartbeat_send(
+            mavlink.MAV_TYPE_SUBMARINE, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base, mode,
+            mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY,
+        )
 
     def _send_streams(self, now: float) -> None:
         for msg_id, interval in list(self._intervals_s.items()):
@@ -418,9 +458,15 @@ class SimulatedVehicle:
         elif msg_id == MSG_ATTITUDE:
             mav.attitude_send(self._time_boot_ms(), s.roll_rad, s.pitch_rad, s.yaw_rad, 0.0, 0.0, s.yaw_rate_radps)
         elif msg_id == MSG_LOCAL_POSITION_NED:
-            if self.has_position:
+            if self.position_available:
                 mav.local_position_ned_send(self._time_boot_ms(), s.x_m, s.y_m, s.z_m, s.vn_mps, s.ve_mps, s.vd_mps)
         elif msg_id == MSG_SYS_STATUS:
             # gyro|accel|mag|pressure(depth)|motor outputs; battery 16 V, 50 %.
-            sensors = 0x01 | 0x02 | 0x04 | 0x08 | 0x8000
+            sensors = (
+                mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+                | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG
+                | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+                | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+            )
             mav.sys_status_send(sensors, sensors, sensors, 150, 16000, 200, 50, 0, 0, 0, 0, 0, 0)

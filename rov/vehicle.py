@@ -47,22 +47,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from enum import IntEnum
 
-
-class SubMode(IntEnum):
-    """ArduSub's custom mode numbers (HEARTBEAT.custom_mode)."""
-
-    STABILIZE = 0
-    ACRO = 1
-    ALT_HOLD = 2
-    AUTO = 3
-    GUIDED = 4
-    CIRCLE = 7
-    SURFACE = 9
-    POSHOLD = 16
-    MANUAL = 19
-    MOTOR_DETECT = 20
+from rovlink.rov.ardusub import SubMode  # ArduSub's modes, from pymavlink (re-exported here)
 
 
 # Modes that need a horizontal position estimate; ArduSub refuses them without one.

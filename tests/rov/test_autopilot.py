@@ -78,6 +78,7 @@ def test_guided_reaches_a_position_within_0_3_m(sim, bridge):
 
 
 def test_relative_body_goto_is_resolved_against_the_pose(sim, bridge):
+    assert bridge.request_arm(True).wait(3) == Ticket.ACCEPTED
     sim.set_state(VehicleState(x_m=1.0, y_m=2.0, z_m=3.0, yaw_rad=math.pi / 2))
     time.sleep(0.3)
     ticket = bridge.goto(1.0, 0.0, 0.5, 0.0, relative=True, body=True)
@@ -88,13 +89,13 @@ def test_relative_body_goto_is_resolved_against_the_pose(sim, bridge):
     assert yaw == pytest.approx(math.pi / 2, abs=0.05)
 
 
-def test_stop_cancels_the_goto_and_holds_depth(sim, bridge):
+def test_stop_cancels_the_goto_and_holds_position(sim, bridge):
     bridge.request_arm(True).wait(3)
     ticket = bridge.goto(5.0, 0.0, 3.0, None)
     assert ticket.wait(4) == Ticket.ACCEPTED
     bridge.set_velocity(0.5, 0, 0, 0)
     assert bridge.stop_motion().wait(3) == Ticket.ACCEPTED
-    assert sim.truth().mode == SubMode.ALT_HOLD
+    assert sim.truth().mode == SubMode.POSHOLD and sim.truth().target is None
     assert wait_for(lambda: sim.truth().pilot.x == 0, 1.0)
     assert ticket.status == Ticket.ACCEPTED  # it had been accepted; it no longer drives
 
@@ -104,34 +105,12 @@ def test_failsafe_holds_neutral_until_cleared(sim, bridge):
     bridge.failsafe(True)
     assert bridge.snapshot().failsafe
     bridge.set_velocity(1.0, 0, 0, 0)
-    assert wait_for(lambda: sim.truth().mode == SubMode.ALT_HOLD, 3.0)
+    assert wait_for(lambda: sim.truth().mode == SubMode.POSHOLD, 3.0)
     time.sleep(0.3)
     assert sim.truth().pilot.x == 0
     bridge.failsafe(False)
     bridge.set_velocity(1.0, 0, 0, 0)
     assert wait_for(lambda: sim.truth().pilot.x == 1000, 1.0)
-
-
-def test_guided_refused_without_a_position_estimate_fails_the_order():
-    with SimulatedVehicle(has_position=False, initial_state=VehicleState(z_m=2.0)) as sim:
-        with AutopilotBridge(sim.bridge_url) as bridge:
-            assert wait_for(lambda: bridge.snapshot().autopilot_alive, 5.0)
-            time.sleep(0.5)
-            assert not bridge.snapshot().position_valid  # no LOCAL_POSITION_NED ever came
-            relative = bridge.goto(1.0, 0.0, 0.0, None, relative=True)
-            absolute = bridge.goto(1.0, 0.0, 2.0, None)
-            assert relative.wait(3) == Ticket.CANCELLED or relative.status == Ticket.FAILED
-            assert absolute.wait(4) == Ticket.FAILED
-            assert "GUIDED" in absolute.reason
-            assert sim.truth().mode == SubMode.MANUAL
-
-
-def test_relative_goto_without_position_fails():
-    with SimulatedVehicle(has_position=False) as sim, AutopilotBridge(sim.bridge_url) as bridge:
-        assert wait_for(lambda: bridge.snapshot().autopilot_alive, 5.0)
-        ticket = bridge.goto(1.0, 0.0, 0.0, None, relative=True)
-        assert ticket.wait(3) == Ticket.FAILED
-        assert "position" in ticket.reason
 
 
 def test_simulator_disarms_3_s_after_pilot_input_stops():
@@ -202,7 +181,8 @@ def test_bridge_survives_garbage_and_unreachable_endpoints(sim, bridge):
     with AutopilotBridge("/dev/rovlink-no-such-device,57600") as unplugged:
         time.sleep(0.3)
         assert not unplugged.snapshot().connected
-        assert unplugged.goto(1, 2, 3, None).wait(0.1) == Ticket.PENDING
+        refused = unplugged.goto(1, 2, 3, None)
+        assert refused.status == Ticket.FAILED and refused.reject_reason == 1 and "autopilot" in refused.reason
 
 
 def test_bad_inputs_are_refused_cleanly(sim, bridge):
@@ -281,6 +261,7 @@ def test_simulator_shrugs_off_bad_requests():
 
 
 def test_a_position_order_ends_when_the_autopilot_leaves_guided(sim, bridge):
+    assert bridge.request_arm(True).wait(3) == Ticket.ACCEPTED
     ticket = bridge.goto(1.0, 0.0, 3.0, None)
     assert ticket.wait(4) == Ticket.ACCEPTED
     assert wait_for(lambda: bridge.snapshot().mode == 5, 2.5)
@@ -289,7 +270,7 @@ def test_a_position_order_ends_when_the_autopilot_leaves_guided(sim, bridge):
     try:
         gcs.mav.set_mode_send(1, 1, int(SubMode.MANUAL))
         assert wait_for(lambda: bridge.snapshot().mode == 1, 2.5)
-        assert wait_for(lambda: bridge._goto is None, 1.0)
+        assert wait_for(lambda: bridge._goto.active is None, 1.0)
     finally:
         gcs.close()
 
