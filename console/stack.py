@@ -42,6 +42,9 @@ class StackConfig:
     channel_log: str | Path | None = None
     image_settings: ImageSettings = ImageSettings(mono=False, budget_bytes=2000)
     start_depth_m: float = 2.0
+    # The link key (32 bytes): protocol version 2, every frame authenticated
+    # (PROTOCOL.md §8).  None: version 1.1, unauthenticated.
+    key: bytes | None = None
 
 
 class Stack:
@@ -92,6 +95,11 @@ class Stack:
                             default_settings=c.image_settings)
         self.operator = Operator(op_end, bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, record=c.record,
                                  image_settings=c.image_settings)
+        if c.key is not None:
+            from rovlink.link.secure import SecureMaster, SecureSlave
+
+            self.node.slave = SecureSlave(self.node.slave, c.key)
+            self.operator.master = SecureMaster(self.operator.master, c.key)
         loop = asyncio.get_running_loop()
         self._tasks = [
             loop.create_task(run_channel(self.channel, chan_a, chan_b), name="channel"),

@@ -411,6 +411,11 @@ class AuthFrameDecoder:
         self._delivered_starts: set[int] = set()  # buffer positions of early frames' starts
         self.counters = AuthDecoderCounters()
 
+    @property
+    def crc_errors(self) -> int:
+        """Candidates dropped for a CRC failure or a LEN out of bounds (as FrameDecoder counts them)."""
+        return self.counters.rejected - self.counters.inauthentic
+
     def _valid_at(self, i: int, end_limit: int, count: bool = False) -> bytes | None:
         """The contents of a complete, CRC-valid, authentic frame starting at i, if any.
         `count`: count a CRC-valid frame whose tag fails as inauthentic."""

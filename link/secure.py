@@ -85,16 +85,31 @@ class SecureStats:
     restarts_seen: int = 0
 
 
-class SecureSlave:
+class _Wrapper:
+    """Reads and writes of anything but the wrapper's own attributes go to the wrapped machine."""
+
+    _own: frozenset = frozenset()
+
+    def __getattr__(self, name):
+        return getattr(self.__dict__["_inner"], name)
+
+    def __setattr__(self, name, value) -> None:
+        if name in self._own or "_inner" not in self.__dict__:
+            object.__setattr__(self, name, value)
+        else:
+            setattr(self._inner, name, value)
+
+
+class SecureSlave(_Wrapper):
+    _own = frozenset({"slave", "chain", "decoder"})
+
     def __init__(self, slave, key: bytes, *, boot: bytes | None = None) -> None:
+        object.__setattr__(self, "_inner", slave)
         self.slave = slave
         # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2).
         slave.max_frame = min(slave.max_frame, 259 - REPLY_EXTRA)
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
         self.decoder = AuthFrameDecoder(self._authentic, max_len=MAX_POLL_LEN)
-
-    def __getattr__(self, name):
-        return getattr(self.slave, name)
 
     def _authentic(self, contents: bytes) -> bool:
         # A pure check for the framing (no state moves): the chain decides again below.
@@ -141,8 +156,12 @@ class SecureSlave:
         return out
 
 
-class SecureMaster:
+class SecureMaster(_Wrapper):
+    _own = frozenset({"master", "chain", "decoder", "stats2", "_hello_deadline", "_last_was_hello", "_events",
+                      "_last_size", "_boot", "next_poll"})
+
     def __init__(self, master, key: bytes) -> None:
+        object.__setattr__(self, "_inner", master)
         self.master = master
         master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
         master.max_frame = min(master.max_frame, 259 - REPLY_EXTRA)  # the trunks the slave will send
@@ -153,9 +172,7 @@ class SecureMaster:
         self._last_was_hello = False
         self._events: list[object] = []
         self._last_size = 3
-
-    def __getattr__(self, name):
-        return getattr(self.master, name)
+        self._boot: bytes | None = None
 
     # -- timing -------------------------------------------------------------
 
@@ -254,5 +271,3 @@ class SecureMaster:
             payload[13] &= ~SYNC_BIT & 0xFF
             events.extend(self.master.receive(bytes(payload), now))
         return events
-
-    _boot: bytes | None = None

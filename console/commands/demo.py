@@ -23,6 +23,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--ber", type=probability, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")
     p.add_argument("--seed", type=int, default=0, help="channel random seed (default 0)")
     p.add_argument("--camera", default="sim", metavar="SPEC", help="camera on the ROV: sim (default), DIR, opencv:N")
+    p.add_argument("--insecure", action="store_true",
+                   help="run the link's version 1.1, unauthenticated (default: version 2 with a throwaway key)")
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.set_defaults(func=run)
@@ -40,8 +42,12 @@ def run(args) -> int:
     from .serve import default_record_path, serve_operator
 
     record = None if args.no_record else (args.record or default_record_path())
+    import os
+
+    # Both ends run here: a throwaway key for this session (PROTOCOL.md §8).
+    key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
-                         camera=args.camera, record=record,
+                         camera=args.camera, record=record, key=key,
                          channel_log=None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl")
 
     async def main() -> None:
@@ -55,7 +61,9 @@ def run(args) -> int:
             await serve_operator(
                 operator, args, link=stack.link,
                 banner=(f"rovlink demo: simulated ROV over an emulated {args.bitrate:g} bit/s link "
-                        f"({args.delay * 1000:g} ms delay, BER {args.ber:g})"
+                        f"({args.delay * 1000:g} ms delay, BER {args.ber:g}); "
+                        + ("INSECURE: link version 1.1, frames not authenticated" if key is None else
+                           "link version 2, every frame authenticated (a throwaway key for this session)")
                         + (f"; recording to {record}" if record else "")),
             )
         finally:
