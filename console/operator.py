@@ -59,12 +59,32 @@ from rovlink.link.messages import (
 )
 from rovlink.link.transport import Endpoint
 
+from rovlink.link import master as _master
+
+
+class _Never:
+    """Stands for an event this master does not have (protocol 1.0)."""
+
+
+# Protocol 1.1's events, where the master has them.
+OrderRejected = getattr(_master, "OrderRejected", _Never)
+OrderNotSent = getattr(_master, "OrderNotSent", _Never)
+StopConfirmed = getattr(_master, "StopConfirmed", _Never)
+StopNotCarriedOut = getattr(_master, "StopNotCarriedOut", _Never)
+
 log = logging.getLogger("rovlink.console.operator")
 
-MODE_NAMES = {m.name: m for m in (Mode.MANUAL, Mode.STABILIZE, Mode.DEPTH_HOLD, Mode.POS_HOLD, Mode.GUIDED,
-                                  Mode.SURFACE)}
-REPORTED_MODE_NAMES = {0: "UNKNOWN", 1: "MANUAL", 2: "STABILIZE", 3: "DEPTH_HOLD", 4: "POS_HOLD", 5: "GUIDED",
-                       6: "SURFACE", 7: "OTHER"}
+# The modes a pilot may request: the protocol's own list (1..6).
+MODE_NAMES = {m.name: m for m in Mode if 1 <= m <= 6}
+REPORTED_MODE_NAMES = {0: "UNKNOWN", **{int(m): m.name for m in MODE_NAMES.values()}, 7: "OTHER"}
+
+# Link state from replies (PROTOCOL.md §5): no reply for LOST_AFTER_S is a
+# lost link; a reply lost or a CRC error within DEGRADED_WINDOW_S degrades it.
+LOST_AFTER_S = 3.0
+DEGRADED_WINDOW_S = 5.0
+ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (PROTOCOL.md §3)
+REQUEST_FOLLOW_S = 3.0    # an arm/disarm/mode the vehicle does not follow in this time is refused
+MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
 
 
 class OrderError(ValueError):
@@ -196,7 +216,14 @@ class Operator:
         self._odometry_at: float | None = None  # estimated time it was sampled on the ROV
         self._velocity_est = (0.0, 0.0, 0.0, 0.0)  # NED m/s and yaw deg/s, from successive poses
         self._wish = (0.0, 0.0, 0.0, 0.0)  # fractions -1..1
-        self._orders: dict[int, dict] = {}
+        self._orders: dict[int, dict] = {}  # console order id -> its info (kind, state, times, details)
+        self._next_order_id = 1
+        self._by_master_id: dict[int, int] = {}  # the master's one-shot order ids -> ours
+        self._one_shot: dict[int, object] = {}  # our id -> the order object, while not yet sent
+        self._requests: dict[str, int] = {}  # "arm"/"mode" -> our id of the request awaiting its effect
+        self._crc_seen = 0
+        self.lost_after_s = LOST_AFTER_S
+        self.rov_failsafe_s = ROV_FAILSAFE_S
         self._pending_decode: tuple[int, bytes] | None = None
         self._decoder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-decode")
         self._decode_busy = False
@@ -225,6 +252,10 @@ class Operator:
                     self._subscribers.remove(callback)
 
         return unsubscribe
+
+    def publish(self, topic: str, payload: Any) -> None:
+        """Tell every subscriber (the command layer publishes its own events here too)."""
+        self._publish(topic, payload)
 
     def _publish(self, topic: str, payload: Any) -> None:
         for callback in list(self._subscribers):
@@ -255,6 +286,7 @@ class Operator:
                     frame = self.master.next_poll(t)
                     events = self.master.take_events()
                 self._on_events(events, t)
+                self._check_requests(t)
                 if frame is not None:
                     endpoint.send(frame)
                     self._frame_sent(frame, t)
@@ -272,6 +304,10 @@ class Operator:
                     self.history.link_events.append((t, "rx", len(data)))
                     with self._lock:
                         events = self.master.receive_bytes(data, t)
+                        crc = self.master.decoder.crc_errors
+                    if crc != self._crc_seen:
+                        self.history.link_events.append((t, "crc", crc - self._crc_seen))
+                        self._crc_seen = crc
                     self._on_events(events, t)
                     data = endpoint.recv_nowait()
         finally:
@@ -290,6 +326,22 @@ class Operator:
         if hasattr(order, "vyaw"):
             arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
             self._last_poll_velocity = (arrival, order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)
+            for what, field_ in (("arm", "arm"), ("mode", "mode")):
+                if getattr(order, field_, 0):
+                    self._mark_sent(self._requests.get(what), t)
+        elif getattr(order, "one_shot", False):
+            with self._lock:
+                mine = next((i for i, o in sorted(self._one_shot.items()) if o == order), None)
+                if mine is not None:
+                    del self._one_shot[mine]
+            self._mark_sent(mine, t)
+
+    def _mark_sent(self, order_id: int | None, t: float) -> None:
+        with self._lock:
+            info = self._orders.get(order_id) if order_id is not None else None
+            if info is None or info["state"] not in ("queued", "requested"):
+                return
+        self._set_order_state(order_id, "sent", t)
 
     def close(self) -> None:
         self.recorder.close()
@@ -313,11 +365,21 @@ class Operator:
                 self._order_state(event.order_id, "acknowledged", t)
             elif isinstance(event, OrderCancelled):
                 self._order_state(event.order_id, f"cancelled: {event.reason}", t)
+            elif isinstance(event, OrderRejected):
+                reason = getattr(event, "reason_text", None) or str(getattr(event, "reason", "no reason given"))
+                self._order_state(event.order_id, f"rejected: {reason}", t)
+            elif isinstance(event, OrderNotSent):
+                self._order_state(event.order_id, f"cancelled: {event.reason} (never sent)", t)
+            elif isinstance(event, StopConfirmed):
+                mode = REPORTED_MODE_NAMES.get(int(event.mode), str(event.mode))
+                self._order_state(event.order_id, f"acknowledged: holding in {mode}", t)
+            elif isinstance(event, StopNotCarriedOut):
+                self._order_state(event.order_id, "not carried out: no autopilot holds the vehicle", t)
             elif isinstance(event, ReplyLost):
                 self.history.link_events.append((t, "lost", 0))
                 self._publish("link", {"t": t, "lost": True})
             elif isinstance(event, RequestExpired):
-                self.note(f"{event.what} request not confirmed by the ROV within its time; dropped")
+                self._refuse_request(event.what, t, "not confirmed by the ROV within its time")
 
     def _pose(self, reply: Reply, t: float, round_trip_s: float | None) -> None:
         # The ROV sampled its odometry when the poll arrived: the reply's own
@@ -346,6 +408,7 @@ class Operator:
                              "armed": reply.armed, "mode": reply.mode, "failsafe": reply.failsafe,
                              "autopilot": reply.autopilot})
         self._publish("pose", self.pose_state())
+        self._check_requests(t)
 
     def _image_progress(self, event: ImageProgress, t: float) -> None:
         with self._lock:
@@ -405,20 +468,79 @@ class Operator:
                 self.image.decoded_at = self.now()
             self._publish("image", self.image_state())
 
-    def _order_state(self, order_id: int, state: str, t: float) -> None:
+    def _order_state(self, master_id: int, state: str, t: float) -> None:
+        """A one-shot order's fate, from the master (its ids)."""
         with self._lock:
-            info = self._orders.get(order_id)
-            if info is None:
-                return
-            info["state"] = state
-            info["t_" + state.split(":")[0]] = t
-        self.recorder.write({"k": "order_state", "t": round(t, 4), "id": order_id, "state": state})
-        self._publish("order", dict(info))
-        if info["kind"] == "IMAGE":
+            order_id = self._by_master_id.get(master_id)
+            self._one_shot.pop(order_id, None)
+        if order_id is None:
+            return
+        info = self._set_order_state(order_id, state, t)
+        if info is not None and info["kind"] == "IMAGE":
             with self._lock:
                 settings = self._image_orders.pop(order_id, None)
                 if state == "acknowledged" and settings is not None:
                     self._confirmed_settings = settings  # applies from the next image on
+
+    def _set_order_state(self, order_id: int, state: str, t: float) -> dict | None:
+        with self._lock:
+            info = self._orders.get(order_id)
+            if info is None:
+                return None
+            info["state"] = state
+            info["t_" + state.split(":")[0]] = t
+            info = dict(info)
+        self.recorder.write({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"],
+                             "state": state})
+        self._publish("order", info)
+        if state.startswith(("rejected", "refused")):
+            self.note(f"{info['kind']} order {order_id} {state}")
+        return info
+
+    def _new_order(self, kind: str, state: str, detail: dict, t: float) -> int:
+        """A console order id and its record (caller holds no lock)."""
+        with self._lock:
+            order_id = self._next_order_id
+            self._next_order_id += 1
+            info = {"id": order_id, "kind": kind, "state": state, "t_queued": t, **detail}
+            self._orders[order_id] = info
+            if len(self._orders) > 200:
+                for old in sorted(self._orders)[:-200]:
+                    del self._orders[old]
+            if len(self._by_master_id) > 400:
+                for old in sorted(self._by_master_id)[:-200]:
+                    del self._by_master_id[old]
+            info = dict(info)
+        self.recorder.write({"k": "order", "t": round(t, 4), "id": order_id, "kind": kind, **detail})
+        self._publish("order", info)
+        return order_id
+
+    # arm/disarm and mode are requests the link repeats; the vehicle's
+    # reported state says whether it followed.
+    def _check_requests(self, t: float) -> None:
+        if not self._requests:
+            return
+        reply = self._reply
+        for what, order_id in list(self._requests.items()):
+            with self._lock:
+                info = self._orders.get(order_id)
+            if info is None:
+                self._requests.pop(what, None)
+                continue
+            followed = reply is not None and self._reply_at is not None and self._reply_at >= info["t_queued"] and (
+                reply.armed == info["armed"] if what == "arm" else int(reply.mode) == int(MODE_NAMES[info["mode"]]))
+            if followed:
+                self._requests.pop(what, None)
+                self._set_order_state(order_id, "followed", t)
+            elif t - info["t_queued"] > REQUEST_FOLLOW_S:
+                self._refuse_request(what, t, f"the vehicle did not follow within {REQUEST_FOLLOW_S:g} s")
+
+    def _refuse_request(self, what: str, t: float, why: str) -> None:
+        order_id = self._requests.pop(what, None)
+        if order_id is None:
+            self.note(f"{what} request {why}")
+            return
+        self._set_order_state(order_id, f"refused: {why}", t)
 
     # ------------------------------------------------------------------
     # Commands (any thread)
@@ -434,17 +556,39 @@ class Operator:
         t = self.now()
         with self._lock:
             self.master.set_velocity(*ints, t)
-            changed = values != self._wish
+            changed = tuple(float(v) for v in values) != self._wish
             self._wish = tuple(float(v) for v in values)
-            self.history.commanded.append((t, *self._wish))
+            if changed:
+                self.history.commanded.append((t, *self._wish))
+                # Every change is recorded, neutral ones (STOP, a holder
+                # gone, the dead man) as much as the pilot's.
+                self.recorder.write({"k": "wish", "t": round(t, 4), "v": list(ints)})
         if changed:
-            self.recorder.write({"k": "wish", "t": round(t, 4), "v": list(ints)})
+            self._publish("wish", self.wish_state())
 
-    def arm(self, armed: bool) -> None:
+    def velocity_wish(self) -> tuple[float, float, float, float]:
+        return self._wish
+
+    def wish_state(self) -> dict:
+        w = self._wish
+        return {"vx": w[0], "vy": w[1], "vz": w[2], "vyaw": w[3]}
+
+    def arm(self, armed: bool) -> int:
+        """Request arming (or disarming); the returned order id is followed
+        until the vehicle reports it armed (disarmed), or refused."""
+        t = self.now()
         with self._lock:
-            self.master.request_arm(bool(armed), self.now())
-        self.recorder.write({"k": "order", "t": round(self.now(), 4), "kind": "ARM" if armed else "DISARM"})
+            self.master.request_arm(bool(armed), t)
+        self._supersede("arm", t)
+        order_id = self._new_order("ARM" if armed else "DISARM", "requested", {"armed": bool(armed)}, t)
+        self._requests["arm"] = order_id
         self.note("arm requested" if armed else "disarm requested")
+        return order_id
+
+    def _supersede(self, what: str, t: float) -> None:
+        old = self._requests.pop(what, None)
+        if old is not None:
+            self._set_order_state(old, "cancelled: superseded by a newer request", t)
 
     def set_mode(self, mode: str | int) -> None:
         if isinstance(mode, str):
@@ -455,22 +599,22 @@ class Operator:
             if mode not in MODE_NAMES.values():
                 raise OrderError(f"mode must be 1..6, got {mode!r}")
             value = Mode(mode)
+        t = self.now()
         with self._lock:
-            self.master.request_mode(value, self.now())
-        self.recorder.write({"k": "order", "t": round(self.now(), 4), "kind": "MODE", "mode": value.name})
+            self.master.request_mode(value, t)
+        self._supersede("mode", t)
+        order_id = self._new_order("MODE", "requested", {"mode": value.name}, t)
+        self._requests["mode"] = order_id
         self.note(f"mode {value.name} requested")
+        return order_id
 
     def _queue(self, order, kind: str, detail: dict) -> int:
         t = self.now()
+        order_id = self._new_order(kind, "queued", detail, t)
         with self._lock:
-            order_id = self.master.send_order(order)
-            info = {"id": order_id, "kind": kind, "state": "queued", "t_queued": t, **detail}
-            self._orders[order_id] = info
-            if len(self._orders) > 200:
-                for old in sorted(self._orders)[:-200]:
-                    del self._orders[old]
-        self.recorder.write({"k": "order", "t": round(t, 4), "id": order_id, "kind": kind, **detail})
-        self._publish("order", dict(info))
+            master_id = self.master.send_order(order)
+            self._by_master_id[master_id] = order_id
+            self._one_shot[order_id] = order
         return order_id
 
     def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
@@ -484,14 +628,13 @@ class Operator:
                              int(round(yaw * 100)), bool(relative), bool(body))
         except ProtocolError as exc:
             raise OrderError(str(exc)) from None
+        # The ROV flies a position order in GUIDED: the pilot is told before it goes.
         return self._queue(order, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
-                                               "relative": relative, "body": body})
+                                               "relative": relative, "body": body, "mode": "GUIDED"})
 
     def stop(self) -> int:
         """STOP: neutral velocity now, cancel queued targets, hold depth."""
-        with self._lock:
-            self.master.set_velocity(0, 0, 0, 0, self.now())
-            self._wish = (0.0, 0.0, 0.0, 0.0)
+        self.set_velocity(0.0, 0.0, 0.0, 0.0)
         return self._queue(Stop(), "STOP", {})
 
     def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,
@@ -536,7 +679,9 @@ class Operator:
             reply, sampled, wish, vel = self._reply, self._odometry_at, self._wish, self._velocity_est
         if reply is None or sampled is None:
             return None
-        horizon = max(0.0, min((self.now() if at is None else at) - sampled, 10.0))
+        # No further than the ROV's failsafe time: by then, with no poll
+        # heard, it has stopped; beyond it the uncertainty grows instead.
+        horizon = max(0.0, min((self.now() if at is None else at) - sampled, self.rov_failsafe_s))
         pose = Pose.from_reply(reply)
         if horizon <= 0.0:
             return pose
@@ -582,12 +727,29 @@ class Operator:
         out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
         if reply is not None:
             out["received"] = Pose.from_reply(reply).as_dict()
+            age = self.odometry_age_s()
             out.update(armed=reply.armed, mode=REPORTED_MODE_NAMES.get(reply.mode, "OTHER"), failsafe=reply.failsafe,
                        autopilot=reply.autopilot, position_valid=reply.position_valid,
-                       odometry_age_s=self.odometry_age_s())
+                       hold=getattr(reply, "hold", None), attitude_valid=getattr(reply, "attitude_valid", None),
+                       odometry_age_s=age, stale=self.link_condition()[0] == "lost",
+                       uncertainty_m=None if age is None else round(MAX_SPEED_MPS * max(0.0, age), 3))
             predicted = self.predicted_pose()
             out["predicted"] = predicted.as_dict() if predicted else None
         return out
+
+    def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
+        """("up" | "degraded" | "lost" | "replay" | "starting", seconds since the last reply)."""
+        t = self.now() if t is None else t
+        since = None if self._reply_at is None else max(0.0, t - self._reply_at)
+        if self.replaying:
+            return "replay", since
+        if since is None:
+            return ("lost" if t > self.lost_after_s else "starting"), since
+        if since >= self.lost_after_s:
+            return "lost", since
+        recent = [e for e in list(self.history.link_events)[-200:]
+                  if e[1] in ("lost", "crc") and t - e[0] <= DEGRADED_WINDOW_S]
+        return ("degraded" if recent else "up"), since
 
     def image_state(self) -> dict:
         v = self.image
@@ -607,9 +769,23 @@ class Operator:
         polls = sum(1 for e in recent if e[1] == "tx")
         span = min(10.0, max(t, 1e-6))
         rtts = sorted(self.history.round_trips)
+        state, since = self.link_condition(t)
+        silent_s = since if since is not None else (t if state == "lost" else None)
+        inferred = state == "lost" and silent_s is not None and silent_s >= self.rov_failsafe_s
+        failsafe_at = time.time() - silent_s + self.rov_failsafe_s if inferred else None
         return {
+            "state": state,
+            "since_reply_s": silent_s,
+            "lost_after_s": self.lost_after_s,
+            "rov_failsafe_s": self.rov_failsafe_s,
+            # No poll has reached the ROV for its failsafe time: it has
+            # stopped and holds depth (PROTOCOL.md §3), though it cannot say so.
+            "failsafe_inferred": inferred,
+            "failsafe_inferred_at": failsafe_at,
+            "failsafe_inferred_since": time.strftime("%H:%M:%S", time.localtime(failsafe_at)) if inferred else None,
             "t": t,
             "poll_rate_hz": polls / span,
+            "reply_rate_hz": sum(1 for e in recent if e[1] == "rx") / span,
             "round_trip_s": rtts[len(rtts) // 2] if rtts else None,
             "last_round_trip_s": m.last_round_trip_s,
             "polls_sent": m.polls_sent,
@@ -626,7 +802,9 @@ class Operator:
             "estimated_ber": self.master.estimated_ber(),
             "images_completed": m.images_completed,
             "images_abandoned": m.images_abandoned,
-            "link_up": self.endpoint.is_up if self.endpoint is not None else False,
+            # Up means replies arrive, not that polls leave (a dead channel still takes polls).
+            "link_up": state in ("up", "degraded"),
+            "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
         }
 
     def orders_state(self) -> list[dict]:

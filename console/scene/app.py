@@ -16,6 +16,12 @@ Goals
 Plan
 - `ConsoleScene(operator, host=, port=)`; `.start()` builds every node once and
   keeps its handle, then updates the handles in place; `.stop()`.
+- Every order goes through the command layer (`rovlink.console.control`):
+  the web app hands the scene its desk (`use_desk`); alone, the scene makes
+  its own, which nobody holds, so that its viewers only watch.  The target
+  ghost, the sliders and the ROI render the desk's and the operator's events.
+- The panel is built per viewer on `client.gui`; a viewer who may not order
+  gets its order controls disabled (STOP stays open).
 - Frames are those of `console.scene.frames` (world ENU, z up; see there).
 - viser callbacks are one-liners that delegate to plain methods, which the tests
   call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
@@ -23,13 +29,10 @@ Plan
   The drag callback is `async def`, so its start/update/end phases run in order
   on viser's loop; the methods it reaches only take the operator's lock briefly.
 - The panel (`console.scene.panel`) holds every GUI control and the plots.
-- Who may order: every viewer shares the scene (one gizmo, one set of
-  sliders), so an order from a viewer first asks `order_guard` (the web
-  app's control desk when served with it; none: everyone may, as when the
-  scene runs alone).  A viewer opened by the operator page carries the
-  page's scene key in its WebSocket path (`/rovlink/<key>`); the desk
-  allows it while that page holds control.  A refused viewer gets a
-  notification and the control it moved goes back; STOP is never refused.
+- Who may order: a viewer opened by the operator page carries the page's
+  scene key in its WebSocket path (`/rovlink/<key>`); the desk allows it
+  while that page holds control.  The gizmo and the picture's drag are
+  shared scene nodes: a refused drag is put back, with a notification.
 """
 
 from __future__ import annotations
@@ -48,7 +51,9 @@ from PIL import Image
 from viser import transforms as tf
 
 from rovlink.assets import ASSETS_DIR
-from rovlink.console.operator import Operator, Pose
+from rovlink.console import control
+from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
+from rovlink.console.operator import MAX_SPEED_MPS, Operator, OrderError, Pose
 
 from . import frames
 from .panel import ControlPanel
@@ -66,6 +71,8 @@ CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electroni
 DEFAULT_IMAGE_PX = (320, 240)
 SCENE_KEY_PATH = "/rovlink/"  # the operator page opens the scene's WebSocket at SCENE_KEY_PATH + key
 REFUSAL_NOTICE_S = 3.0         # at most one "not sent" notification per viewer this often
+UNCERTAINTY_SEGMENTS = 48
+UNCERTAINTY_SHOWN_AFTER_S = 1.5  # odometry older than this: the ring around the ghost shows how far it may be
 
 
 def scene_key_from_path(path: str | None) -> str | None:
@@ -171,11 +178,10 @@ class ConsoleScene:
         self.seabed = SeabedAsset.load()
         self.rov_mesh = load_rov_mesh()
         self.server: viser.ViserServer | None = None
-        self.panel: ControlPanel | None = None
+        self.panels: dict[int, ControlPanel] = {}  # one per viewer, by viser's client id
+        self.desk: ControlDesk | None = None
+        self._own_desk = False
         self.image_px = DEFAULT_IMAGE_PX  # (width, height) of the picture shown
-        self.target: tuple[float, float, float, float] | None = None  # NED x, y, z, yaw_deg
-        self.target_order_id: int | None = None
-        self.preview_points: list[tuple[float, float, float]] = []
         self.frames_pushed = 0  # pose updates pushed; the tests watch it move
         self.images_shown = 0
         self._image_dirty = threading.Event()
@@ -187,10 +193,11 @@ class ConsoleScene:
         self._trail_shown = None
         self._last_preview_at = 0.0
         self._lock = threading.RLock()
-        # order_guard(scene key or None) -> None to allow, or why not.
-        self.order_guard: Callable[[str | None], str | None] | None = None
         self.orders_refused = 0
         self._refused_at: dict[int, float] = {}
+        self._wish_dirty = threading.Event()
+        self._settings_dirty = threading.Event()
+        self._control_dirty = threading.Event()
 
     # ------------------------------------------------------------------
     # Life cycle
@@ -212,7 +219,11 @@ class ConsoleScene:
         self._build_screen()
         self._build_trail()
         self._build_target()
-        self.panel = ControlPanel(self.server.gui, self.operator, self)
+        self._build_uncertainty()
+        if self.desk is None:
+            # Alone: a desk nobody holds; the viewers watch, STOP excepted.
+            self.desk, self._own_desk = ControlDesk(self.operator), True
+        self.server.on_client_connect(self._on_viewer_connect)
         self.server.on_client_disconnect(self._on_viewer_disconnect)
         self._unsubscribe = self.operator.subscribe(self._on_operator_event)
         if self.operator.picture() is not None:
@@ -233,6 +244,12 @@ class ConsoleScene:
             self._thread = None
         if self.server is not None:
             self.server.stop()
+
+    def use_desk(self, desk: ControlDesk) -> None:
+        """Order through `desk` (the web app's), so that the page holding
+        control, and only it, may order from its embedded view."""
+        self.desk, self._own_desk = desk, False
+        self._control_dirty.set()
 
     def __enter__(self) -> "ConsoleScene":
         return self.start()
@@ -323,6 +340,32 @@ class ConsoleScene:
         self.trail_node = self.server.scene.add_line_segments(
             "/trail", np.zeros((1, 2, 3), np.float32), ROV_RGB, thickness=0.04, visible=False)
 
+    def _build_uncertainty(self) -> None:
+        """A ring around the ghost, as wide as the vehicle may have strayed
+        from the prediction: it grows while nothing is heard."""
+        self.uncertainty_node = self.server.scene.add_line_segments(
+            "/ghost_uncertainty", np.zeros((UNCERTAINTY_SEGMENTS, 2, 3), np.float32), (255, 80, 80),
+            thickness=0.03, visible=False)
+        self._uncertainty_shown = None
+
+    def _update_uncertainty(self, predicted: Pose) -> None:
+        age = self.operator.odometry_age_s()
+        if age is None or age < UNCERTAINTY_SHOWN_AFTER_S:
+            if self.uncertainty_node.visible:
+                self.uncertainty_node.visible = False
+            return
+        radius = MAX_SPEED_MPS * age
+        key = (round(radius, 1), predicted.x_m, predicted.y_m, predicted.z_m)
+        if key == self._uncertainty_shown:
+            return
+        self._uncertainty_shown = key
+        a = np.linspace(0.0, 2 * np.pi, UNCERTAINTY_SEGMENTS + 1)
+        centre = frames.ned_to_world(predicted.x_m, predicted.y_m, predicted.z_m)
+        ring = np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a),
+                         np.full_like(a, centre[2])], axis=1).astype(np.float32)
+        self.uncertainty_node.points = np.stack([ring[:-1], ring[1:]], axis=1)
+        _show(self.uncertainty_node)
+
     def _build_target(self) -> None:
         s = self.seabed
         limits = ((s.y_min_m, s.y_max_m), (s.x_min_m, s.x_max_m), (s.floor_z + 0.3, 0.0))
@@ -345,24 +388,62 @@ class ConsoleScene:
     # ------------------------------------------------------------------
 
     def _on_operator_event(self, topic: str, payload) -> None:
-        # Called from the link's loop or the decoder thread: only flag work.
+        # Called from the link's loop, a web thread or the decoder: only flag work.
         if topic == "image":
             self._image_dirty.set()
+        elif topic == "wish":
+            self._wish_dirty.set()
+        elif topic == "target":
+            self.render_target(payload)
+        elif topic == "control":
+            self._control_dirty.set()
+        elif topic == "order" and payload.get("kind") == "IMAGE":
+            self._settings_dirty.set()
 
     def viewer_key(self, client_id: int) -> str | None:
         """The scene key a viewer connected with, or None."""
         return scene_key_from_path(viewer_path(self.server, client_id))
 
+    def caller(self, client) -> Caller:
+        """Who a viewer is to the desk (None: our own code)."""
+        if client is None:
+            return CONSOLE
+        return Caller(scene_key=self.viewer_key(client.client_id), via="scene")
+
+    def _on_viewer_connect(self, client) -> None:
+        caller = self.caller(client)
+
+        def notify(title: str, text: str) -> None:
+            try:
+                client.add_notification(title, text, auto_close_seconds=5.0, color="red")
+            except Exception:  # the viewer left meanwhile
+                log.debug("could not notify viewer %s", client.client_id, exc_info=True)
+
+        panel = ControlPanel(client.gui, self, lambda order: self.desk.submit(order, caller), notify)
+        panel.set_permitted(self._may_order(caller))
+        if self.operator.picture() is not None:
+            self._image_dirty.set()
+        with self._lock:
+            self.panels[client.client_id] = panel
+
     def _on_viewer_disconnect(self, client) -> None:
         with self._lock:
             self._refused_at.pop(client.client_id, None)
+            self.panels.pop(client.client_id, None)
+
+    def _may_order(self, caller: Caller) -> bool:
+        return self.desk.refusal(control.ClearTarget(), caller) is None
+
+    def note_refusal(self) -> None:
+        with self._lock:
+            self.orders_refused += 1
 
     def permit(self, client) -> bool:
-        """May this viewer order now?  (None: our own code, always.)  If not,
-        it is told why, once in a while, and the refusal is counted."""
-        if client is None or self.order_guard is None:
+        """May this viewer move the shared gizmo or ROI now?  (None: our own
+        code, always.)  If not, it is told why, once in a while."""
+        if client is None:
             return True
-        reason = self.order_guard(self.viewer_key(client.client_id))
+        reason = self.desk.refusal(control.ClearTarget(), self.caller(client))
         if reason is None:
             return True
         now = time.monotonic()
@@ -386,7 +467,9 @@ class ConsoleScene:
         start = np.asarray(event.start_position, float)
         end = self._pointer_on_screen(event)
         if event.phase == "end":
-            self.select_roi_world(start, end)
+            panel = self.panels.get(event.client.client_id)
+            self.select_roi_world(start, end, caller=self.caller(event.client),
+                                  shift=panel.shift if panel is not None else None)
         else:
             self.preview_roi_world(start, end)
 
@@ -412,8 +495,10 @@ class ConsoleScene:
         preview = event.phase != "update" or now - self._last_preview_at >= 0.1
         if preview:
             self._last_preview_at = now
-        self.move_target(event.target.position, event.target.wxyz, preview=preview, place_gizmo=False)
-        if event.phase == "end":
+        if preview:
+            self.move_target(event.target.position, event.target.wxyz, place_gizmo=False,
+                             caller=self.caller(event.client))
+        if event.phase == "end" and self.target is not None:
             # The order carries yaw only: square the gizmo up again.
             event.target.wxyz = frames.body_wxyz(0.0, 0.0, self.target[3])
 
@@ -434,21 +519,25 @@ class ConsoleScene:
         self.show_roi(roi)
         return roi
 
-    def select_roi_world(self, point_a, point_b) -> tuple[int, int, int, int] | None:
-        """Drag released: the IMAGE order for the next image, with the panel's
+    def select_roi_world(self, point_a, point_b, *, caller: Caller = CONSOLE,
+                         shift: int | None = None) -> tuple[int, int, int, int] | None:
+        """Drag released: the IMAGE order for the next image, with the viewer's
         shift; a click (no rectangle) leaves the settings alone."""
         roi = self.roi_from_world(point_a, point_b)
         if roi is None:
             self.show_roi(self.operator.requested_settings.roi)
             return None
-        shift = self.panel.shift if self.panel is not None else None
-        self.operator.set_image_settings(roi=roi, shift=shift)
+        try:
+            self.desk.submit(control.ChangeImage(roi=roi, shift=shift), caller)
+        except (NotHolder, OrderError):
+            self.show_roi(self.operator.requested_settings.roi)
+            raise
         self.show_roi(roi)
-        self._image_dirty.set()  # redraw the panel's copy with the new box
+        self._image_dirty.set()  # redraw the panels' copy with the new box
         return roi
 
-    def clear_roi(self) -> None:
-        self.operator.set_image_settings(roi=None)
+    def clear_roi(self, caller: Caller = CONSOLE) -> None:
+        self.desk.submit(control.ChangeImage(roi=None), caller)
         self.show_roi(None)
         self._image_dirty.set()
 
@@ -463,10 +552,24 @@ class ConsoleScene:
     # Supervised control: target, preview, Send, Stop
     # ------------------------------------------------------------------
 
-    def move_target(self, position_world, wxyz, *, preview: bool = True,
-                    place_gizmo: bool = True) -> list[tuple[float, float, float]]:
-        """The gizmo moved: the ghost at the target and (with `preview`) the path
-        the vehicle would take (GUIDED, from the predicted pose).  Sends nothing.
+    @property
+    def target(self) -> tuple[float, float, float, float] | None:
+        """The desk's shared target, NED x, y, z and yaw_deg, or None."""
+        t = self.target_state()
+        return None if t is None else (t["x_m"], t["y_m"], t["z_m"], t["yaw_deg"])
+
+    def target_state(self) -> dict | None:
+        return self.desk.target_state() if self.desk is not None else None
+
+    @property
+    def preview_points(self) -> list:
+        t = self.target_state()
+        return [] if t is None else t["points"]
+
+    def move_target(self, position_world, wxyz, *, place_gizmo: bool = True,
+                    caller: Caller = CONSOLE) -> list[tuple[float, float, float]]:
+        """The gizmo moved: the shared target there (the desk previews the path,
+        GUIDED from the predicted pose; the ghost shows it).  Sends nothing.
         Called from elsewhere than the gizmo, the gizmo follows (`place_gizmo`)."""
         s = self.seabed
         x, y, z = frames.world_to_ned(np.asarray(position_world, float))
@@ -474,23 +577,30 @@ class ConsoleScene:
         y = min(max(float(y), s.y_min_m), s.y_max_m)
         z = min(max(float(z), 0.0), s.depth_m - 0.3)
         yaw = frames.yaw_deg_from_wxyz(wxyz)
-        path = self.operator.preview_path(x, y, z, yaw) if preview else None
-        with self._lock:
-            self.target = (x, y, z, yaw)
-            self.target_order_id = None
-            if path is not None:
-                self.preview_points = path
-        self.target_ghost_node.position = frames.ned_to_world(x, y, z)
-        self.target_ghost_node.wxyz = frames.body_wxyz(0.0, 0.0, yaw)
-        self.target_ghost_node.visible = True
-        if place_gizmo:
-            self.gizmo.position = self.target_ghost_node.position
-            self.gizmo.wxyz = self.target_ghost_node.wxyz
-        if path is not None:
-            self._show_path(path)
-        if self.panel is not None:
-            self.panel.show_target(self.target, None)
-        return self.preview_points
+        self._place_gizmo = place_gizmo
+        try:
+            return self.desk.submit(control.PreviewTarget(x, y, z, yaw), caller)
+        finally:
+            self._place_gizmo = True
+
+    def render_target(self, target: dict | None) -> None:
+        """The desk's target, whoever set it: ghost, path, gizmo, every panel."""
+        if target is None:
+            self.target_ghost_node.visible = False
+            self.preview_node.visible = False
+            self._gizmo_on_vehicle()
+        else:
+            x, y, z, yaw = target["x_m"], target["y_m"], target["z_m"], target["yaw_deg"]
+            self.target_ghost_node.position = frames.ned_to_world(x, y, z)
+            self.target_ghost_node.wxyz = frames.body_wxyz(0.0, 0.0, yaw)
+            self.target_ghost_node.visible = True
+            if getattr(self, "_place_gizmo", True):
+                self.gizmo.position = self.target_ghost_node.position
+                self.gizmo.wxyz = self.target_ghost_node.wxyz
+            if target["points"]:
+                self._show_path(target["points"])
+        for panel in list(self.panels.values()):
+            panel.render_target(target)
 
     def _show_path(self, path) -> None:
         pts = frames.ned_to_world(*np.asarray(path, float).T).astype(np.float32)
@@ -500,35 +610,22 @@ class ConsoleScene:
         self.preview_node.visible = True
 
     def preview_target_ned(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0) -> list:
-        """Show a target typed elsewhere (the web page) as if the gizmo had put it there."""
-        position, wxyz = frames.pose_to_world(Pose(x_m, y_m, z_m, 0.0, 0.0, yaw_deg))
-        return self.move_target(position, wxyz)
+        """Show a target typed elsewhere as if the gizmo had put it there."""
+        return self.desk.submit(control.PreviewTarget(x_m, y_m, z_m, yaw_deg))
 
-    def send_target(self) -> int | None:
-        """The pilot confirmed: the POSITION order goes out."""
-        with self._lock:
-            target = self.target
-        if target is None:
+    def send_target(self, caller: Caller = CONSOLE) -> int | None:
+        """The pilot confirmed: the POSITION order goes out (GUIDED on the ROV)."""
+        if self.target is None:
             return None
-        order_id = self.operator.send_position(*target)
-        with self._lock:
-            self.target_order_id = order_id
-        if self.panel is not None:
-            self.panel.show_target(target, order_id)
-        return order_id
+        return self.desk.submit(control.SendTarget(), caller)
 
-    def stop_vehicle(self) -> int:
+    def stop_vehicle(self, caller: Caller = CONSOLE) -> int:
         """STOP: neutral velocity, targets cancelled on the ROV; the preview goes."""
-        order_id = self.operator.stop()
-        self.reset_target()
-        if self.panel is not None:
-            self.panel.zero_velocity_controls()
-        return order_id
+        return self.desk.submit(control.Stop(), caller)
 
     def _place_gizmo_back(self) -> None:
         """A refused drag: the gizmo back on the target, or on the vehicle."""
-        with self._lock:
-            target = self.target
+        target = self.target
         if target is not None:
             self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(Pose(*target[:3], 0.0, 0.0, target[3]))
         else:
@@ -540,16 +637,8 @@ class ConsoleScene:
             self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
                 Pose(pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg))
 
-    def reset_target(self) -> None:
-        with self._lock:
-            self.target = None
-            self.target_order_id = None
-            self.preview_points = []
-        self.target_ghost_node.visible = False
-        self.preview_node.visible = False
-        self._gizmo_on_vehicle()
-        if self.panel is not None:
-            self.panel.show_target(None, None)
+    def reset_target(self, caller: Caller = CONSOLE) -> None:
+        self.desk.submit(control.ClearTarget(), caller)
 
     # ------------------------------------------------------------------
     # Updates (background thread)
@@ -561,18 +650,45 @@ class ConsoleScene:
         while not self._stop.is_set():
             t0 = time.monotonic()
             try:
+                if self._own_desk:
+                    self.desk.tick()
                 self.update_poses()
                 if self._image_dirty.is_set():
                     self._image_dirty.clear()
                     self.update_image()
+                if self._wish_dirty.is_set():
+                    self._wish_dirty.clear()
+                    wish = self.operator.wish_state()
+                    for panel in list(self.panels.values()):
+                        panel.render_wish(wish)
+                if self._settings_dirty.is_set():
+                    self._settings_dirty.clear()
+                    for panel in list(self.panels.values()):
+                        panel.render_image_settings()
+                if self._control_dirty.is_set():
+                    self._control_dirty.clear()
+                    self.update_permissions()
                 if t0 >= next_panel:
                     next_panel = t0 + 0.5
                     self.update_trail()
-                    if self.panel is not None:
-                        self.panel.refresh()
+                    self.update_permissions()
+                    self.refresh_panels()
             except Exception:  # a bad frame must not end the scene
                 log.exception("scene update failed")
             self._stop.wait(max(0.0, period - (time.monotonic() - t0)))
+
+    def update_permissions(self) -> None:
+        """Order controls enabled for the viewers who may order, disabled for the rest."""
+        for client_id, panel in list(self.panels.items()):
+            panel.set_permitted(self._may_order(Caller(scene_key=self.viewer_key(client_id), via="scene")))
+
+    def refresh_panels(self) -> None:
+        pose, link, image = self.operator.pose_state(), self.operator.link_state(), self.operator.image_state()
+        for panel in list(self.panels.values()):
+            try:
+                panel.refresh(pose, link, image)
+            except Exception:  # a viewer gone meanwhile
+                log.debug("panel refresh failed", exc_info=True)
 
     def update_poses(self) -> None:
         reply = self.operator.last_reply
@@ -580,6 +696,7 @@ class ConsoleScene:
             return
         received = Pose.from_reply(reply)
         predicted = self.operator.predicted_pose() or received
+        self._update_uncertainty(predicted)
         if received != self._last_received:
             self._last_received = received
             self.rov_node.position, self.rov_node.wxyz = frames.pose_to_world(received)
@@ -628,8 +745,9 @@ class ConsoleScene:
         self.screen_node.image = rgb
         self.frustum_node.image = rgb
         roi = self.operator.requested_settings.roi
-        if self.panel is not None:
-            self.panel.show_picture(draw_roi(rgb, roi) if roi else rgb)
+        shown = draw_roi(rgb, roi) if roi else rgb
+        for panel in list(self.panels.values()):
+            panel.show_picture(shown)
         self.images_shown += 1
 
     def _resize_image(self, w: int, h: int) -> None:

@@ -1,4 +1,4 @@
-"""The viser control panel: every button, slider, readout and plot of the console.
+"""The viser control panel, one per viewer: buttons, sliders, readouts and plots.
 
 Goals
 - Everything the pilot does without the mouse in the scene: arm/disarm, mode,
@@ -7,38 +7,42 @@ Goals
   reception progress, the link's health, and two live plots after the paper's
   figures (commanded against received velocity, Fig. 5; a time-lapse of the link's
   traffic and losses, Fig. 4).
-- Controls only call the operator (or the scene for what the scene owns); the
-  readouts are refreshed by the scene's update thread at 2 Hz, in place.
+- A thin adapter over the command layer (`rovlink.console.control`), as
+  nerfstudio's control panel is over its viewer: every control builds one typed
+  order and hands it to `submit` (the scene's desk, with this viewer's caller);
+  it holds no order of its own.  What a control shows comes from the operator's
+  events (`render_*`), never from an earlier touch, so that no widget can resend
+  an old value.
+- Built per viewer on its own `client.gui` (viser's camera-poses example): a
+  viewer that may not order sees its order controls disabled (`set_permitted`),
+  STOP excepted.
 
-Plan: one `_build_*` per folder, one `_refresh_*` per readout; callbacks are
-one-liners into plain methods.  Keys are viser commands (hotkeys): each press
-nudges one axis of the velocity wish by `KEY_STEP`; X zeroes it.  viser reports
-key presses, not releases, so keys step rather than hold.
+Keys follow the page's model: a held key drives (a press streams the key's
+velocity, which goes neutral after the dead man's time unless the press repeats),
+Space is STOP.  viser reports key presses, not releases: nothing latches.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
-from typing import TYPE_CHECKING
+import time
+from collections.abc import Callable
 
 import numpy as np
 from viser import uplot
 
-from rovlink.link.messages import MAX_BUDGET
+from rovlink.console import control
+from rovlink.console.control import AXES, KEY_GAIN, KEYS, LIMITS, MODES, NotHolder
+from rovlink.console.operator import OrderError
 
-if TYPE_CHECKING:  # the scene imports the panel; only the type goes the other way
-    from .app import ConsoleScene
+log = logging.getLogger("rovlink.console.scene.panel")
 
-MODES = ("MANUAL", "STABILIZE", "DEPTH_HOLD", "POS_HOLD", "GUIDED", "SURFACE")
-AXES = ("vx", "vy", "vz", "vyaw")
 AXIS_LABELS = {"vx": "Surge (forward +)", "vy": "Sway (right +)", "vz": "Heave (down +)", "vyaw": "Yaw (clockwise +)"}
-KEY_STEP = 0.1
-# key -> (axis, step); z is down and yaw clockwise, as in the protocol's wish.
-KEYS = {"W": ("vx", KEY_STEP), "S": ("vx", -KEY_STEP), "D": ("vy", KEY_STEP), "A": ("vy", -KEY_STEP),
-        "F": ("vz", KEY_STEP), "R": ("vz", -KEY_STEP), "E": ("vyaw", KEY_STEP), "Q": ("vyaw", -KEY_STEP)}
 PLOT_SPAN_S = 30.0
 VELOCITY_STEP_S = 0.1
 LINK_BIN_S = 0.5
+REFUSAL_NOTICE_S = 3.0  # at most one "not sent" notification per viewer this often
 
 
 def step_values(samples, t_grid: np.ndarray, column: int) -> np.ndarray:
@@ -63,22 +67,94 @@ def link_bins(events, t_end: float, span_s: float = PLOT_SPAN_S, bin_s: float = 
     return centres - t_end, out
 
 
+def link_summary(s: dict) -> str:
+    """The link's state in one line, as the page says it."""
+    state = s.get("state")
+    if state == "replay":
+        return "**REPLAY** (a recording, no ROV)"
+    if state == "lost":
+        since = s.get("since_reply_s")
+        text = f"**LINK LOST**: no reply for {since:.1f} s" if since is not None else "**LINK LOST**"
+        if s.get("failsafe_inferred"):
+            text += f" · **ROV in FAILSAFE (inferred) since {s['failsafe_inferred_since']}**"
+        return text
+    if state == "degraded":
+        return "link degraded (replies lost or CRC errors)"
+    return "link up" if state == "up" else "link starting"
+
+
 class ControlPanel:
-    def __init__(self, gui, operator, scene: "ConsoleScene") -> None:
+    """One viewer's panel.  `submit(order)` carries an order out for this
+    viewer (raising NotHolder or OrderError); `notify(title, text)` tells
+    the viewer why not."""
+
+    def __init__(self, gui, scene, submit: Callable, notify: Callable[[str, str], None] | None = None) -> None:
         self.gui = gui
-        self.operator = operator
         self.scene = scene
-        # A refused viewer's slider or dropdown goes back to the last value
-        # accepted; the assignment calls our callbacks (client None) in this
-        # thread, which must not order again: `_quiet` tells them.
-        self._quiet = threading.local()
-        self._accepted: dict[int, object] = {}  # id(handle) -> its last accepted value
+        self.operator = scene.operator
+        self._submit_order = submit
+        self._notify = notify
+        self._refused_at = -1e9
+        # Renders assign values, and viser calls our callbacks for them (client
+        # None, this thread): `_rendering` tells them not to order.
+        self._rendering = threading.local()
+        self.order_widgets: list = []
+        self.permitted: bool | None = None
         self._build_vehicle()
         self._build_velocity()
+        self._build_keys()
         self._build_target()
         self._build_image()
         self._build_link()
         self._build_plots()
+        self.render_wish(self.operator.wish_state())
+        self.render_target(scene.target_state())
+        self.render_image_settings()
+
+    # ------------------------------------------------------------------
+    # The one way out
+    # ------------------------------------------------------------------
+
+    def submit(self, order):
+        """Hand `order` to the command layer; a refusal is shown, not raised."""
+        try:
+            return self._submit_order(order)
+        except (NotHolder, OrderError) as exc:
+            now = time.monotonic()
+            if self._notify is not None and now - self._refused_at >= REFUSAL_NOTICE_S:
+                self._refused_at = now
+                self._notify("Not sent", str(exc))
+            self.scene.note_refusal()
+            return None
+
+    def _on(self, handle, make_order: Callable) -> None:
+        """A control whose change (by the viewer, not a render) submits make_order()."""
+        def on_update(_event) -> None:
+            if getattr(self._rendering, "on", False):
+                return
+            order = make_order()
+            if order is not None:
+                self.submit(order)
+
+        handle.on_update(on_update)
+
+    def _render(self, fn: Callable) -> None:
+        self._rendering.on = True
+        try:
+            fn()
+        finally:
+            self._rendering.on = False
+
+    def set_permitted(self, permitted: bool) -> None:
+        """Order controls enabled only for a viewer who may order (STOP always)."""
+        if permitted == self.permitted:
+            return
+        self.permitted = permitted
+        for handle in self.order_widgets:
+            handle.disabled = not permitted
+        self.control_md.content = ("You may order from this view." if permitted else
+                                   "**Watching**: take control on the operator page to order from this view. "
+                                   "STOP (Space) works for everyone.")
 
     # ------------------------------------------------------------------
     # Vehicle: arm, mode, state
@@ -86,114 +162,110 @@ class ControlPanel:
 
     def _build_vehicle(self) -> None:
         with self.gui.add_folder("Vehicle"):
+            self.control_md = self.gui.add_markdown("")
             self.vehicle_md = self.gui.add_markdown("*waiting for the first odometry*")
-            self.arming = self.gui.add_button_group("Arming", ("Arm", "Disarm"))
-            self.mode = self.gui.add_dropdown("Request mode", MODES, initial_value="MANUAL")
+            self.arm_button = self.gui.add_button("Arm", color="orange")
+            self.disarm_button = self.gui.add_button("Disarm")
+            self.mode = self.gui.add_dropdown("Mode", MODES, initial_value=MODES[0])
+            self.set_mode_button = self.gui.add_button("Set mode")
+        self.order_widgets += [self.arm_button, self.disarm_button, self.mode, self.set_mode_button]
+        self.arm_button.on_click(lambda _event: self.submit(control.Arm(True)))
+        self.disarm_button.on_click(lambda _event: self.submit(control.Arm(False)))
+        self.set_mode_button.on_click(lambda _event: self.request_mode())
 
-        @self.arming.on_click
-        def _(event) -> None:
-            if self.scene.permit(event.client):
-                self.operator.arm(event.target.value == "Arm")
+    def request_mode(self):
+        return self.submit(control.SetMode(self.mode.value))
 
-        self._guard(self.mode, lambda: self.operator.set_mode(self.mode.value))
-
-    def _guard(self, handle, accepted=None) -> None:
-        """A shared input: a change from a viewer who may not order goes
-        back to the last accepted value; an accepted one calls `accepted`."""
-        self._accepted[id(handle)] = handle.value
-
-        def on_update(event) -> None:
-            if getattr(self._quiet, "on", False):
-                return
-            if not self.scene.permit(event.client):
-                self._quiet.on = True
-                try:
-                    handle.value = self._accepted[id(handle)]
-                finally:
-                    self._quiet.on = False
-                return
-            self._accepted[id(handle)] = handle.value
-            if accepted is not None:
-                accepted()
-
-        handle.on_update(on_update)
-
-    def _refresh_vehicle(self) -> None:
-        state = self.operator.pose_state()
+    def _refresh_vehicle(self, state: dict, link: dict) -> None:
         pose = state.get("received")
         if pose is None:
             return
         flags = " · ".join(f for f, on in (("**FAILSAFE**", state.get("failsafe")),
                                              ("autopilot lost", not state.get("autopilot"))) if on)
+        stale = " · *(old: the link is lost)*" if state.get("stale") else ""
         self.vehicle_md.content = (
             f"{'**ARMED**' if state.get('armed') else 'disarmed'} · {state.get('mode')}"
-            f"{' · ' + flags if flags else ''}  \n"
+            f"{' · ' + flags if flags else ''}{stale}  \n"
             f"N {pose['x_m']:+.2f} m, E {pose['y_m']:+.2f} m, depth {pose['z_m']:.2f} m, "
             f"heading {pose['yaw_deg'] % 360:.0f}°")
 
     # ------------------------------------------------------------------
-    # Velocity: sliders and keys
+    # Velocity: sliders show the wish; a touch changes one axis of it
     # ------------------------------------------------------------------
 
     def _build_velocity(self) -> None:
+        lo, hi = LIMITS["velocity"]
         with self.gui.add_folder("Velocity"):
-            self.sliders = {a: self.gui.add_slider(AXIS_LABELS[a], min=-1.0, max=1.0, step=0.05, initial_value=0.0)
+            self.sliders = {a: self.gui.add_slider(AXIS_LABELS[a], min=lo, max=hi, step=0.05, initial_value=0.0)
                             for a in AXES}
             self.zero_button = self.gui.add_button("Zero velocity (X)")
-            self.gui.add_markdown("Keys: W/S surge, A/D sway, R/F up/down, Q/E yaw, "
-                                  f"{KEY_STEP:g} per press; X zero.")
-        for slider in self.sliders.values():
-            self._guard(slider, self.send_velocity)
-        self.zero_button.on_click(lambda event: self.scene.permit(event.client) and self.zero_velocity())
-        for key, (axis, step) in KEYS.items():
-            command = self.gui.add_command(f"Velocity {axis} {step:+g}", hotkey=key)
-            command.on_trigger(lambda event, axis=axis, step=step:
-                               self.scene.permit(event.client) and self.nudge_velocity(axis, step))
-        self.gui.add_command("Zero velocity", hotkey="X").on_trigger(
-            lambda event: self.scene.permit(event.client) and self.zero_velocity())
+            keys = ", ".join(f"{k} {axis}{'+' if sign > 0 else '-'}" for k, (axis, sign) in KEYS.items())
+            self.gui.add_markdown(f"Hold a key to drive ({keys}), {KEY_GAIN:g} of the maximum; it stops when "
+                                  f"released. Space = STOP. The sliders show the wish, whoever set it.")
+        self.order_widgets += [*self.sliders.values(), self.zero_button]
+        for axis, slider in self.sliders.items():
+            self._on(slider, lambda axis=axis, slider=slider: self.velocity_with(axis, float(slider.value)))
+        self.zero_button.on_click(lambda _event: self.submit(control.Drive()))
 
-    def velocity_wish(self) -> tuple[float, float, float, float]:
-        return tuple(float(self.sliders[a].value) for a in AXES)  # type: ignore[return-value]
+    def velocity_with(self, axis: str, value: float, streamed: bool = False) -> control.Drive:
+        """The wish as it is now, one axis changed: a touch never resends
+        what another control showed before."""
+        wish = dict(self.operator.wish_state())
+        wish[axis] = round(min(1.0, max(-1.0, value)), 3)
+        return control.Drive(**wish, streamed=streamed)
 
-    def send_velocity(self) -> None:
-        self.operator.set_velocity(*self.velocity_wish())
+    def render_wish(self, wish: dict) -> None:
+        def show() -> None:
+            for axis, slider in self.sliders.items():
+                if abs(slider.value - wish[axis]) > 1e-6:
+                    slider.value = wish[axis]
+        self._render(show)
 
-    def nudge_velocity(self, axis: str, step: float) -> None:
-        slider = self.sliders[axis]
-        slider.value = round(min(1.0, max(-1.0, slider.value + step)), 2)  # its callback sends
+    def _build_keys(self) -> None:
+        self.key_commands = []
+        for key, (axis, sign) in KEYS.items():
+            command = self.gui.add_command(f"Drive {axis} {'+' if sign > 0 else '-'}", hotkey=key)
+            command.on_trigger(lambda _event, axis=axis, sign=sign: self.key_drive(axis, sign))
+            self.key_commands.append(command)
+        zero = self.gui.add_command("Zero velocity", hotkey="X")
+        zero.on_trigger(lambda _event: self.submit(control.Drive()))
+        self.order_widgets += [*self.key_commands, zero]
+        self.stop_command = self.gui.add_command("STOP", hotkey="space")
+        self.stop_command.on_trigger(lambda _event: self.stop())
 
-    def zero_velocity(self) -> None:
-        self.zero_velocity_controls()
-        self.send_velocity()
+    def key_drive(self, axis: str, sign: int):
+        """A key press: this axis at the key's strength, streamed (the dead man
+        brings it back to neutral unless the press repeats)."""
+        return self.submit(self.velocity_with(axis, sign * KEY_GAIN, streamed=True))
 
-    def zero_velocity_controls(self) -> None:
-        for slider in self.sliders.values():
-            slider.value = 0.0
+    def stop(self):
+        return self.submit(control.Stop())
 
     # ------------------------------------------------------------------
-    # Supervised control
+    # Supervised control: the shared target
     # ------------------------------------------------------------------
 
     def _build_target(self) -> None:
         with self.gui.add_folder("Target"):
-            self.target_md = self.gui.add_markdown("Move the gizmo to set a target; the path is previewed, "
-                                                   "nothing is sent before **Send**.")
-            self.send_button = self.gui.add_button("Send", color="green", disabled=True)
+            self.target_md = self.gui.add_markdown("")
+            self.send_button = self.gui.add_button("Send (switches to GUIDED)", color="green", disabled=True)
             self.stop_button = self.gui.add_button("Stop", color="red")
             self.reset_button = self.gui.add_button("Reset target")
-        self.send_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.send_target())
-        self.stop_button.on_click(lambda _event: self.scene.stop_vehicle())  # anyone may stop
-        self.reset_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.reset_target())
+        self.order_widgets += [self.reset_button]
+        self.send_button.on_click(lambda _event: self.submit(control.SendTarget()))
+        self.stop_button.on_click(lambda _event: self.stop())  # anyone may stop
+        self.reset_button.on_click(lambda _event: self.submit(control.ClearTarget()))
 
-    def show_target(self, target, order_id) -> None:
+    def render_target(self, target: dict | None) -> None:
         if target is None:
-            self.target_md.content = "No target. Move the gizmo to set one."
+            self.target_md.content = ("No target. Move the gizmo to set one; the path is previewed, nothing is "
+                                      "sent before **Send**, which switches the vehicle to **GUIDED**.")
             self.send_button.disabled = True
             return
-        x, y, z, yaw = target
-        sent = f"sent as order {order_id}" if order_id is not None else "**not sent**"
-        self.target_md.content = f"Target N {x:+.2f} E {y:+.2f} depth {z:.2f} m, heading {yaw % 360:.0f}° — {sent}"
-        self.send_button.disabled = order_id is not None
+        sent = f"sent as order {target['order_id']}" if target["sent"] else "**not sent**"
+        self.target_md.content = (f"Target N {target['x_m']:+.2f} E {target['y_m']:+.2f} depth "
+                                  f"{target['z_m']:.2f} m, heading {target['yaw_deg'] % 360:.0f}° — {sent}")
+        self.send_button.disabled = bool(target["sent"]) or not self.permitted
 
     # ------------------------------------------------------------------
     # Image: picture, progress, settings
@@ -207,36 +279,49 @@ class ControlPanel:
                                               format="jpeg", jpeg_quality=90)
             self.progress = self.gui.add_progress_bar(0.0, color="cyan")
             self.image_md = self.gui.add_markdown("*no image yet*")
-            self.budget = self.gui.add_slider("Budget (bytes)", min=200, max=MAX_BUDGET, step=100,
-                                              initial_value=int(min(MAX_BUDGET, max(200, settings.budget_bytes))))
-            self.shift_slider = self.gui.add_slider("ROI shift", min=0, max=15, step=1, initial_value=settings.shift or 4)
+            self.budget = self.gui.add_slider("Budget (bytes)", min=200, max=LIMITS["budget_bytes"][1], step=100,
+                                              initial_value=int(min(LIMITS["budget_bytes"][1],
+                                                                    max(200, settings.budget_bytes))))
+            self.shift_slider = self.gui.add_slider("ROI shift", min=LIMITS["shift"][0], max=LIMITS["shift"][1],
+                                                    step=1, initial_value=settings.shift or 4)
             self.mono = self.gui.add_checkbox("Mono", initial_value=settings.mono)
             self.apply_button = self.gui.add_button("Apply image settings")
             self.clear_roi_button = self.gui.add_button("Clear ROI")
             self.next_button = self.gui.add_button("Next image")
             self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI.")
-        # The settings are shared by every viewer and go out with the next
-        # Apply or ROI: a viewer who may not order may not change them either.
-        for handle in (self.budget, self.shift_slider, self.mono):
-            self._guard(handle)
-        self.apply_button.on_click(lambda event: self.scene.permit(event.client) and self.apply_image_settings())
-        self.clear_roi_button.on_click(lambda event: self.scene.permit(event.client) and self.scene.clear_roi())
-        self.next_button.on_click(lambda event: self.scene.permit(event.client) and self.operator.next_image())
+        self.order_widgets += [self.budget, self.shift_slider, self.mono, self.apply_button, self.clear_roi_button,
+                               self.next_button]
+        self.apply_button.on_click(lambda _event: self.apply_image_settings())
+        self.clear_roi_button.on_click(lambda _event: self.submit(control.ChangeImage(roi=None)))
+        self.next_button.on_click(lambda _event: self.submit(control.NextImage()))
 
     @property
     def shift(self) -> int:
         return int(self.shift_slider.value)
 
-    def apply_image_settings(self) -> int:
+    def apply_image_settings(self):
         roi = self.operator.requested_settings.roi  # keep the ROI the pilot drew
-        return self.operator.set_image_settings(roi=roi, shift=self.shift if roi else 0, mono=bool(self.mono.value),
-                                                budget_bytes=int(self.budget.value))
+        return self.submit(control.ChangeImage(roi=roi, shift=self.shift if roi else 0, mono=bool(self.mono.value),
+                                               budget_bytes=int(self.budget.value)))
+
+    def render_image_settings(self) -> None:
+        """The settings last requested, whoever requested them."""
+        s = self.operator.requested_settings
+
+        def show() -> None:
+            budget = int(min(LIMITS["budget_bytes"][1], max(200, s.budget_bytes)))
+            if self.budget.value != budget:
+                self.budget.value = budget
+            if s.shift and self.shift_slider.value != s.shift:
+                self.shift_slider.value = s.shift
+            if self.mono.value != s.mono:
+                self.mono.value = s.mono
+        self._render(show)
 
     def show_picture(self, rgb: np.ndarray) -> None:
         self.picture.image = rgb
 
-    def _refresh_image(self) -> None:
-        s = self.operator.image_state()
+    def _refresh_image(self, s: dict) -> None:
         if s["img"] is None:
             return
         total = s["total_bytes"]
@@ -257,9 +342,7 @@ class ControlPanel:
         with self.gui.add_folder("Link"):
             self.link_md = self.gui.add_markdown("*link starting*")
 
-    def _refresh_link(self) -> None:
-        s = self.operator.link_state()
-
+    def _refresh_link(self, s: dict) -> None:
         def fmt(v, spec, unit=""):
             return "–" if v is None else f"{v:{spec}}{unit}"
 
@@ -267,16 +350,15 @@ class ControlPanel:
         if s["failsafe"]:
             flags.append("**FAILSAFE**")
         flags.append("AUTOPILOT ok" if s["autopilot"] else "**AUTOPILOT LOST**")
-        if not s["link_up"]:
-            flags.append("**LINK DOWN**")
         self.link_md.content = (
+            f"{link_summary(s)}\n\n"
             "| | |\n|---|---|\n"
-            f"| poll rate | {fmt(s['poll_rate_hz'], '.1f', ' Hz')} |\n"
+            f"| replies | {fmt(s['reply_rate_hz'], '.1f', ' Hz')} (polls {fmt(s['poll_rate_hz'], '.1f', ' Hz')}) |\n"
+            f"| since reply | {fmt(s['since_reply_s'], '.1f', ' s')} |\n"
             f"| round trip | {fmt(s['round_trip_s'] and s['round_trip_s'] * 1000, '.0f', ' ms')} |\n"
             f"| replies lost | {s['replies_lost']} of {s['polls_sent']} |\n"
             f"| CRC errors | {s['crc_errors']} |\n"
             f"| traffic | {fmt(s['bytes_per_s'], '.0f', ' B/s')} |\n"
-            f"| odometry age | {fmt(s['odometry_age_s'], '.2f', ' s')} |\n"
             f"| images | {s['images_completed']} done, {s['images_abandoned']} abandoned |\n\n"
             + " · ".join(flags))
 
@@ -290,7 +372,7 @@ class ControlPanel:
         # auto x-scales "relative" across updates, which can lose the data when
         # the chart is laid out late; a static range takes another path.
         x_scale = uplot.Scale(time=False, range=(-PLOT_SPAN_S, 0.0))
-        with self.gui.add_folder("Plots"):
+        with self.gui.add_folder("Plots", expand_by_default=False):
             self.plot_axis = self.gui.add_dropdown("Velocity axis", AXES, initial_value="vx")
             self.velocity_plot = self.gui.add_uplot(
                 (np.array([-PLOT_SPAN_S, 0.0]), empty, empty),
@@ -327,10 +409,12 @@ class ControlPanel:
 
     # ------------------------------------------------------------------
 
-    def refresh(self) -> None:
+    def refresh(self, pose: dict | None = None, link: dict | None = None, image: dict | None = None) -> None:
         """Readouts and plots, in place (the scene's thread, 2 Hz)."""
-        self._refresh_vehicle()
-        self._refresh_image()
-        self._refresh_link()
+        pose = self.operator.pose_state() if pose is None else pose
+        link = self.operator.link_state() if link is None else link
+        image = self.operator.image_state() if image is None else image
+        self._refresh_vehicle(pose, link)
+        self._refresh_image(image)
+        self._refresh_link(link)
         self._refresh_plots()
-

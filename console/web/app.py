@@ -32,7 +32,7 @@ from fastapi.staticfiles import StaticFiles
 from rovlink.console.operator import Operator
 
 from . import errors
-from .control import ControlDesk
+from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
 from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
 from .routers import control, image, link, orders, state, ws
 from .routers.image import PngCache
@@ -44,21 +44,30 @@ STATIC = Path(__file__).with_name("static")
 
 
 def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, telemetry_hz: float = 10.0,
-               lease_s: float = 30.0, velocity_deadman_s: float = 1.0, max_body_bytes: int = MAX_BODY_BYTES,
-               max_websockets: int = MAX_WEBSOCKETS, policy: AccessPolicy | None = None) -> FastAPI:
+               lease_s: float = LEASE_S, velocity_deadman_s: float = DEADMAN_S, max_body_bytes: int = MAX_BODY_BYTES,
+               max_websockets: int = MAX_WEBSOCKETS, policy: AccessPolicy | None = None,
+               unattended_warn_s: float = UNATTENDED_WARN_S, disarm_unattended_s: float | None = None,
+               rov_failsafe_s: float | None = None) -> FastAPI:
     """The web console for `operator` (which the caller runs).
 
     `viser_url` is the 3D scene the page embeds (none shown if None); `scene`
     is kept on `app.state.scene` for whoever needs it, and its viewers order
-    only for the page holding control (its `order_guard` is this app's desk).  `lease_s`: a script
+    only for the page holding control (it orders through this app's desk).  `lease_s`: a script
     holding control and silent that long loses it.  `velocity_deadman_s`: a
     velocity streamed over a WebSocket goes neutral when not repeated within it.
+    `unattended_warn_s`: armed with nobody in control this long, every page is
+    warned; `disarm_unattended_s`: ... and this long, the console disarms (off
+    when None).  `rov_failsafe_s`: the ROV's failsafe time (the operator's own
+    value, 3 s, when None), after which a lost link means an ROV in FAILSAFE.
     """
     for name, value in (("telemetry_hz", telemetry_hz), ("lease_s", lease_s),
                         ("velocity_deadman_s", velocity_deadman_s)):
         if not value > 0:
             raise ValueError(f"{name} must be positive, got {value!r}")
-    desk = ControlDesk(operator, lease_s=lease_s, deadman_s=velocity_deadman_s)
+    desk = ControlDesk(operator, lease_s=lease_s, deadman_s=velocity_deadman_s,
+                       unattended_warn_s=unattended_warn_s, disarm_unattended_s=disarm_unattended_s)
+    if rov_failsafe_s is not None:
+        operator.rov_failsafe_s = float(rov_failsafe_s)
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -92,14 +101,17 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     app.state.operator = operator
     app.state.scene = scene
     app.state.desk = desk
-    if scene is not None and hasattr(scene, "order_guard"):
-        scene.order_guard = desk.scene_refusal
+    if scene is not None and hasattr(scene, "use_desk"):
+        scene.use_desk(desk)  # its viewers order through the same desk
     # Shared by all pages, but younger than a telemetry period: a snapshot
     # reused by the next tick would repeat the same predicted pose.
     app.state.snapshot = SharedSnapshot(operator, desk, max_age_s=min(0.04, 0.5 / float(telemetry_hz)))
     app.state.png_cache = PngCache()
-    app.state.config = {"viser_url": viser_url, "telemetry_hz": float(telemetry_hz),
-                        "velocity_deadman_s": float(velocity_deadman_s), "lease_s": float(lease_s)}
+    app.state.config = page_config(
+        viser_url=viser_url, telemetry_hz=float(telemetry_hz), velocity_deadman_s=float(velocity_deadman_s),
+        lease_s=float(lease_s), lost_after_s=operator.lost_after_s, rov_failsafe_s=operator.rov_failsafe_s,
+        unattended_warn_s=float(unattended_warn_s),
+        disarm_unattended_s=None if disarm_unattended_s is None else float(disarm_unattended_s))
     errors.install(app)
     for module in (state, orders, image, link, control, ws):
         app.include_router(module.router)

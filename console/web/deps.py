@@ -13,7 +13,7 @@ from starlette.requests import HTTPConnection
 
 from rovlink.console.operator import Operator
 
-from .control import Client, ControlDesk
+from rovlink.console.control import Client, ControlDesk
 
 CLIENT_HEADER = "X-Rovlink-Client"
 

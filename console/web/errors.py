@@ -18,7 +18,7 @@ from starlette.exceptions import HTTPException
 
 from rovlink.console.operator import OrderError
 
-from .control import NotHolder, UnknownClient
+from rovlink.console.control import NotHolder, UnknownClient
 
 
 def describe(errors) -> str:

@@ -18,9 +18,11 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
+from rovlink.console.control import MODES
 from rovlink.link.messages import MAX_BUDGET
 
-ModeName = Literal["MANUAL", "STABILIZE", "DEPTH_HOLD", "POS_HOLD", "GUIDED", "SURFACE"]
+# The one mode list (the protocol's), as a type for the schema.
+ModeName = Literal[tuple(MODES)]  # type: ignore[valid-type]
 
 
 class Request(BaseModel):
@@ -108,6 +110,10 @@ class PoseState(BaseModel):
     autopilot: bool | None = None
     position_valid: bool | None = None
     odometry_age_s: float | None = None
+    hold: bool | None = Field(None, description="the ROV holds position after a STOP or failsafe (protocol 1.1)")
+    attitude_valid: bool | None = Field(None, description="roll, pitch and yaw are measured (protocol 1.1)")
+    stale: bool | None = Field(None, description="the link is lost: the received pose is old news")
+    uncertainty_m: float | None = Field(None, description="how far the vehicle may be from the prediction")
 
 
 class ImageSettingsState(BaseModel):
@@ -130,8 +136,17 @@ class ImageState(BaseModel):
 
 
 class LinkState(BaseModel):
+    state: Literal["starting", "up", "degraded", "lost", "replay"] = Field(
+        description="from replies: lost after lost_after_s without one, degraded on recent losses or CRC errors")
+    since_reply_s: float | None = Field(description="seconds since the last reply")
+    lost_after_s: float
+    rov_failsafe_s: float
+    failsafe_inferred: bool = Field(description="no poll reached the ROV for its failsafe time: it is in FAILSAFE")
+    failsafe_inferred_at: float | None = Field(description="when it went into FAILSAFE, Unix time")
+    failsafe_inferred_since: str | None = Field(description="the same, HH:MM:SS local time")
     t: float
     poll_rate_hz: float
+    reply_rate_hz: float
     round_trip_s: float | None = Field(description="median of recent round trips")
     last_round_trip_s: float | None
     polls_sent: int
@@ -148,7 +163,8 @@ class LinkState(BaseModel):
     estimated_ber: float | None
     images_completed: int
     images_abandoned: int
-    link_up: bool
+    link_up: bool = Field(description="replies arrive (state up or degraded)")
+    transport_up: bool
 
 
 class VelocityWish(BaseModel):
@@ -165,7 +181,8 @@ class OrderInfo(BaseModel):
 
     id: int
     kind: str
-    state: str = Field(description="queued, acknowledged, or 'cancelled: <reason>'")
+    state: str = Field(description="queued or requested, sent, acknowledged (one-shot) or followed (arm, mode), "
+                                   "'rejected: <reason>', 'refused: <reason>', 'cancelled: <reason>'")
     t_queued: float
 
 
@@ -181,6 +198,19 @@ class ControlStatus(BaseModel):
     held_for_s: float | None
     you: bool = Field(description="whether the client asking (X-Rovlink-Client) holds control")
     lease_s: float = Field(description="a script holder silent this long loses control")
+    unattended_s: float | None = Field(None, description="armed with nobody in control for this long")
+    unattended_warning: bool = False
+    disarm_unattended_s: float | None = None
+
+
+class Target(BaseModel):
+    x_m: float
+    y_m: float
+    z_m: float
+    yaw_deg: float
+    order_id: int | None
+    sent: bool
+    points: list[tuple[float, float, float]]
 
 
 class State(BaseModel):
@@ -192,11 +222,13 @@ class State(BaseModel):
     log: list[LogEntry]
     replaying: bool
     control: ControlStatus
+    target: Target | None = None
 
 
 class OrderQueued(BaseModel):
     id: int = Field(description="order id; follow it in /api/orders")
     kind: str
+    mode: str | None = Field(None, description="the mode the ROV switches to for it (GUIDED for a position)")
 
 
 class Requested(BaseModel):
@@ -204,6 +236,7 @@ class Requested(BaseModel):
 
     kind: Literal["ARM", "DISARM", "MODE"]
     mode: ModeName | None = None
+    id: int | None = Field(None, description="follow it in /api/orders")
 
 
 class TakeResult(BaseModel):
@@ -216,7 +249,21 @@ class PathPreview(BaseModel):
 
 
 class Config(BaseModel):
+    """The one set of modes, keys, limits and defaults every surface builds its controls from."""
+
     viser_url: str | None
     telemetry_hz: float
     velocity_deadman_s: float
     lease_s: float
+    modes: list[str]
+    keys: dict[str, tuple[str, int]] = Field(description="key letter -> (axis, sign); hold to drive")
+    stop_key: str
+    key_gain: float
+    limits: dict[str, tuple[float, float]]
+    default_target: dict[str, float]
+    default_roi_shift: int
+    go_to_mode: str
+    lost_after_s: float
+    rov_failsafe_s: float
+    unattended_warn_s: float
+    disarm_unattended_s: float | None

@@ -12,7 +12,7 @@ import time
 
 from rovlink.console.operator import Operator
 
-from .control import ControlDesk
+from rovlink.console.control import ControlDesk
 
 
 def snapshot(operator: Operator, desk: ControlDesk, client_id: str | None, *, orders: int, log: int) -> dict:
@@ -20,6 +20,7 @@ def snapshot(operator: Operator, desk: ControlDesk, client_id: str | None, *, or
     state["orders"] = state["orders"][-orders:] if orders else []
     state["log"] = state["log"][-log:] if log else []
     state["control"] = desk.status(client_id)
+    state["target"] = desk.target_state()
     return state
 
 

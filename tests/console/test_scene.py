@@ -39,7 +39,8 @@ from rovlink.console.scene.app import (
     SeabedAsset,
     as_rgb,
 )
-from rovlink.console.scene.panel import link_bins, step_values
+from rovlink.console import control
+from rovlink.console.scene.panel import ControlPanel, link_bins, step_values
 from rovlink.console.scene.roi import draw_roi, roi_from_pixels
 from rovlink.console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
 from rovlink.console.stack import Stack, StackConfig
@@ -234,16 +235,19 @@ def test_poses_follow_odometry(live):
     assert scene.ghost_node.visible
     start = np.array(scene.rov_node.position)
     pushed = scene.frames_pushed
-    op.arm(True)
-    assert wait_for(lambda: op.last_reply.armed, 10.0)
-    op.set_velocity(0.0, 0.0, 0.0, 0.6)  # turn on the spot
+    # Nobody in control means neutral: a script takes control to drive.
+    holder = scene.desk.take(None, "test script")
+    scene.desk.submit(control.Arm(True), control.Caller(holder.id))
+    assert wait_for(lambda: op.last_reply.armed, 10.0), (op.orders_state()[-3:], list(op.history.log)[-5:])
+    scene.desk.submit(control.Drive(vyaw=0.6), control.Caller(holder.id))  # turn on the spot
     try:
         assert wait_for(lambda: abs(received_pose(op)[3]) > 20.0, 10.0)
         assert wait_for(shown_at_received, 5.0)
         # The ghost runs ahead of the last odometry while the wish holds.
         assert wait_for(lambda: not np.allclose(scene.ghost_node.wxyz, scene.rov_node.wxyz, atol=1e-4), 5.0)
     finally:
-        live.operator.stop()
+        scene.stop_vehicle()
+        scene.desk.release(holder.id)
     assert scene.frames_pushed > pushed
     assert np.linalg.norm(np.array(scene.rov_node.position) - start) < 2.0
     assert wait_for(lambda: scene.trail_node.visible, 5.0)
@@ -264,9 +268,14 @@ def test_image_plane_shows_each_decoded_picture(live):
     assert scene.screen_node.render_width / scene.screen_node.render_height == pytest.approx(w / h)
 
 
-def test_roi_drawn_on_the_picture_reaches_the_next_image(live):
+def test_roi_drawn_on_the_picture_reaches_the_next_image(live, monkeypatch):
     op, scene = live.operator, live.scene
     assert wait_for(lambda: op.picture() is not None, 15.0)
+    # The viewer dragging is the embedded scene of the page holding control.
+    key = "k" * 32
+    page = scene.desk.connect("page", scene_key=key)
+    scene.desk.take(page.id)
+    monkeypatch.setattr(scene, "viewer_key", lambda client_id: key)
     orders_before = len(op.orders_state())
     a, b = screen_point(scene, 40.3, 30.2), screen_point(scene, 199.6, 149.9)
 
@@ -279,7 +288,7 @@ def test_roi_drawn_on_the_picture_reaches_the_next_image(live):
     eye = np.array([3.0, -9.0, 4.0])
     off_plane = eye + 0.8 * (b - eye)  # on the ray through b, short of the screen
     drag = SimpleNamespace(phase="update", start_position=tuple(a), end_position=tuple(off_plane),
-                           client=SimpleNamespace(camera=SimpleNamespace(position=tuple(eye))))
+                           client=SimpleNamespace(client_id=7, camera=SimpleNamespace(position=tuple(eye))))
     scene._on_screen_drag(drag)
     assert len(op.orders_state()) == orders_before
     np.testing.assert_allclose(scene._pointer_on_screen(drag), b, atol=1e-6)
@@ -304,6 +313,7 @@ def test_roi_drawn_on_the_picture_reaches_the_next_image(live):
     assert op.image_state()["settings"]["roi"] == list(roi)
     scene.clear_roi()
     assert not scene.roi_node.visible
+    scene.desk.disconnect(page.id)
 
 
 def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
@@ -347,24 +357,29 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
 
 def test_panel_controls_reach_the_operator(live):
     op, scene = live.operator, live.scene
-    panel = scene.panel
+    # A panel ordering for a script holding control (nobody in control: neutral).
+    holder = scene.desk.take(None, "test script")
+    panel = ControlPanel(scene.server.gui, scene, lambda order: scene.desk.submit(order, control.Caller(holder.id)))
     orders_before = len(op.orders_state())
 
-    # Mode: the dropdown's callback requests it.
+    # Mode: the dropdown chooses, the button requests; the order is followed.
     panel.mode.value = "STABILIZE"
+    mode_id = panel.request_mode()
     assert wait_for(lambda: op.last_reply.mode == 2, 10.0)  # the protocol's STABILIZE
+    assert wait_for(lambda: [o for o in op.orders_state() if o["id"] == mode_id][0]["state"] == "followed", 5.0)
+    orders_before = len(op.orders_state())
 
-    # Velocity: keys step the sliders, the sliders set the wish; X zeroes it.
-    panel.nudge_velocity("vx", 0.1)
-    panel.nudge_velocity("vx", 0.1)
-    panel.nudge_velocity("vyaw", -0.1)
+    # Velocity: a slider changes its axis of the wish, the others stay; the
+    # sliders show the wish whoever set it.
+    panel.sliders["vx"].value = 0.2
+    panel.sliders["vyaw"].value = -0.1
     assert op.state()["velocity_wish"] == pytest.approx({"vx": 0.2, "vy": 0.0, "vz": 0.0, "vyaw": -0.1})
     # The plot (Fig. 5) shows the wish commanded, then received by the ROV.
     assert wait_for(lambda: any(abs(r[1] - 0.2) < 0.01 for r in op.history.received), 5.0)
     time.sleep(0.3)
     _t, commanded, received = panel.velocity_series(op.now(), "vx")
     assert commanded[-1] == pytest.approx(0.2) and received.max() == pytest.approx(0.2, abs=0.01)
-    panel.zero_velocity()
+    panel.submit(control.Drive())  # what "Zero velocity" and X do
     assert op.state()["velocity_wish"] == pytest.approx({"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0})
 
     # Image settings: Apply sends one IMAGE order with the panel's values.
@@ -376,7 +391,7 @@ def test_panel_controls_reach_the_operator(live):
 
     # Readouts and plots refresh in place.
     panel.refresh()
-    assert "poll rate" in panel.link_md.content and "AUTOPILOT ok" in panel.link_md.content
+    assert "link up" in panel.link_md.content and "AUTOPILOT ok" in panel.link_md.content
     assert "STABILIZE" in panel.vehicle_md.content
     t, commanded, received = panel.velocity_plot.data
     assert len(t) == len(commanded) == len(received) > 100 and commanded.max() == pytest.approx(0.2)
@@ -387,6 +402,8 @@ def test_panel_controls_reach_the_operator(live):
     panel.mono.value = False
     panel.apply_image_settings()
     panel.mode.value = "DEPTH_HOLD"  # STABILIZE lets the buoyant vehicle rise
+    panel.request_mode()
+    scene.desk.release(holder.id)
 
 
 # ----------------------------------------------------------------------
@@ -416,7 +433,11 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 800})
-            page.goto(scene.url)
+            # Opened as the operator page opens it, by the page holding control.
+            key = "d" * 32
+            holder = scene.desk.connect("page", scene_key=key)
+            scene.desk.take(holder.id)
+            page.goto(f"{scene.url}/?websocket=ws://{scene.url.split('//')[1]}/rovlink/{key}")
             canvas = page.wait_for_selector("canvas", timeout=30000)
             page.wait_for_selector("text=Vehicle", timeout=30000)
             page.wait_for_selector("text=Link", timeout=30000)
@@ -445,6 +466,7 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
             page.screenshot(path=str(shot))
         finally:
             browser.close()
+            scene.desk.disconnect(holder.id)
     # Keep a copy where a person can look at it.
     keep = os.environ.get("ROVLINK_SCENE_SCREENSHOT")
     if keep:

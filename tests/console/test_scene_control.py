@@ -21,7 +21,7 @@ import pytest
 from rovlink import debt
 from rovlink.console.operator import Operator
 from rovlink.console.scene.app import scene_key_from_path
-from rovlink.console.web.control import ControlDesk
+from rovlink.console.control import ControlDesk
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for

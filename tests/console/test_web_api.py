@@ -91,9 +91,10 @@ def test_page_embeds_scene_url_and_documents_the_keys(operator):
 
 def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
     state = client.get("/api/state").json()
-    assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "log", "replaying", "control"}
+    assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "log", "replaying", "control", "target"}
     assert state["control"] == {"held": False, "holder": None, "holder_kind": None, "held_for_s": None,
-                                "you": False, "lease_s": 30.0}
+                                "you": False, "lease_s": 30.0, "unattended_s": None, "unattended_warning": False,
+                                "disarm_unattended_s": None}
     assert state["pose"]["received"] is None  # no link, no odometry
     assert client.get("/api/link").json()["polls_sent"] == 0
     assert client.get("/api/image").json()["received_bytes"] == 0

@@ -14,7 +14,10 @@ import threading
 
 from fastapi import APIRouter, HTTPException, Request, Response
 
-from ..deps import HolderDep, OperatorDep
+from rovlink.console import control
+from rovlink.console.control import Caller
+
+from ..deps import ClientIdDep, DeskDep, OperatorDep
 from ..models import ErrorBody, ImageSettingsOrder, ImageState, OrderQueued
 
 router = APIRouter(prefix="/api/image", tags=["image"])
@@ -95,17 +98,17 @@ def get_debt(operator: OperatorDep) -> Response:
     409: {"model": ErrorBody, "description": "the caller does not hold control"},
     422: {"model": ErrorBody, "description": "a setting is malformed or out of range"}},
     summary="ROI, shift, mono and budget for the next images")
-def post_settings(order: ImageSettingsOrder, operator: OperatorDep, _: HolderDep) -> dict:
-    # The Operator reads roi=None as "no ROI"; here only an explicit null does.
-    roi = order.roi if "roi" in order.model_fields_set else operator.requested_settings.roi
-    order_id = operator.set_image_settings(roi=roi, shift=order.shift, mono=order.mono,
-                                           budget_bytes=order.budget_bytes)
+def post_settings(order: ImageSettingsOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
+    # A field left out keeps its value; only an explicit null clears the ROI.
+    roi = order.roi if "roi" in order.model_fields_set else control.KEEP
+    order_id = desk.submit(control.ChangeImage(roi=roi, shift=order.shift, mono=order.mono,
+                                               budget_bytes=order.budget_bytes), Caller(cid))
     return {"id": order_id, "kind": "IMAGE"}
 
 
 @router.post("/next", status_code=204, response_class=Response, responses={
     409: {"model": ErrorBody, "description": "the caller does not hold control"}},
     summary="Abandon the image being received and start the next one")
-def post_next(operator: OperatorDep, _: HolderDep) -> Response:
-    operator.next_image()
+def post_next(desk: DeskDep, cid: ClientIdDep) -> Response:
+    desk.submit(control.NextImage(), Caller(cid))
     return Response(status_code=204)

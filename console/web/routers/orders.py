@@ -1,11 +1,18 @@
-"""Orders to the ROV.  All but STOP need control (409 otherwise); a value the
-Operator refuses is a 422 carrying its message (see `create_app`)."""
+"""Orders to the ROV: each route builds one typed order of the command layer
+(`rovlink.console.control`) and submits it with the caller's client id.  The
+desk's permission table decides (STOP open to all, the rest the holder's:
+409 otherwise); a value the Operator refuses is a 422 carrying its message
+(see `create_app`)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter
 
-from ..deps import ClientIdDep, DeskDep, HolderDep, OperatorDep
+from rovlink.console import control
+from rovlink.console.control import Caller
+from rovlink.console.operator import OrderError
+
+from ..deps import ClientIdDep, DeskDep
 from ..models import (
     ArmOrder,
     ErrorBody,
@@ -27,53 +34,43 @@ router = APIRouter(prefix="/api/orders", tags=["orders"])
 @router.post("/velocity", response_model=VelocityWish, responses=HOLDER_ONLY,
              summary="Set the velocity wish (standing until changed)")
 def post_velocity(order: VelocityOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
-    desk.rest_velocity(cid, order.vx, order.vy, order.vz, order.vyaw)
+    desk.submit(control.Drive(order.vx, order.vy, order.vz, order.vyaw), Caller(cid))
     return order.model_dump()
 
 
 @router.post("/position", response_model=OrderQueued, responses=HOLDER_ONLY,
-             summary="Go to a position (GUIDED)")
-def post_position(order: PositionOrder, operator: OperatorDep, _: HolderDep) -> dict:
-    order_id = operator.send_position(order.x_m, order.y_m, order.z_m, order.yaw_deg, relative=order.relative,
-                                      body=order.body)
-    return {"id": order_id, "kind": "POSITION"}
+             summary="Go to a position: the ROV switches to GUIDED to fly it")
+def post_position(order: PositionOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
+    order_id = desk.submit(control.GoTo(order.x_m, order.y_m, order.z_m, order.yaw_deg, order.relative,
+                                        order.body), Caller(cid))
+    return {"id": order_id, "kind": "POSITION", "mode": "GUIDED"}
 
 
-@router.post("/position/preview", response_model=PathPreview, responses=INVALID,
-             summary="Where a position order would take the vehicle (nothing is sent)")
-def preview_position(order: PositionOrder, operator: OperatorDep, request: Request) -> dict:
+@router.post("/position/preview", response_model=PathPreview, responses=HOLDER_ONLY,
+             summary="Make this the target the 3D view shows (ghost and path); nothing is sent")
+def preview_position(order: PositionOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
     if order.relative:
-        # The preview works in absolute coordinates; relative targets are the
-        # scene's business (it knows the heading it drew them with).
-        from rovlink.console.operator import OrderError
-
         raise OrderError("the preview takes absolute targets only (relative=false)")
-    scene = getattr(request.app.state, "scene", None)
-    if scene is not None and hasattr(scene, "preview_target_ned"):
-        # The 3D view shows the ghost at the target and its path, as if the
-        # gizmo had been moved there; still nothing is sent.
-        scene.preview_target_ned(order.x_m, order.y_m, order.z_m, order.yaw_deg)
-    return {"points": operator.preview_path(order.x_m, order.y_m, order.z_m, order.yaw_deg)}
+    points = desk.submit(control.PreviewTarget(order.x_m, order.y_m, order.z_m, order.yaw_deg), Caller(cid))
+    return {"points": points}
 
 
 @router.post("/stop", response_model=OrderQueued,
              responses={409: {"model": ErrorBody, "description": "a replay: there is no ROV"}},
              summary="STOP: neutral velocity, cancel targets, hold depth; anyone may press it")
-def post_stop(operator: OperatorDep, desk: DeskDep, cid: ClientIdDep) -> dict:
-    desk.check_live()
-    desk.touch(cid)
-    return {"id": operator.stop(), "kind": "STOP"}
+def post_stop(desk: DeskDep, cid: ClientIdDep) -> dict:
+    return {"id": desk.submit(control.Stop(), Caller(cid)), "kind": "STOP"}
 
 
 @router.post("/arm", response_model=Requested, responses=HOLDER_ONLY,
-             summary="Arm or disarm the thrusters")
-def post_arm(order: ArmOrder, operator: OperatorDep, _: HolderDep) -> dict:
-    operator.arm(order.armed)
-    return {"kind": "ARM" if order.armed else "DISARM"}
+             summary="Arm or disarm the thrusters (followed until the vehicle does, or refused after 3 s)")
+def post_arm(order: ArmOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
+    order_id = desk.submit(control.Arm(order.armed), Caller(cid))
+    return {"kind": "ARM" if order.armed else "DISARM", "id": order_id}
 
 
 @router.post("/mode", response_model=Requested, responses=HOLDER_ONLY,
-             summary="Change the flight mode")
-def post_mode(order: ModeOrder, operator: OperatorDep, _: HolderDep) -> dict:
-    operator.set_mode(order.mode)
-    return {"kind": "MODE", "mode": order.mode}
+             summary="Change the flight mode (followed until the vehicle does, or refused after 3 s)")
+def post_mode(order: ModeOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
+    order_id = desk.submit(control.SetMode(order.mode), Caller(cid))
+    return {"kind": "MODE", "mode": order.mode, "id": order_id}

@@ -10,7 +10,10 @@ Server to client (JSON text messages: "type" and the fields named, flat):
              at `telemetry_hz`; `control.you` says whether this client drives
   image      {image: <image state>}: a new picture was decoded (fetch the PNG)
   log        {entry: {t, text}}
-  order      {order: <order info>}: an order was queued or changed state
+  order      {order: <order info>}: an order was queued or changed state (sent,
+             acknowledged, followed, rejected: <reason>, refused: <reason>, cancelled: <reason>)
+  wish       {wish: {vx, vy, vz, vyaw}}: the velocity wish changed (whoever changed it)
+  target     {target: {x_m, y_m, z_m, yaw_deg, sent, order_id, points} | null}: the shared target
   control    {control}: the holder changed (also in every telemetry)
   failsafe   {failsafe, t}: the ROV's FAILSAFE flag changed (in a reply at session time t)
   error      {message}: a message of ours was refused
@@ -39,7 +42,8 @@ from pydantic import ValidationError
 
 from rovlink.console.operator import OrderError
 
-from ..control import NotHolder
+from rovlink.console import control
+from rovlink.console.control import Caller, NotHolder
 from ..deps import DeskDep, OperatorDep
 from ..errors import describe, same_origin
 from ..models import VelocityOrder
@@ -49,7 +53,7 @@ log = logging.getLogger("rovlink.console.web.ws")
 
 router = APIRouter(tags=["ws"])
 
-EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order"}
+EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order", "wish": "wish", "target": "target"}
 
 
 @router.websocket("/ws")
@@ -157,15 +161,14 @@ def _handle(text: str, client_id: str, operator, desk, post) -> None:
     if kind == "velocity":
         try:
             v = VelocityOrder.model_validate({k: x for k, x in message.items() if k != "type"})
-            desk.stream_velocity(client_id, v.vx, v.vy, v.vz, v.vyaw)
+            desk.submit(control.Drive(v.vx, v.vy, v.vz, v.vyaw, streamed=True), Caller(client_id, via="ws"))
         except ValidationError as exc:
             post({"type": "error", "message": f"velocity refused: {describe(exc.errors())}"})
         except (NotHolder, OrderError) as exc:
             post({"type": "error", "message": f"velocity refused: {exc}"})
     elif kind == "stop":
         try:
-            desk.check_live()
-            operator.stop()
+            desk.submit(control.Stop(), Caller(client_id, via="ws"))
         except NotHolder as exc:
             post({"type": "error", "message": f"stop refused: {exc}"})
     else:
