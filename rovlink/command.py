@@ -25,6 +25,39 @@ class CommandError(Exception):
     exit_status = 1
 
 
+class UsageError(CommandError):
+    """Arguments that cannot run together (or a missing one), found after parsing: exit status 2."""
+
+    exit_status = 2
+
+
+def link_key(args):
+    """The link key named by --key, None with --insecure (protocol version 1.1).
+
+    Neither: a UsageError naming `rovlink keygen`; a key file that is missing,
+    malformed or readable by others: a CommandError."""
+    if getattr(args, "key", None) and getattr(args, "insecure", False):
+        raise UsageError("--key and --insecure exclude each other")
+    if getattr(args, "insecure", False):
+        return None
+    if not getattr(args, "key", None):
+        raise UsageError("the link needs a key: --key FILE (make one with: rovlink keygen FILE), "
+                         "or --insecure to run protocol version 1.1 unauthenticated")
+    from rovlink.link.auth import KeyFileError, read_key_file
+
+    try:
+        return read_key_file(args.key)
+    except KeyFileError as exc:
+        raise CommandError(str(exc)) from None
+
+
+def add_key_arguments(p) -> None:
+    p.add_argument("--key", metavar="FILE",
+                   help="the link key (rovlink keygen FILE): protocol version 2, every frame authenticated")
+    p.add_argument("--insecure", action="store_true",
+                   help="no key: protocol version 1.1, frames not authenticated (anyone in range can drive)")
+
+
 class MissingExtra(CommandError):
     """The command needs an optional part of rovlink that is not installed."""
 

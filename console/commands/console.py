@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rovlink.command import non_negative, positive
+from rovlink.command import add_key_arguments, non_negative, positive
 from .serve import add_gcs_arguments, add_server_arguments
 
 
@@ -21,6 +21,7 @@ def add_parser(subparsers) -> None:
                    help="the link's bit/s, for reply timeouts (default 1900)")
     p.add_argument("--delay", type=non_negative, default=0.085, metavar="S",
                    help="the link's intrinsic delay, s, for reply timeouts (default 0.085)")
+    add_key_arguments(p)
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.set_defaults(func=run)
@@ -39,10 +40,13 @@ def run(args) -> int:
 
     from .serve import default_record_path, serve_operator
 
+    from rovlink.command import link_key
+
     try:
         endpoint = open_transport(args.link)
     except TransportError as exc:
         raise CommandError(str(exc)) from None
+    key = link_key(args)
     record = None if args.no_record else (args.record or default_record_path())
 
     async def main() -> None:
@@ -54,9 +58,15 @@ def run(args) -> int:
             await link.stop()
             raise CommandError(str(exc)) from None
         operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        if key is not None:
+            from rovlink.link.secure import SecureMaster
+
+            operator.master = SecureMaster(operator.master, key)
+        version = ("link version 2, every frame authenticated" if key is not None else
+                   "INSECURE: link version 1.1, frames not authenticated")
         link.spawn(operator.run(), name="operator")
         try:
-            await serve_operator(operator, args, banner=f"rovlink console on {args.link}", link=link)
+            await serve_operator(operator, args, banner=f"rovlink console on {args.link}; {version}", link=link)
         finally:
             await link.stop(endpoint.close())
             operator.close()

@@ -45,7 +45,7 @@ def test_console_and_rov_as_two_programs_over_udp_then_replay_and_plot(tmp_path)
     console = subprocess.Popen(
         ROVLINK + ["console", "--link", f"udp://127.0.0.1:{console_port}?peer=127.0.0.1:{rov_port}",
                    "--bitrate", "115200", "--delay", "0.01", "--port", str(page), "--viser-port", str(scene),
-                   "--record", str(record)],
+                   "--record", str(record), "--insecure"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     base = f"http://127.0.0.1:{page}"
     try:
@@ -100,3 +100,17 @@ def test_console_commands_refuse_bad_input_in_one_line(args, words):
 def test_console_commands_refuse_wrong_arguments_with_status_2(args):
     out = subprocess.run(ROVLINK + args, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
+def test_the_console_needs_a_key_or_insecure(tmp_path):
+    link = ["console", "--link", f"udp://127.0.0.1:{free_udp_port()}?peer=127.0.0.1:{free_udp_port()}",
+            "--port", str(free_tcp_port()), "--viser-port", str(free_tcp_port()), "--no-record"]
+    out = subprocess.run(ROVLINK + link, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "rovlink keygen" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+    key = tmp_path / "link.key"
+    subprocess.run(ROVLINK + ["keygen", str(key)], check=True, capture_output=True, timeout=60)
+    key.chmod(0o644)
+    out = subprocess.run(ROVLINK + link + ["--key", str(key)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "readable by others" in out.stderr, out.stderr
+    out = subprocess.run(ROVLINK + link + ["--key", str(key), "--insecure"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "exclude each other" in out.stderr
