@@ -12,7 +12,7 @@ import itertools
 
 import pytest
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, get_json, needs_chromium
 from .conftest import wait_for
 
 pytestmark = [pytest.mark.browser, needs_chromium]
@@ -83,8 +83,13 @@ def test_page_renders_with_link_health_that_updates(open_page, live):
     page = open_page()
     assert page.title() == "rovlink console"
     assert page.is_visible("#no-scene")  # no viser_url given
-    assert page.is_visible("text=surge forward / back")
+    # The mode box and the key map are built from GET /api/config.
+    page.wait_for_function("document.body.dataset.configured === '1'")
+    assert page.is_visible("text=surge forward")
+    config = get_json(live.url + "/api/config")
+    assert page.eval_on_selector_all("#mode-select option", "os => os.map(o => o.textContent)") == config["modes"]
     page.wait_for_function("document.getElementById('link-poll-rate').textContent.endsWith('Hz')")
+    page.wait_for_function("document.body.dataset.link === 'up'")
     assert page.text_content("#link-up") == "link up"
     assert page.text_content("#autopilot") == "AUTOPILOT"
     sent = page.text_content("#link-bytes")

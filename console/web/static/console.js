@@ -11,12 +11,10 @@ const TICK_MS = 100;
 const CLIENT_HEADER = "X-Rovlink-Client";
 const NEUTRAL = { vx: 0, vy: 0, vz: 0, vyaw: 0 };
 // KeyboardEvent.code names physical keys, so the mapping holds on any layout.
-const KEYMAP = {
-  KeyW: ["vx", +1], KeyS: ["vx", -1],
-  KeyD: ["vy", +1], KeyA: ["vy", -1],
-  KeyE: ["vyaw", +1], KeyQ: ["vyaw", -1],
-  KeyF: ["vz", +1], KeyR: ["vz", -1],   // z is down: F dives, R rises
-};
+// Filled from GET /api/config (the console's one key map, the scene's too).
+let KEYMAP = {};
+const AXIS_WORDS = { vx: ["surge back", "surge forward"], vy: ["sway left", "sway right"],
+                     vz: ["up", "down"], vyaw: ["yaw left", "yaw right"] };
 const GAMEPAD_DEADZONE = 0.12;
 
 const page = {
@@ -35,6 +33,10 @@ const page = {
   lastPose: null,
   failsafeActive: false,
   failsafeAt: null,      // Date.now() when FAILSAFE was last reported
+  linkState: null,       // "up" | "degraded" | "lost" | "replay" | "starting"
+  alerts: 0,             // alarm sounds started (the tests read it)
+  audio: null,
+  orderStates: {},       // id -> last state shown
 };
 
 const $ = (id) => document.getElementById(id);
@@ -78,8 +80,17 @@ function onMessage(msg) {
     case "hello":
       page.clientId = msg.client_id;
       document.body.dataset.clientId = msg.client_id;
-      if (!page.config) setupScene(msg.config);
+      if (!page.config) { setupControls(msg.config); setupScene(msg.config); }
       page.config = msg.config;
+      break;
+    case "wish":
+      renderWish(msg.wish);
+      break;
+    case "order":
+      renderOrder(msg.order);
+      break;
+    case "target":
+      renderTarget(msg.target);
       break;
     case "telemetry":
       render(msg);
@@ -138,6 +149,32 @@ function showError(text) {
 // Control
 // ---------------------------------------------------------------------------
 
+// ---------------------------------------------------------------------------
+// The console's one mode list and key map (GET /api/config)
+// ---------------------------------------------------------------------------
+
+function setupControls(config) {
+  KEYMAP = {};
+  for (const [key, [axis, sign]] of Object.entries(config.keys)) KEYMAP[`Key${key}`] = [axis, sign];
+  const select = $("mode-select");
+  select.replaceChildren(...config.modes.map((m) => Object.assign(document.createElement("option"), { textContent: m })));
+  const rows = Object.entries(config.keys).map(([key, [axis, sign]]) => {
+    const tr = document.createElement("tr");
+    tr.innerHTML = `<td><kbd>${key}</kbd></td><td>${AXIS_WORDS[axis][sign > 0 ? 1 : 0]}</td>`;
+    return tr;
+  });
+  const stop = document.createElement("tr");
+  stop.innerHTML = "<td><kbd>Space</kbd></td><td>STOP (from anywhere, the 3D view too)</td>";
+  $("keymap").replaceChildren(...rows, stop);
+  $("gain").value = config.key_gain;
+  $("gain-value").textContent = `${Math.round(config.key_gain * 100)} %`;
+  const t = config.default_target;
+  $("goto-x").value = t.x_m; $("goto-y").value = t.y_m; $("goto-z").value = t.z_m; $("goto-yaw").value = t.yaw_deg;
+  $("shift").max = config.limits.shift[1];
+  $("budget").max = config.limits.budget_bytes[1];
+  document.body.dataset.configured = "1";
+}
+
 function setHolder(holder) {
   if (page.holder && !holder) {
     page.held.clear();
@@ -152,6 +189,13 @@ function setHolder(holder) {
 
 function renderControl(c) {
   setHolder(!!c.you);
+  const warn = $("unattended");
+  warn.hidden = !c.unattended_warning;
+  if (c.unattended_warning) {
+    const disarm = c.disarm_unattended_s ? ` It will be disarmed after ${Math.round(c.disarm_unattended_s)} s.` : "";
+    warn.textContent = `The vehicle is ARMED and nobody has control (${Math.round(c.unattended_s)} s): ` +
+      `take control or disarm.${disarm}`;
+  }
   let text;
   if (c.you) text = "You have control.";
   else if (c.held) text = `Watching: ${c.holder} has control.`;
@@ -199,12 +243,14 @@ function typing(ev) {
 }
 
 function onKeyDown(ev) {
-  if (typing(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
-  if (ev.code === "Space") {
+  wakeAudio();
+  // Space is STOP from any focus (a field, a button, the page).
+  if (ev.code === "Space" && !ev.ctrlKey && !ev.metaKey && !ev.altKey) {
     ev.preventDefault();
     if (!ev.repeat) stop();
     return;
   }
+  if (typing(ev) || ev.ctrlKey || ev.metaKey || ev.altKey) return;
   if (!(ev.code in KEYMAP)) return;
   ev.preventDefault();
   if (!page.holder) {
@@ -267,17 +313,26 @@ function render(s) {
   const pose = s.pose;
   page.lastPose = pose.received;
   $("replaying").hidden = !s.replaying;
-  $("pose-received").textContent = poseText(pose.received);
-  $("pose-predicted").textContent = poseText(pose.predicted);
+  renderLink(s.link);
+  const lost = s.link.state === "lost";
+  $("pose-received").textContent = poseText(pose.received) +
+    (lost && s.link.since_reply_s !== null ? ` (${fmt(s.link.since_reply_s, 0)} s old)` : "");
+  // Lost: the prediction stops where the ROV's failsafe stopped it; say how uncertain it is instead.
+  $("pose-predicted").textContent = poseText(pose.predicted) +
+    (pose.uncertainty_m !== null && pose.uncertainty_m !== undefined && pose.uncertainty_m >= 0.5
+      ? ` ± ${fmt(pose.uncertainty_m, 1)} m` : "");
+  $("pose-table").classList.toggle("stale", lost);
+  $("image-frame").classList.toggle("stale", lost);
   if (pose.received) {
     setBadge($("armed"), pose.armed ? "ARMED" : "DISARMED", pose.armed ? "warn" : "");
     setBadge($("mode"), pose.mode, "");
   }
-  const w = s.velocity_wish;
-  $("wish").textContent = `vx ${fmt(w.vx)} vy ${fmt(w.vy)} vz ${fmt(w.vz)} vyaw ${fmt(w.vyaw)}`;
-  document.body.dataset.wish = JSON.stringify(w);
+  renderWish(s.velocity_wish);
+  renderTarget(s.target);
 
   const l = s.link;
+  $("link-since-reply").textContent = l.since_reply_s === null ? "—" : `${fmt(l.since_reply_s, 1)} s`;
+  $("link-reply-rate").textContent = `${fmt(l.reply_rate_hz, 1)} Hz`;
   $("link-poll-rate").textContent = `${fmt(l.poll_rate_hz, 1)} Hz`;
   $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
   $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
@@ -287,11 +342,120 @@ function render(s) {
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
   renderFailsafe(l.failsafe || page.failsafeActive);
   setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
-  setBadge($("link-up"), l.link_up ? "link up" : "link down", l.link_up ? "good" : "bad");
+  const badge = { up: ["link up", "good"], degraded: ["link degraded", "warn"], lost: ["LINK LOST", "bad"],
+                  replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
+  setBadge($("link-up"), badge[0], badge[1]);
 
   renderImageProgress(s.image);
-  renderList($("orders"), s.orders.slice(-6).reverse(), (o) => `#${o.id} ${o.kind}: ${o.state}`);
+  for (const o of s.orders) renderOrder(o, true);
+  renderList($("orders"), s.orders.slice(-6).reverse(), orderText);
   renderList($("log"), s.log.slice(-6).reverse(), (e) => `${fmt(e.t, 1)} s ${e.text}`);
+}
+
+function renderWish(w) {
+  $("wish").textContent = `vx ${fmt(w.vx)} vy ${fmt(w.vy)} vz ${fmt(w.vz)} vyaw ${fmt(w.vyaw)}`;
+  document.body.dataset.wish = JSON.stringify(w);
+}
+
+function orderText(o) {
+  const guided = o.kind === "POSITION" ? " (GUIDED)" : "";
+  return `#${o.id} ${o.kind}${guided}: ${o.state}`;
+}
+
+// Every order's fate is shown; a refusal or rejection also pops up once.
+function renderOrder(o, quiet) {
+  const before = page.orderStates[o.id];
+  page.orderStates[o.id] = o.state;
+  const bad = /^(rejected|refused|not carried out)/.test(o.state);
+  if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.state}`);
+  if (!quiet) {
+    const ul = $("orders");
+    const li = Object.assign(document.createElement("li"), { textContent: orderText(o) });
+    if (bad) li.className = "refused";
+    li.dataset.id = o.id;
+    const old = ul.querySelector(`li[data-id="${o.id}"]`);
+    if (old) old.replaceWith(li); else ul.prepend(li);
+    ul.dataset.lines = "";
+  }
+}
+
+function renderTarget(t) {
+  if (t === undefined) return;
+  const box = $("goto-plan");
+  if (!t) { box.dataset.target = ""; return; }
+  const key = JSON.stringify([t.x_m, t.y_m, t.z_m, t.yaw_deg, t.order_id]);
+  if (box.dataset.target === key) return;
+  box.dataset.target = key;
+  box.hidden = false;
+  box.textContent = t.sent
+    ? `target x ${fmt(t.x_m)} y ${fmt(t.y_m)} z ${fmt(t.z_m)}: sent as order #${t.order_id} (the vehicle flies it in GUIDED)`
+    : `target x ${fmt(t.x_m)} y ${fmt(t.y_m)} z ${fmt(t.z_m)} previewed: not sent; Go to switches the vehicle to GUIDED`;
+}
+
+// ---------------------------------------------------------------------------
+// Link state: from replies; lost is loud
+// ---------------------------------------------------------------------------
+
+function renderLink(l) {
+  const was = page.linkState;
+  page.linkState = l.state;
+  document.body.dataset.link = l.state;
+  const banner = $("link-banner");
+  if (l.state === "lost") {
+    banner.hidden = false;
+    banner.className = "";
+    $("link-banner-title").textContent = "LINK LOST";
+    $("link-banner-text").textContent = l.since_reply_s === null ? "no reply from the ROV"
+      : `no reply from the ROV for ${fmt(l.since_reply_s, 0)} s; pose and picture are old`;
+    const fs = $("failsafe-inferred");
+    fs.hidden = !l.failsafe_inferred;
+    if (l.failsafe_inferred) fs.textContent = `ROV in FAILSAFE (inferred) since ${l.failsafe_inferred_since}`;
+    if (was !== "lost") alarm();
+  } else if (l.state === "replay") {
+    banner.hidden = false;
+    banner.className = "replay";
+    $("link-banner-title").textContent = "REPLAY";
+    $("link-banner-text").textContent = "a recorded session: there is no ROV";
+    $("failsafe-inferred").hidden = true;
+  } else {
+    banner.hidden = true;
+    if (was === "lost") stopAlarm();
+  }
+}
+
+function wakeAudio() {
+  // Browsers start sound only after a user gesture: the first key or click.
+  if (!page.audio && window.AudioContext) {
+    try { page.audio = new AudioContext(); } catch (err) { page.audio = null; }
+  }
+  if (page.audio && page.audio.state === "suspended") page.audio.resume();
+}
+
+function beep() {
+  const ctx = page.audio;
+  if (!ctx) return;
+  const osc = ctx.createOscillator();
+  const gain = ctx.createGain();
+  osc.type = "square";
+  osc.frequency.value = 880;
+  gain.gain.value = 0.15;
+  osc.connect(gain).connect(ctx.destination);
+  osc.start();
+  osc.stop(ctx.currentTime + 0.25);
+}
+
+function alarm() {
+  page.alerts += 1;
+  document.body.dataset.alerts = page.alerts;
+  wakeAudio();
+  beep();
+  clearInterval(page.alarmTimer);
+  page.alarmTimer = setInterval(beep, 2000);  // until the link returns
+}
+
+function stopAlarm() {
+  clearInterval(page.alarmTimer);
+  page.alarmTimer = null;
 }
 
 // FAILSAFE often lasts one reply (the first after a silence): the badge
@@ -472,6 +636,7 @@ function wire() {
   });
   // Supervised control: Preview shows the target ghost and the path the
   // vehicle would fly in the 3D view (nothing is sent); Go to sends it.
+  document.addEventListener("pointerdown", wakeAudio);
   $("goto-preview").onclick = async () => {
     const target = gotoTarget();
     const plan = await api("/api/orders/position/preview", target);
@@ -485,14 +650,18 @@ function wire() {
     const miss = Math.hypot(end[0] - target.x_m, end[1] - target.y_m, end[2] - target.z_m);
     const box = $("goto-plan");
     box.textContent = `preview: ${length.toFixed(1)} m in about ${((pts.length - 1) * 0.5).toFixed(0)} s, ` +
-      `ends ${miss.toFixed(2)} m from the target; not sent`;
+      `ends ${miss.toFixed(2)} m from the target; not sent. Go to switches the vehicle to GUIDED.`;
+    box.dataset.target = "";
     box.dataset.points = pts.length;
     box.hidden = false;
   };
   $("goto").onsubmit = async (ev) => {
     ev.preventDefault();
     const sent = await api("/api/orders/position", gotoTarget());
-    if (sent) $("goto-plan").textContent = `position order #${sent.id} sent`;
+    if (sent) {
+      $("goto-plan").textContent = `position order #${sent.id} sent: the vehicle switches to ${sent.mode || "GUIDED"}`;
+      $("goto-plan").hidden = false;
+    }
   };
   $("goto-here").onclick = () => {
     const p = page.lastPose;
@@ -523,7 +692,10 @@ function wire() {
   });
   setInterval(() => { pollGamepadButtons(); sendVelocity(); }, TICK_MS);
   setHolder(false);
-  connect();
+  // The one mode list, key map and limits come from the console, then telemetry.
+  fetch("/api/config").then((r) => r.json()).then((config) => {
+    if (!page.config) { setupControls(config); setupScene(config); page.config = config; }
+  }).catch(() => {}).finally(connect);
 }
 
 wire();

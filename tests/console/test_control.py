@@ -1,0 +1,226 @@
+"""The one command layer: its permission table, its effects on the wish and
+the recording, and what the console serves from it (GET /api/config, GET
+/api/link).  An Operator without a link (its orders still reach the link
+master; replies are handed to it as the link loop would) under a clock the
+test moves, and the web app over FastAPI's TestClient."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from rovlink.console import control
+from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, Replaying
+from rovlink.console.operator import Operator
+from rovlink.console.web.app import create_app
+from rovlink.link.master import PoseReceived, ReplyLost
+from rovlink.link.messages import Mode, Reply
+
+from ..helpers import local_test_client
+
+HEADER = "X-Rovlink-Client"
+KEY = "k" * 32
+
+# One example of every order the console knows.
+EXAMPLES = [control.Arm(True), control.SetMode("DEPTH_HOLD"), control.Drive(0.3), control.GoTo(1.0, 2.0, 3.0),
+            control.PreviewTarget(1.0, 1.0, 2.0), control.ClearTarget(), control.SendTarget(),
+            control.ChangeImage(budget_bytes=1500), control.NextImage(), control.Stop()]
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+@pytest.fixture
+def clock():
+    return Clock()
+
+
+@pytest.fixture
+def operator(clock, tmp_path):
+    op = Operator(None, clock=clock, record=tmp_path / "session.jsonl")
+    yield op
+    op.close()
+
+
+def reply_at(operator, clock, **fields) -> None:
+    """A reply arrives now, as the link loop hands it over."""
+    operator._on_events([PoseReceived(Reply(autopilot=True, position_valid=True, **fields), operator.now(), 0.1)],
+                        operator.now())
+
+
+def test_every_order_has_one_permission_and_stop_alone_is_open_to_all():
+    assert set(PERMISSION) == {type(o) for o in EXAMPLES}
+    assert [t.__name__ for t, who in PERMISSION.items() if who == control.ANYONE] == ["Stop"]
+
+
+def test_the_permission_table_decides_for_every_caller(operator, clock):
+    desk = ControlDesk(operator, clock=clock)
+    pilot = desk.connect("pilot", scene_key=KEY)
+    watcher = desk.connect("watcher", scene_key="w" * 32)
+    desk.take(pilot.id)
+    callers = {"pilot": Caller(pilot.id), "pilot's scene": Caller(scene_key=KEY, via="scene"),
+               "watcher": Caller(watcher.id), "watcher's scene": Caller(scene_key="w" * 32, via="scene"),
+               "a scene opened alone": Caller(via="scene"), "nobody": Caller()}
+    for order in EXAMPLES:
+        for name, caller in callers.items():
+            allowed = name.startswith("pilot") or isinstance(order, control.Stop)
+            assert (desk.refusal(order, caller) is None) == allowed, (order, name)
+    with pytest.raises(NotHolder, match="held by pilot"):
+        desk.submit(control.Drive(0.5), callers["watcher"])
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    operator.replaying = True
+    for order in EXAMPLES:
+        with pytest.raises(Replaying):
+            desk.submit(order, callers["pilot"])
+
+
+def test_wishes_go_neutral_after_stop_a_change_of_holder_a_lost_holder_and_nobody(operator, clock):
+    desk = ControlDesk(operator, clock=clock, lease_s=5.0)
+    a, b = desk.connect("a"), desk.connect("b")
+    desk.take(a.id)
+    desk.submit(control.Drive(0.5, 0.2), Caller(a.id))
+    desk.submit(control.Stop(), Caller(b.id))  # anyone may stop
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+
+    desk.submit(control.Drive(0.5), Caller(a.id))
+    desk.take(b.id)  # a change of holder
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+
+    desk.submit(control.Drive(vyaw=0.4), Caller(b.id))
+    desk.disconnect(b.id)  # the holder's page is gone
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+
+    # A wish set behind the desk's back with nobody in control: the next tick ends it.
+    operator.set_velocity(0.3, 0.0, 0.0, 0.0)
+    desk.tick()
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+
+    # Every change is in the recording, the neutral ones too (Fig. 5).
+    operator.close()
+    wishes = [r["v"] for r in map(json.loads, open(operator.recorder.path)) if r["k"] == "wish"]
+    assert wishes == [[64, 25, 0, 0], [0, 0, 0, 0], [64, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 51], [0, 0, 0, 0],
+                      [38, 0, 0, 0], [0, 0, 0, 0]]
+
+
+def test_a_key_press_drives_only_for_the_dead_mans_time(operator, clock):
+    desk = ControlDesk(operator, clock=clock, deadman_s=1.0)
+    pilot = desk.connect("pilot", scene_key=KEY)
+    desk.take(pilot.id)
+    desk.submit(control.Drive(0.5, streamed=True), Caller(scene_key=KEY, via="scene"))
+    clock.t += 0.5
+    desk.tick()
+    assert operator.velocity_wish()[0] == 0.5
+    clock.t += 0.6
+    desk.tick()
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+
+
+def test_unattended_armed_vehicle_warns_and_disarms_when_configured(operator, clock):
+    desk = ControlDesk(operator, clock=clock, unattended_warn_s=60.0, disarm_unattended_s=120.0)
+    pilot = desk.connect("pilot")
+    desk.take(pilot.id)
+    reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
+    desk.disconnect(pilot.id)
+    assert desk.status()["unattended_s"] == 0.0 and not desk.status()["unattended_warning"]
+    clock.t += 61.0
+    reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
+    desk.tick()
+    assert desk.status()["unattended_warning"]
+    assert not any(o["kind"] == "DISARM" for o in operator.orders_state())
+    clock.t += 60.0
+    desk.tick()
+    assert [o["kind"] for o in operator.orders_state()] == ["DISARM"]
+
+
+def test_arm_and_mode_requests_show_their_fate(operator, clock):
+    armed = operator.arm(True)
+    mode = operator.set_mode("DEPTH_HOLD")
+    clock.t += 1.0
+    reply_at(operator, clock, armed=True, mode=Mode.MANUAL)  # armed, but the mode did not change
+    states = {o["id"]: o["state"] for o in operator.orders_state()}
+    assert states[armed] == "followed" and states[mode] == "requested"
+    clock.t += 2.5
+    reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
+    assert {o["id"]: o["state"] for o in operator.orders_state()}[mode].startswith("refused: the vehicle did not")
+    operator.close()
+    states = [r["state"] for r in map(json.loads, open(operator.recorder.path)) if r["k"] == "order_state"]
+    assert states[0] == "followed" and states[-1].startswith("refused")
+
+
+def test_link_state_comes_from_replies(operator, clock):
+    app = create_app(operator, rov_failsafe_s=3.4)  # lost after 3 s, in FAILSAFE after 3.4 s
+    with local_test_client(app) as http:
+        reply_at(operator, clock)
+        link = http.get("/api/link").json()
+        assert link["state"] == "up" and link["since_reply_s"] == pytest.approx(0.0)
+        operator._on_events([ReplyLost(operator.now(), operator.now())], operator.now())
+        clock.t += 1.0
+        link = http.get("/api/link").json()
+        assert link["state"] == "degraded" and link["since_reply_s"] == pytest.approx(1.0)
+        clock.t += 2.0
+        link = http.get("/api/link").json()
+        assert link["state"] == "lost" and not link["failsafe_inferred"] and not link["link_up"]
+        clock.t += 0.5
+        link = http.get("/api/link").json()
+        assert link["failsafe_inferred"] and len(link["failsafe_inferred_since"]) == 8  # HH:MM:SS
+        pose = http.get("/api/pose").json()
+        assert pose["stale"] and pose["uncertainty_m"] == pytest.approx(3.5, abs=0.3)
+        assert link["failsafe_inferred_at"] == pytest.approx(time.time() - 0.1, abs=2.0)
+        clock.t += 6.0
+        reply_at(operator, clock)  # the link is back
+        link = http.get("/api/link").json()
+        assert link["state"] == "up" and link["since_reply_s"] == pytest.approx(0.0) and link["link_up"]
+        assert not link["failsafe_inferred"] and not http.get("/api/pose").json()["stale"]
+        operator.replaying = True
+        assert http.get("/api/link").json()["state"] == "replay"
+
+
+def test_the_prediction_stops_at_the_rovs_failsafe_time(operator, clock):
+    reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
+    operator.set_velocity(1.0, 0.0, 0.0, 0.0)
+    clock.t += 2.0
+    early = operator.predicted_pose()
+    clock.t += 2.0
+    late = operator.predicted_pose()
+    clock.t += 30.0
+    assert late.x_m > early.x_m > 0.0
+    assert operator.predicted_pose() == late
+
+
+def test_config_serves_one_mode_list_one_key_map_and_the_limits(operator):
+    with local_test_client(create_app(operator, disarm_unattended_s=90.0)) as http:
+        config = http.get("/api/config").json()
+        assert config["modes"] == [m.name for m in Mode if 1 <= m <= 6]
+        assert config["keys"]["W"] == ["vx", 1] and config["keys"]["S"] == ["vx", -1] and len(config["keys"]) == 8
+        assert config["stop_key"] == "Space" and config["limits"]["velocity"] == [-1.0, 1.0]
+        assert config["unattended_warn_s"] == 60.0 and config["disarm_unattended_s"] == 90.0
+        assert config["rov_failsafe_s"] == 3.0 and config["lost_after_s"] == 3.0
+        # The schema's mode list is the same one.
+        schema = http.get("/openapi.json").json()["components"]["schemas"]["ModeOrder"]["properties"]["mode"]
+        assert schema["enum"] == config["modes"]
+
+
+def test_rest_orders_go_through_the_table(operator):
+    with local_test_client(create_app(operator)) as http:
+        pilot = {HEADER: http.post("/api/control/take", json={"name": "pilot"}).json()["client_id"]}
+        other = {HEADER: http.post("/api/control/take", json={"name": "other"}).json()["client_id"]}
+        # "other" holds now; the pilot may only stop.
+        routes = [("/api/orders/velocity", {"vx": 0.2}), ("/api/orders/position", {"x_m": 1, "y_m": 1, "z_m": 2}),
+                  ("/api/orders/position/preview", {"x_m": 1, "y_m": 1, "z_m": 2}),
+                  ("/api/orders/arm", {"armed": True}), ("/api/orders/mode", {"mode": "MANUAL"}),
+                  ("/api/image/settings", {"budget_bytes": 1000}), ("/api/image/next", {})]
+        for path, body in routes:
+            assert http.post(path, json=body, headers=pilot).status_code == 409, path
+            assert http.post(path, json=body, headers=other).status_code in (200, 204), path
+        assert http.post("/api/orders/stop", headers=pilot).status_code == 200
+        # Go to says it switches to GUIDED.
+        sent = http.post("/api/orders/position", json={"x_m": 1, "y_m": 1, "z_m": 2}, headers=other).json()
+        assert sent["mode"] == "GUIDED"
+        assert [o for o in operator.orders_state() if o["id"] == sent["id"]][0]["mode"] == "GUIDED"
