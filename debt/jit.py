@@ -12,17 +12,56 @@ except ImportError:  # pragma: no cover - exercised only without numba
     _numba = None
 
 
+def _cache_dir() -> str:
+    return os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+
+
 def _cache_ok() -> bool:
     # numba's on-disk cache needs a writable __pycache__ beside this file (or
     # NUMBA_CACHE_DIR); without one it raises, so compile each process instead.
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return True
-    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    here = _cache_dir()
     try:
         os.makedirs(here, exist_ok=True)
-        return os.access(here, os.W_OK)
+        ok = os.access(here, os.W_OK)
     except OSError:
         return False
+    if ok:
+        _drop_stale_cache(here)
+    return ok
+
+
+def _drop_stale_cache(here: str) -> None:
+    # numba keys a cached function by its own file only, but the traversal
+    # inlines the range coder (rangecoder.py) and the kernels freeze constants
+    # of transform.py: a change there would leave stale machine code behind.
+    # So the cache of this package goes whenever any of its sources changes.
+    import hashlib
+
+    folder = os.path.dirname(os.path.abspath(__file__))
+    digest = hashlib.sha256()
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py"):
+            with open(os.path.join(folder, name), "rb") as f:
+                digest.update(name.encode() + b"\0" + f.read())
+    stamp = os.path.join(here, "debt-sources.sha256")
+    try:
+        with open(stamp) as f:
+            if f.read() == digest.hexdigest():
+                return
+    except OSError:
+        pass
+    try:
+        modules = {n[:-3] for n in os.listdir(folder) if n.endswith(".py")}
+        for name in os.listdir(here):
+            if name.endswith((".nbi", ".nbc")) and name.split(".", 1)[0] in modules:
+                os.remove(os.path.join(here, name))
+        tmp = f"{stamp}.{os.getpid()}"
+        with open(tmp, "w") as f:
+            f.write(digest.hexdigest())
+        os.replace(tmp, stamp)
+    except OSError:  # another process got there first, or a read-only cache
+        pass
 
 
 if _numba is not None:

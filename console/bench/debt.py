@@ -17,7 +17,7 @@ least 320x240), colour ones also in grey, at budgets of 250 to 8000 bytes:
   PSNR over the same rectangle at the same budget;
 - the progressive curve: PSNR of every 64-byte prefix of a 4000-byte stream,
   beside the 4000-byte JPEG 2000 codestream cut at the same bytes;
-- encode and decode milliseconds at 2000 B (median of several runs) beside
+- encode and decode milliseconds at 2000 B (fastest of several runs) beside
   OpenJPEG's, in the same run.
 
 PSNR is over all samples (RGB for colour); SSIM is the Gaussian-window
@@ -290,13 +290,15 @@ def load_photographs(names=PHOTOGRAPHS, grey_of_colour: bool = True) -> dict:
 
 # ---------------------------------------------------------------- run
 
-def _median_ms(fn, runs: int) -> float:
+def _best_ms(fn, runs: int) -> float:
+    # The fastest of the runs: on a shared machine the others measure the
+    # neighbours' load more than the codec.
     times = []
     for _ in range(runs):
         t0 = time.perf_counter()
         fn()
         times.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(times)
+    return min(times)
 
 
 def centre_ninth(img) -> tuple[int, int, int, int]:
@@ -344,11 +346,13 @@ def summarise(quality: list[dict]) -> list[dict]:
                 diffs = [(_diff(r, codec, key), r["image"]) for r in rows if _diff(r, codec, key) is not None]
                 if not diffs:
                     s[f"vs_{codec}_{key}_mean"] = s[f"vs_{codec}_{key}_worst"] = None
+                    s[f"vs_{codec}_{key}_median"] = None
                     s[f"vs_{codec}_{key}_worst_image"] = None
                     s[f"vs_{codec}_{key}_ahead"] = None
                     continue
                 worst = min(diffs)
                 s[f"vs_{codec}_{key}_mean"] = statistics.fmean(d for d, _ in diffs)
+                s[f"vs_{codec}_{key}_median"] = statistics.median(d for d, _ in diffs)
                 s[f"vs_{codec}_{key}_worst"] = worst[0]
                 s[f"vs_{codec}_{key}_worst_image"] = worst[1]
                 s[f"vs_{codec}_{key}_ahead"] = f"{sum(d >= 0 for d, _ in diffs)}/{len(diffs)}"
@@ -398,13 +402,16 @@ def timing_row(name: str, img, runs: int) -> dict:
 
     data = debt.encode(img, TIMING_BUDGET)
     j2k, ratio = j2k_fit(img, TIMING_BUDGET)
-    return dict(
-        image=name, budget=TIMING_BUDGET,
-        debt_encode_ms=_median_ms(lambda: debt.encode(img, TIMING_BUDGET), runs),
-        debt_decode_ms=_median_ms(lambda: debt.decode(data), runs),
-        openjpeg_encode_ms=_median_ms(lambda: j2k_encode(img, ratio), runs),
-        openjpeg_decode_ms=_median_ms(lambda: _pil_decode(j2k, img), runs),
-    )
+    jobs = dict(debt_encode_ms=lambda: debt.encode(img, TIMING_BUDGET),
+                debt_decode_ms=lambda: debt.decode(data),
+                openjpeg_encode_ms=lambda: j2k_encode(img, ratio),
+                openjpeg_decode_ms=lambda: _pil_decode(j2k, img))
+    # Interleaved rounds, so that a burst of load elsewhere hits both codecs.
+    best = {key: float("inf") for key in jobs}
+    for _ in range(runs):
+        for key, fn in jobs.items():
+            best[key] = min(best[key], _best_ms(fn, 1))
+    return dict(image=name, budget=TIMING_BUDGET, **best)
 
 
 def measure(runs: int = 7, curve_on: bool = True, which: str = "photos", budgets=None,
@@ -447,17 +454,19 @@ def measure(runs: int = 7, curve_on: bool = True, which: str = "photos", budgets
     enc_ratio = max(t["debt_encode_ms"] / t["openjpeg_encode_ms"] for t in timing)
     dec_ratio = max(t["debt_decode_ms"] / t["openjpeg_decode_ms"] for t in timing)
 
-    def ahead_on_average(codec):
+    def lowest_mean(codec):
         vals = [s[f"vs_{codec}_psnr_mean"] for s in versus if s[f"vs_{codec}_psnr_mean"] is not None]
-        return bool(vals) and min(vals) >= 0
+        return min(vals) if vals else None
 
     targets = dict(
         psnr_vs_jpeg2000_min_margin_db=worst[0],
         psnr_vs_jpeg2000_worst_case=f"{worst[1]} @ {worst[2]} B",
         psnr_ge_jpeg2000_everywhere=bool(worst[0] >= 0),
         ahead_of_jpeg2000=f"{sum(m >= 0 for m, _, _ in margins)}/{len(margins)}",
-        ahead_of_webp_on_average=ahead_on_average("webp"),
-        ahead_of_avif_on_average=ahead_on_average("avif"),
+        vs_webp_lowest_mean_db=lowest_mean("webp"),
+        vs_avif_lowest_mean_db=lowest_mean("avif"),
+        ahead_of_webp_on_average=lowest_mean("webp") is not None and lowest_mean("webp") >= 0,
+        ahead_of_avif_on_average=lowest_mean("avif") is not None and lowest_mean("avif") >= 0,
         roi_shift6_1000B_gain_over_jpeg2000_min_db=min(roi_gain),
         roi_target_met=bool(min(roi_gain) >= 4.0),
         encode_ratio_vs_openjpeg=enc_ratio,
@@ -493,13 +502,15 @@ def render(result: dict) -> str:
                      _r(s["webp_psnr_mean"]), _r(s["avif_psnr_mean"]),
                      _r(s["vs_jpeg2000_psnr_mean"]), _r(s["vs_jpeg2000_psnr_worst"]),
                      s["vs_jpeg2000_psnr_worst_image"], s["vs_jpeg2000_psnr_ahead"],
-                     _r(s["vs_webp_psnr_mean"]), _r(s["vs_webp_psnr_worst"]), s["vs_webp_psnr_worst_image"],
-                     _r(s["vs_avif_psnr_mean"]), _r(s["vs_avif_psnr_worst"]), s["vs_avif_psnr_worst_image"]])
-    parts.append("\nPer budget: mean PSNR (dB), and DEBT minus each codec: mean, worst case (image), "
-                 "cases DEBT is at or above")
+                     _r(s["vs_webp_psnr_mean"]), _r(s["vs_webp_psnr_median"]), _r(s["vs_webp_psnr_worst"]),
+                     s["vs_webp_psnr_worst_image"], s["vs_webp_psnr_ahead"],
+                     _r(s["vs_avif_psnr_mean"]), _r(s["vs_avif_psnr_median"]), _r(s["vs_avif_psnr_worst"]),
+                     s["vs_avif_psnr_worst_image"], s["vs_avif_psnr_ahead"]])
+    parts.append("\nPer budget: mean PSNR (dB), and DEBT minus each codec: mean, median, worst case (image), "
+                 "cases DEBT is at or above (among those where the codec fits the budget at all)")
     parts.append(format_table(["budget", "n", "debt", "j2k", "webp", "avif", "-j2k mean", "-j2k worst",
-                               "worst image", "ahead", "-webp mean", "-webp worst", "worst image",
-                               "-avif mean", "-avif worst", "worst image"], rows))
+                               "worst image", "ahead", "-webp mean", "median", "worst", "worst image", "ahead",
+                               "-avif mean", "median", "worst", "worst image", "ahead"], rows))
     rows = []
     for s in result["summary"]:
         rows.append([s["budget"], _r(s["debt_ssim_mean"], 4), _r(s["jpeg2000_ssim_mean"], 4),
@@ -530,14 +541,14 @@ def render(result: dict) -> str:
                          _r(mid["jpeg2000_cut"]), _r(pts[-1]["jpeg2000_cut"])])
         parts.append(f"\nProgressive curve: PSNR of {CURVE_STEP}-byte prefixes of a {CURVE_BYTES}-byte stream "
                      "(--json has every point)")
-        q = CURVE_STEP * (len(result['curves'][names[0]]['points']) // 4 + 1)
-        h = CURVE_STEP * (len(result['curves'][names[0]]['points']) // 2 + 1)
-        parts.append(format_table(["image", f"{CURVE_STEP} B", f"{q} B", f"{h} B", f"{CURVE_BYTES} B",
-                                   "worst step", "monotone", f"j2k cut {h} B", f"j2k {CURVE_BYTES} B"], rows))
+        pts0 = result["curves"][names[0]]["points"]
+        q, h, last = pts0[len(pts0) // 4]["bytes"], pts0[len(pts0) // 2]["bytes"], pts0[-1]["bytes"]
+        parts.append(format_table(["image", f"{CURVE_STEP} B", f"{q} B", f"{h} B", f"{last} B",
+                                   "worst step", "monotone", f"j2k cut {h} B", f"j2k cut {last} B"], rows))
 
     rows = [[t["image"], t["budget"], _r(t["debt_encode_ms"]), _r(t["openjpeg_encode_ms"]),
              _r(t["debt_decode_ms"]), _r(t["openjpeg_decode_ms"])] for t in result["timing"]]
-    parts.append("\nMilliseconds, median of runs (same process)")
+    parts.append("\nMilliseconds, fastest of the runs (same process, the four interleaved)")
     parts.append(format_table(["image", "budget", "debt enc", "openjpeg enc", "debt dec", "openjpeg dec"], rows))
 
     t = result["targets"]
@@ -546,8 +557,10 @@ def render(result: dict) -> str:
         ["PSNR - JPEG 2000, worst case (dB)", f"{t['psnr_vs_jpeg2000_min_margin_db']:.2f} "
          f"({t['psnr_vs_jpeg2000_worst_case']})", t["psnr_ge_jpeg2000_everywhere"]],
         ["cases at or above JPEG 2000", t["ahead_of_jpeg2000"], None],
-        [f"ahead of WebP on average, {VERSUS[0]}-{VERSUS[1]} B", None, t["ahead_of_webp_on_average"]],
-        [f"ahead of AVIF on average, {VERSUS[0]}-{VERSUS[1]} B", None, t["ahead_of_avif_on_average"]],
+        [f"DEBT - WebP, lowest per-budget mean {VERSUS[0]}-{VERSUS[1]} B (dB)", _r(t["vs_webp_lowest_mean_db"]),
+         t["ahead_of_webp_on_average"]],
+        [f"DEBT - AVIF, lowest per-budget mean {VERSUS[0]}-{VERSUS[1]} B (dB)", _r(t["vs_avif_lowest_mean_db"]),
+         t["ahead_of_avif_on_average"]],
         ["ROI s6 @1000 B - j2k ROI, worst (dB)", _r(t["roi_shift6_1000B_gain_over_jpeg2000_min_db"]),
          t["roi_target_met"]],
         ["encode time / OpenJPEG, worst (2000 B)", _r(t["encode_ratio_vs_openjpeg"]),
@@ -595,11 +608,11 @@ def run(args) -> int:
         if min(budgets) < 16:
             raise CommandError("--budgets must be at least 16 bytes each")
     if args.images == "photos":
-        try:
-            import skimage  # noqa: F401
-        except ImportError:
+        import importlib.util
+
+        if importlib.util.find_spec("skimage") is None:
             raise CommandError("the photographs come from scikit-image: pip install scikit-image "
-                               "(or run with --images samples)") from None
+                               "(or run with --images samples)")
     result = measure(runs=args.runs, curve_on=not args.no_curve, which=args.images, budgets=budgets,
                      only=args.only, grey_of_colour=not args.no_grey)
     emit(result, render(result), args.json)

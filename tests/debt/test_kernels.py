@@ -66,3 +66,20 @@ def test_round_trip_at_the_codec_depth(shape):
 def test_warm_up_compiles_and_can_run_twice():
     debt.warm_up()
     debt.warm_up()
+
+
+def test_compiled_cache_goes_when_any_debt_source_changes(tmp_path):
+    # numba keys a cached kernel by its own file; the traversal inlines the
+    # range coder of another file, so DEBT drops its whole cache when any of
+    # its sources differs from the stamp, and keeps it otherwise.
+    from rovlink.debt import jit
+
+    (tmp_path / "debt-sources.sha256").write_text("an older version")
+    (tmp_path / "coder._traverse-260.py311.nbi").write_bytes(b"stale")
+    (tmp_path / "rangecoder._code-60.py311.1.nbc").write_bytes(b"stale")
+    (tmp_path / "someone_else.f-1.py311.nbi").write_bytes(b"not ours")
+    jit._drop_stale_cache(str(tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["debt-sources.sha256", "someone_else.f-1.py311.nbi"]
+    (tmp_path / "coder._traverse-260.py311.nbi").write_bytes(b"fresh")
+    jit._drop_stale_cache(str(tmp_path))
+    assert (tmp_path / "coder._traverse-260.py311.nbi").exists()
