@@ -6,9 +6,13 @@ fails, and never block on bytes that may never come.
 Plan: `encode_frame` builds one frame.  `FrameDecoder` keeps a small receive
 buffer; every `feed` scans it for a start byte, checks the candidate when all
 its bytes are there, and on a CRC failure drops only that start byte and hunts
-again from the next byte.  While the first candidate is still incomplete, a
-later start byte whose frame is already complete and valid wins at once (a
-noise 0x55 with a large LEN must not hold back the frame behind it).
+again from the next byte.  (1.1) A `LEN` above `max_len` (the largest
+payload the receiver expects: the ROV's largest poll, the operator's largest
+reply for its last poll's SIZE, within the link's frame limit) is no start,
+so a noise 0x55 can hold a true frame back only until enough bytes follow.
+Version 1.1 delivers no frame early: a CRC-valid frame inside an incomplete
+candidate waits until that candidate fails (version 2's early delivery of
+authentic frames is `link.auth.AuthFrameDecoder`).
 """
 
 from __future__ import annotations
@@ -56,14 +60,26 @@ class DecoderCounters:
     frames: int = 0  # valid frames delivered
     crc_errors: int = 0  # candidates whose CRC failed (or whose LEN was 0)
     bytes_skipped: int = 0  # bytes dropped while hunting for a start byte
+    oversize: int = 0  # start bytes whose LEN exceeded max_len (no start, §1 (1.1))
 
 
 class FrameDecoder:
     """Turns a byte stream (or datagrams) into the payloads of valid frames."""
 
-    def __init__(self) -> None:
+    def __init__(self, max_len: int = MAX_PAYLOAD) -> None:
         self._buf = bytearray()
         self.counters = DecoderCounters()
+        self.max_len = max_len  # the receiver may lower it per poll (§1 (1.1))
+
+    @property
+    def max_len(self) -> int:
+        return self._max_len
+
+    @max_len.setter
+    def max_len(self, value: int) -> None:
+        if not 1 <= value <= MAX_PAYLOAD:
+            raise ValueError(f"max_len must be 1..{MAX_PAYLOAD}, got {value}")
+        self._max_len = value
 
     @property
     def frames(self) -> int:
@@ -106,44 +122,33 @@ class FrameDecoder:
                 out.append(self._take(0))
                 continue
             if status is False:
-                self.counters.crc_errors += 1
                 self._skip(1)
                 continue
-            # Incomplete candidate: a complete valid frame further on wins now.
-            later = self._find_complete_valid(1)
-            if later is None:
-                break
-            # The candidates before `later` can only end inside or after it;
-            # the valid frame is taken as the truth and they are dropped.
-            self.counters.crc_errors += 1
-            self._skip(later)
-            out.append(self._take(0))
+            break  # incomplete candidate: wait for its bytes
         return out
 
     # -- helpers -----------------------------------------------------------
 
     def _check(self, i: int) -> bool | None:
-        """True: valid frame at i; False: bad (CRC or LEN 0); None: incomplete."""
+        """True: valid frame at i; False: no start (LEN 0 or over max_len) or bad CRC; None: incomplete."""
         buf = self._buf
         if i + 1 >= len(buf):
             return None
         n = buf[i + 1]
         if n == 0:
+            self.counters.crc_errors += 1
+            return False
+        if n > self._max_len:
+            self.counters.oversize += 1
             return False
         end = i + 2 + n + 2
         if end > len(buf):
             return None
         crc = crc16(buf[i + 1 : i + 2 + n])
-        return crc == (buf[end - 2] << 8 | buf[end - 1])
-
-    def _find_complete_valid(self, frm: int) -> int | None:
-        buf = self._buf
-        i = buf.find(START, frm)
-        while i >= 0:
-            if self._check(i) is True:
-                return i
-            i = buf.find(START, i + 1)
-        return None
+        if crc != (buf[end - 2] << 8 | buf[end - 1]):
+            self.counters.crc_errors += 1
+            return False
+        return True
 
     def _take(self, i: int) -> bytes:
         buf = self._buf

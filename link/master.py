@@ -10,30 +10,44 @@ None.  `receive(payload, now)` consumes a reply payload (or `receive_bytes`
 raw bytes through the master's own FrameDecoder) and returns events.
 `deadline()` says when to call `next_poll` again if nothing arrives.
 
+Events for the console: `PoseReceived` (the whole reply: its HOLD,
+ATTITUDE_VALID, REJECTED and REASON bits too), `OrderAcknowledged` (taken and
+carried out), `OrderRejected` (ACK flipped with REJECTED: its REASON),
+`OrderCancelled` (a pending order a STOP cancelled that the ROV never took, or
+a STOP the pilot cancelled), `OrderNotSent` (queued orders a STOP cancelled),
+`StopConfirmed` / `StopNotCarriedOut`, `RequestExpired`, the image events
+(`ImageAbandoned` also when the ROV restarts an image: FIRST over a partial
+copy) and `ReplyLost`.
+
+Rules of PROTOCOL.md 1.1 kept here: one one-shot order pending at a time,
+sent with SEQ = not ACK until a reply's ACK equals it, the wish in every other
+poll meanwhile; every other poll carries SEQ = ACK; no one-shot order until 3 s
+after the first reply (STOP as soon as there is one); STOP in every poll until
+a reply to a STOP poll shows HOLD, AUTOPILOT and POS_HOLD or DEPTH_HOLD; an
+ARM or MODE request until a reply shows it done or for 3 s, and a request
+equal to the last one the ROV saw goes out only after a reply to a poll with
+that field 0; the receive LEN cap follows the last poll's SIZE.
+
 Decisions where PROTOCOL.md is silent:
-- The first poll carries only the velocity wish: one-shot orders wait for the
-  first reply's ACK (§3), so a restart of either end never replays one.
-- One-shot orders go one at a time in a queue.  STOP jumps the queue and
-  cancels queued (not yet sent) POSITION and STOP orders: a target the pilot
-  chose before pressing STOP must not start after it.  An order in flight is
-  never replaced (its SEQ may already be executed), it is finished first.
-- ARM and MODE requests ride in the VELOCITY soft state only until a reply
-  shows them done, or for `request_hold_s`, then fall back to "no request":
-  a soft state must not re-arm a vehicle that disarmed itself later.
+- A STOP whose replies show AUTOPILOT 0 is reported (`StopNotCarriedOut`)
+  once per spell; `cancel_stop()` is allowed only then.  The STOP goes on
+  being sent until it is confirmed or cancelled.
+- A pending order a STOP cancelled is watched: an ACK flip to its SEQ
+  reports it (taken or rejected); when the STOP is confirmed or cancelled
+  without such a flip it is reported `OrderCancelled` ("not taken").
 - SIZE class: while steering (a non-neutral wish, or one changed within
   `steer_hold_s`) the small `steering_size`, for a short command cycle.
   Otherwise the class with the best expected goodput for the bit error rate
   the master has observed (lost replies per bit sent); at a clean link that
   is SIZE 3, at BER 1e-3 it is SIZE 1.
-- The first IMG is chosen at random so that a restarted console does not take
-  a stale image the ROV still holds for a fresh one (and the ROV drops its
-  image on failsafe).  IMAGE settings sent: the next IMG is asked for in the
-  same poll (the ROV executes the order before it serves the request).
+- The first IMG is chosen at random, and the first image completed after
+  start is not shown (`skip_first_image`, §4 (1.1)): it may be a capture of
+  any age the ROV still held.  IMAGE settings sent: the next IMG is asked for
+  in the same poll (the ROV executes the order before it serves the request).
 - Known limit of the one-bit SEQ (§3): if the ROV restarts while a reply
   from before the restart is still in flight, the next order can go out with
   SEQ equal to the fresh ACK 0 and be taken for a repeat.  Nothing on the
-  wire tells that window apart; the console shows the vehicle's state, and
-  STOP is also what the ROV's own failsafe does after a silence.
+  wire tells that window apart in version 1.1 (version 2's BOOT does).
 - With `retransmit=False` (the paper's baseline) a lost reply abandons the
   image being received and the next IMG is asked for.
 """
@@ -59,6 +73,7 @@ from .messages import (
     Position,
     ProtocolError,
     Reply,
+    ReservedOrder,
     Stop,
     Velocity,
 )
@@ -83,10 +98,55 @@ class OrderAcknowledged:
 
 
 @dataclass(frozen=True)
+class OrderRejected:
+    """The ROV took the order (ACK flipped) and rejected it: PROTOCOL.md §3 REASON."""
+
+    order_id: int
+    order: object
+    reason: int  # 0 invalid, 1 impossible now / abandoned, 2 refused by the autopilot, 3 unknown
+    at: float
+
+    @property
+    def reason_text(self) -> str:
+        return REASON_TEXT.get(self.reason, "unknown reason")
+
+
+REASON_TEXT = {
+    0: "invalid order",
+    1: "impossible now",
+    2: "refused by the autopilot",
+}
+
+
+@dataclass(frozen=True)
 class OrderCancelled:
     order_id: int
     order: object
     reason: str
+
+
+@dataclass(frozen=True)
+class OrderNotSent:
+    """A queued order a STOP cancelled before it went out."""
+
+    order_id: int
+    order: object
+    reason: str
+
+
+@dataclass(frozen=True)
+class StopConfirmed:
+    order_id: int
+    mode: int  # POS_HOLD or DEPTH_HOLD
+    at: float
+
+
+@dataclass(frozen=True)
+class StopNotCarriedOut:
+    """A reply to a STOP poll shows no autopilot: nothing holds the vehicle."""
+
+    order_id: int
+    at: float
 
 
 @dataclass(frozen=True)
@@ -146,6 +206,13 @@ class _PendingOrder:
 
 
 @dataclass
+class _StopState:
+    order_id: int
+    not_carried_out: bool = False  # StopNotCarriedOut reported for this spell
+    orphan: _PendingOrder | None = None  # the pending order it cancelled, fate unknown yet
+
+
+@dataclass
 class _Image:
     img: int
     started_at: float | None = None
@@ -179,6 +246,8 @@ class Master:
         retransmit: bool = True,
         images: bool = True,
         request_hold_s: float = 3.0,
+        start_wait_s: float = 3.0,
+        skip_first_image: bool = True,
         first_img: int | None = None,
         rng: random.Random | None = None,
     ) -> None:
@@ -198,21 +267,27 @@ class Master:
         self.retransmit = retransmit
         self.images_enabled = images
         self.request_hold_s = request_hold_s
+        self.start_wait_s = start_wait_s
         self.stats = MasterStats()
-        self.decoder = FrameDecoder()
+        self.decoder = FrameDecoder(max_len=self.max_frame - OVERHEAD)
 
         self._rng = rng or random.Random()
         self._wish = Velocity()
         self._wish_changed_at = -math.inf
-        self._arm_request: tuple[Arm, float] | None = None
-        self._mode_request: tuple[Mode, float] | None = None
+        # ARM and MODE requests: [value, since, needs a 0 first] (§2: acted on when they change)
+        self._requests: dict[str, list | None] = {"arm": None, "mode": None}
+        self._last_seen: dict[str, int] = {"arm": Arm.NONE, "mode": Mode.KEEP}  # in the last answered VELOCITY
         self._orders: Deque[_PendingOrder] = collections.deque()
+        self._stop: _StopState | None = None
         self._next_order_id = 1
         self._ack: int | None = None  # ACK of the last reply; None before the first
+        self._first_reply_at: float | None = None
+        self._wish_turn = False  # while an order is pending, every other poll carries the wish
         self._awaiting: tuple[float, Poll, int] | None = None  # (sent at, poll, reply bytes expected)
         self._events: list[object] = []
         first = self._rng.randrange(8) if first_img is None else first_img
         self._image = _Image(first)
+        self._images_to_skip = 1 if skip_first_image else 0
         self._last_reply: Reply | None = None
         # Error-rate estimate for the SIZE choice: exponentially weighted
         # counts of cycles lost and bits at risk per cycle.
@@ -236,39 +311,71 @@ class Master:
         self._wish = wish
 
     def request_arm(self, arm: bool, now: float) -> None:
-        self._arm_request = (Arm.ARM if arm else Arm.DISARM, now)
+        self._request("arm", Arm.ARM if arm else Arm.DISARM, now)
 
     def request_mode(self, mode: Mode | int, now: float) -> None:
         mode = Mode(mode)
         if not 1 <= mode <= 6:
             raise ProtocolError(f"mode {mode!r} cannot be requested")
-        self._mode_request = (mode, now)
+        self._request("mode", mode, now)
 
-    def send_order(self, order: Position | ImageSettings | Stop) -> int:
-        """Queue a one-shot order; returns its id for OrderAcknowledged/OrderCancelled."""
-        if not isinstance(order, (Position, ImageSettings, Stop)):
+    def _request(self, what: str, value: int, now: float) -> None:
+        # A request equal to what the ROV saw last is no change: it goes out
+        # only after a reply to a poll with that field 0 (§5).  A disarm acts always.
+        needs_gap = value == self._last_seen[what]
+        if what == "arm" and value == Arm.DISARM:
+            needs_gap = False
+        self._requests[what] = [value, now, needs_gap]
+
+    def send_order(self, order: Position | ImageSettings | Stop | ReservedOrder) -> int:
+        """Queue a one-shot order (or STOP); returns its id for the order events."""
+        if not isinstance(order, (Position, ImageSettings, Stop, ReservedOrder)):
             raise ProtocolError(f"not a one-shot order: {order!r}")
         order_id = self._next_order_id
         self._next_order_id += 1
-        pending = _PendingOrder(order_id, order)
         if isinstance(order, Stop):
-            kept: Deque[_PendingOrder] = collections.deque()
-            for p in self._orders:
-                if p.sent or isinstance(p.order, ImageSettings):
-                    kept.append(p)
-                else:
-                    self._events.append(OrderCancelled(p.order_id, p.order, "superseded by STOP"))
-            # After the order in flight (if any), before everything else.
-            insert_at = 1 if kept and kept[0].sent else 0
-            kept.insert(insert_at, pending)
-            self._orders = kept
+            self._start_stop(order_id)
         else:
-            self._orders.append(pending)
+            self._orders.append(_PendingOrder(order_id, order))
         return order_id
+
+    def _start_stop(self, order_id: int) -> None:
+        previous = self._stop
+        orphan = previous.orphan if previous else None
+        if previous is not None:
+            self._events.append(OrderCancelled(previous.order_id, Stop(), "replaced by a newer STOP"))
+        for p in self._orders:
+            if p.sent:
+                orphan = p  # its fate is what the next replies show
+            else:
+                self._events.append(OrderNotSent(p.order_id, p.order, "cancelled by STOP"))
+        self._orders.clear()
+        self._stop = _StopState(order_id, orphan=orphan)
+
+    def cancel_stop(self) -> bool:
+        """Give up a STOP shown as not carried out (no autopilot), so that other
+        orders (a DISARM, a SURFACE) can go out.  False if there is none to cancel."""
+        stop = self._stop
+        if stop is None or not stop.not_carried_out:
+            return False
+        self._stop = None
+        self._events.append(OrderCancelled(stop.order_id, Stop(), "cancelled by the pilot"))
+        self._settle_orphan(stop)
+        return True
+
+    def _settle_orphan(self, stop: _StopState) -> None:
+        if stop.orphan is not None:
+            p, stop.orphan = stop.orphan, None
+            self._events.append(OrderCancelled(p.order_id, p.order, "not taken: cancelled by STOP"))
+
+    @property
+    def stopping(self) -> bool:
+        """A STOP is being sent (not yet confirmed)."""
+        return self._stop is not None
 
     @property
     def pending_orders(self) -> list[object]:
-        return [p.order for p in self._orders]
+        return ([Stop()] if self._stop else []) + [p.order for p in self._orders]
 
     def set_images(self, enabled: bool) -> None:
         """Stop or resume asking for image data (e.g. after BUDGET 0)."""
@@ -314,6 +421,8 @@ class Master:
         poll = self._build_poll(now)
         frame = encode_frame(poll.encode())
         expected = self._expected_reply_bytes(poll)
+        # §1 (1.1): no reply longer than this poll's SIZE allows is a start.
+        self.decoder.max_len = self.reply_frame_bytes(poll.size) - OVERHEAD
         self._awaiting = (now, poll, expected)
         self.stats.polls_sent += 1
         self.stats.bytes_sent += len(frame)
@@ -330,16 +439,22 @@ class Master:
     def _build_poll(self, now: float) -> Poll:
         order: object = self._soft_state(now)
         seq = self._ack if self._ack is not None else 0
-        if self._ack is not None and self._orders:
+        if self._stop is not None:
+            if self._ack is not None:
+                order = Stop()  # not sequenced: SEQ = ACK (§2)
+        elif self._orders and self._may_send_orders(now):
             pending = self._orders[0]
             if not pending.sent:
                 pending.sent = True
                 pending.seq = 1 - self._ack
+                self._wish_turn = False
                 if isinstance(pending.order, ImageSettings):
                     self.images_enabled = pending.order.budget_bytes > 0
                     self._next_image("settings changed")
-            order = pending.order
-            seq = pending.seq
+            if not self._wish_turn:
+                order = pending.order
+                seq = pending.seq
+            self._wish_turn = not self._wish_turn
         size = self._choose_size(now)
         if self.images_enabled:
             img, offset = self._image.img, min(len(self._image.data), NO_IMAGE_DATA - 1)
@@ -347,23 +462,25 @@ class Master:
             img, offset = self._image.img, NO_IMAGE_DATA
         return Poll(seq=seq, size=size, order=order, img=img, offset=offset)  # type: ignore[arg-type]
 
+    def _may_send_orders(self, now: float) -> bool:
+        """§3: no one-shot order until `start_wait_s` after the first reply."""
+        return self._first_reply_at is not None and now - self._first_reply_at >= self.start_wait_s
+
     def _soft_state(self, now: float) -> Velocity:
-        arm = Arm.NONE
-        mode = Mode.KEEP
-        if self._arm_request is not None:
-            if now - self._arm_request[1] > self.request_hold_s:
-                self._arm_request = None
-                self._events.append(RequestExpired("arm"))
+        fields = {"arm": Arm.NONE, "mode": Mode.KEEP}
+        for what, request in self._requests.items():
+            if request is None:
+                continue
+            value, since, needs_gap = request
+            if needs_gap:
+                continue  # 0 until a reply to a poll with 0 comes
+            if now - since > self.request_hold_s:
+                self._requests[what] = None
+                self._events.append(RequestExpired(what))
             else:
-                arm = self._arm_request[0]
-        if self._mode_request is not None:
-            if now - self._mode_request[1] > self.request_hold_s:
-                self._mode_request = None
-                self._events.append(RequestExpired("mode"))
-            else:
-                mode = self._mode_request[0]
+                fields[what] = value
         w = self._wish
-        return Velocity(w.vx, w.vy, w.vz, w.vyaw, arm, mode)
+        return Velocity(w.vx, w.vy, w.vz, w.vyaw, fields["arm"], fields["mode"])
 
     def steering(self, now: float) -> bool:
         return not self._wish.is_neutral or now - self._wish_changed_at < self.steer_hold_s
@@ -433,6 +550,7 @@ class Master:
             return self.take_events()
         events = self.take_events()
         round_trip = None
+        poll: Poll | None = None
         if self._awaiting is not None:
             sent_at, poll, _ = self._awaiting
             round_trip = now - sent_at
@@ -442,43 +560,87 @@ class Master:
         self.stats.replies += 1
         self.stats.last_round_trip_s = round_trip
         self._last_reply = reply
+        if self._first_reply_at is None:
+            self._first_reply_at = now
         events.append(PoseReceived(reply, now, round_trip))
         events.extend(self._update_ack(reply, now))
-        events.extend(self._update_requests(reply))
+        events.extend(self._update_stop(reply, poll, now))
+        self._update_requests(reply, poll, now)
         events.extend(self._take_trunk(reply, now))
+        events.extend(self.take_events())
         return events
 
     def _update_ack(self, reply: Reply, now: float) -> list[object]:
         events: list[object] = []
-        if self._ack is None:
-            self._ack = reply.ack
+        if self._ack is None or not self._may_send_orders(now):
+            self._ack = reply.ack  # §3: the ACK of the last reply of the first 3 s
             return events
         self._ack = reply.ack
         if self._orders and self._orders[0].sent:
-            # The order in flight was sent with SEQ = not(previous ACK); it
-            # is done when the reply's ACK equals that SEQ.
+            # The order in flight was sent with SEQ = not(previous ACK); its
+            # outcome is known when the reply's ACK equals that SEQ.
             pending = self._orders[0]
             if reply.ack == pending.seq:
                 self._orders.popleft()
-                events.append(OrderAcknowledged(pending.order_id, pending.order, now))
+                events.append(self._outcome(pending, reply, now))
+        stop = self._stop
+        if stop is not None and stop.orphan is not None and reply.ack == stop.orphan.seq:
+            events.append(self._outcome(stop.orphan, reply, now))
+            stop.orphan = None
         return events
 
-    def _update_requests(self, reply: Reply) -> list[object]:
-        if self._arm_request is not None and reply.autopilot:
-            want = self._arm_request[0] == Arm.ARM
-            if reply.armed == want:
-                self._arm_request = None
-        if self._mode_request is not None and reply.mode == self._mode_request[0]:
-            self._mode_request = None
+    @staticmethod
+    def _outcome(pending: _PendingOrder, reply: Reply, now: float) -> object:
+        if reply.rejected:
+            return OrderRejected(pending.order_id, pending.order, reply.reason, now)
+        return OrderAcknowledged(pending.order_id, pending.order, now)
+
+    def _update_stop(self, reply: Reply, poll: Poll | None, now: float) -> list[object]:
+        stop = self._stop
+        if stop is None or poll is None or not isinstance(poll.order, Stop):
+            return []  # only a reply to a poll that carried STOP confirms it (§2)
+        if reply.hold and reply.autopilot and reply.mode in (Mode.POS_HOLD, Mode.DEPTH_HOLD):
+            self._stop = None
+            self._settle_orphan(stop)
+            events = self.take_events()
+            events.append(StopConfirmed(stop.order_id, reply.mode, now))
+            return events
+        if not reply.autopilot and not stop.not_carried_out:
+            stop.not_carried_out = True
+            return [StopNotCarriedOut(stop.order_id, now)]
+        if reply.autopilot:
+            stop.not_carried_out = False
         return []
+
+    def _update_requests(self, reply: Reply, poll: Poll | None, now: float) -> None:
+        if poll is not None and isinstance(poll.order, Velocity):
+            sent = {"arm": poll.order.arm, "mode": poll.order.mode}
+            for what, value in sent.items():
+                self._last_seen[what] = value
+                request = self._requests[what]
+                if request is not None and request[2] and value == 0:
+                    request[1], request[2] = now, False  # the gap is in: the request goes out now
+        arm = self._requests["arm"]
+        if arm is not None and not arm[2] and reply.autopilot and reply.armed == (arm[0] == Arm.ARM):
+            self._requests["arm"] = None
+        mode = self._requests["mode"]
+        if mode is not None and not mode[2] and reply.mode == mode[0]:
+            self._requests["mode"] = None
 
     def _take_trunk(self, reply: Reply, now: float) -> list[object]:
         if not reply.has_trunk or reply.img != self._image.img or not self.images_enabled:
             return []
         image = self._image
         assert reply.offset is not None
+        events: list[object] = []
+        if reply.first and image.data:
+            # §4 (1.1): the ROV captured this IMG anew (it restarted, or lost
+            # the image): the partial copy is of another picture.
+            events.append(ImageAbandoned(image.img, len(image.data), "the ROV sent the image anew (FIRST)"))
+            self.stats.images_abandoned += 1
+            image.data.clear()
         if reply.offset > len(image.data):
-            return []  # beyond the contiguous prefix: cannot happen with a conforming ROV
+            return events  # beyond the contiguous prefix: cannot happen with a conforming ROV
         end = reply.offset + len(reply.trunk)
         if end > len(image.data):
             image.data[reply.offset :] = reply.trunk
@@ -486,7 +648,13 @@ class Master:
         if total is not None and len(image.data) > total:
             del image.data[total:]
         received = len(image.data)
-        events: list[object] = [ImageProgress(image.img, received, total, bytes(image.data[2:]))]
+        if self._images_to_skip:
+            # The first image after start may be any age the ROV still held: not shown.
+            if image.complete:
+                self._images_to_skip -= 1
+                self._image = _Image((image.img + 1) % 8)
+            return events
+        events.append(ImageProgress(image.img, received, total, bytes(image.data[2:])))
         if image.complete:
             self.stats.images_completed += 1
             started = image.started_at if image.started_at is not None else now
@@ -506,6 +674,8 @@ class Master:
 
     def _next_image(self, reason: str) -> None:
         image = self._image
+        if image.started_at is not None:
+            self._images_to_skip = 0  # the next IMG is a fresh capture anyway
         if image.started_at is not None and not image.complete:
             self.stats.images_abandoned += 1
             self._events.append(ImageAbandoned(image.img, len(image.data), reason))

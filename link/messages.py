@@ -9,20 +9,27 @@ Plan: the orders (`Velocity`, `Position`, `ImageSettings`, `Stop`, `NoOrder`,
 not be sent can never be constructed.  `Poll` and `Reply` carry the header
 fields and delegate the order body to the order classes.
 
+Two kinds of bad payload (PROTOCOL.md §1 (1.1)):
+- A structural fault raises `ProtocolError` (the receiver counts it and
+  ignores the frame): a body length that does not match its ORDER, a
+  reserved bit set (poll bit 6 in 1.1, VELOCITY byte 0 bits 5–3, POSITION
+  flags bits 5–0, IMAGE byte 5 bits 2–0), a reserved order's body over 9
+  bytes, a reply payload of 15 or 16 bytes, FIRST/LAST without a trunk,
+  FIRST with an OFFSET other than 0, a trunk past byte 8190, SYNC set in 1.1.
+- A well-formed order with a value out of range decodes to `InvalidOrder`
+  (the ROV answers the poll and rejects the order, REASON 0): VELOCITY -128,
+  ARM 3 or MODE 7; POSITION BODY without RELATIVE or a YAW outside
+  -18000..18000; IMAGE X1 <= X0 or Y1 <= Y0 (unless all four are zero),
+  BUDGET above 8189.  The order dataclasses refuse such values when built.
+
 Decisions where PROTOCOL.md is silent (kept strict: a frame whose bits are
 not exactly as specified is refused rather than guessed at):
-- Reserved bits set (poll bit 6, VELOCITY byte 0 bits 5–3, POSITION flags
-  bits 5–0, IMAGE byte 5 bits 2–0, reply byte 13 bits 4–0) are errors.
-- VELOCITY MODE 7 (reserved) and ARM 3 are errors, as is -128 in any axis.
-- POSITION with BODY but not RELATIVE is an error: a body-frame absolute
-  target has no meaning.  Yaw outside -18000..18000 is an error.
-- IMAGE: an ROI needs X0 < X1 and Y0 < Y1 (all four zero means none);
-  BUDGET above 8189 is an error (an object is at most 8191 bytes).
-- Reserved order codes 5–15 decode to `ReservedOrder` with whatever body
-  follows: the ROV must answer such a poll and ignore the order.
-- Reply: LEN 15 or 16 (image header without a trunk byte) is an error;
-  FIRST must equal OFFSET == 0 and LAST must not be set without a trunk;
-  angles outside -18000..18000 centidegrees and MODE 8–15 are errors.
+- Reply: a trunk at OFFSET 0 without FIRST is a structural fault too (§5:
+  FIRST is set exactly when the trunk starts at offset 0); angles outside
+  -18000..18000 centidegrees are errors.  REASON 3, or a REASON without
+  REJECTED, decodes as it is (shown as unknown, not an error).
+- Reserved order codes 5–15 decode to `ReservedOrder` with the body that
+  follows (at most 9 bytes).
 """
 
 from __future__ import annotations
@@ -141,20 +148,20 @@ class Velocity:
         return struct.pack(">Bbbbb", (self.arm << 6) | self.mode, self.vx, self.vy, self.vz, self.vyaw)
 
     @classmethod
-    def decode_body(cls, body: bytes) -> "Velocity":
+    def decode_body(cls, body: bytes) -> "Velocity | InvalidOrder":
         if len(body) != 5:
             raise ProtocolError(f"VELOCITY body must be 5 bytes, got {len(body)}")
         flags, vx, vy, vz, vyaw = struct.unpack(">Bbbbb", body)
         arm, reserved, mode = flags >> 6, (flags >> 3) & 0x7, flags & 0x7
-        if arm == 3:
-            raise ProtocolError("VELOCITY ARM 3 is invalid")
         if reserved:
             raise ProtocolError("VELOCITY byte 0 bits 5-3 are reserved and must be 0")
+        if arm == 3:
+            return InvalidOrder(cls.code, bytes(body), "VELOCITY ARM 3 is invalid")
         if mode == 7:
-            raise ProtocolError("VELOCITY MODE 7 is reserved")
+            return InvalidOrder(cls.code, bytes(body), "VELOCITY MODE 7 is reserved")
         for name, v in (("VX", vx), ("VY", vy), ("VZ", vz), ("VYAW", vyaw)):
             if v == -128:
-                raise ProtocolError(f"VELOCITY {name} -128 is invalid")
+                return InvalidOrder(cls.code, bytes(body), f"VELOCITY {name} -128 is invalid")
         return cls(vx, vy, vz, vyaw, Arm(arm), Mode(mode))
 
 
@@ -186,13 +193,16 @@ class Position:
         return struct.pack(">Bhhhh", flags, self.x_cm, self.y_cm, self.z_cm, self.yaw_cdeg)
 
     @classmethod
-    def decode_body(cls, body: bytes) -> "Position":
+    def decode_body(cls, body: bytes) -> "Position | InvalidOrder":
         if len(body) != 9:
             raise ProtocolError(f"POSITION body must be 9 bytes, got {len(body)}")
         flags, x, y, z, yaw = struct.unpack(">Bhhhh", body)
         if flags & 0x3F:
             raise ProtocolError("POSITION flags bits 5-0 are reserved and must be 0")
-        return cls(x, y, z, yaw, bool(flags & 0x80), bool(flags & 0x40))
+        try:
+            return cls(x, y, z, yaw, bool(flags & 0x80), bool(flags & 0x40))
+        except ProtocolError as exc:  # BODY without RELATIVE, YAW out of range
+            return InvalidOrder(cls.code, bytes(body), str(exc))
 
 
 @dataclass(frozen=True)
@@ -228,7 +238,7 @@ class ImageSettings:
         return packed.to_bytes(5, "big") + struct.pack(">BH", (self.shift << 4) | (self.mono << 3), self.budget_bytes)
 
     @classmethod
-    def decode_body(cls, body: bytes) -> "ImageSettings":
+    def decode_body(cls, body: bytes) -> "ImageSettings | InvalidOrder":
         if len(body) != 8:
             raise ProtocolError(f"IMAGE body must be 8 bytes, got {len(body)}")
         packed = int.from_bytes(body[:5], "big")
@@ -236,13 +246,18 @@ class ImageSettings:
         flags, budget = struct.unpack(">BH", body[5:])
         if flags & 0x07:
             raise ProtocolError("IMAGE byte 5 bits 2-0 are reserved and must be 0")
-        return cls(roi, flags >> 4, bool(flags & 0x08), budget)
+        try:
+            return cls(roi, flags >> 4, bool(flags & 0x08), budget)
+        except ProtocolError as exc:  # empty ROI, BUDGET over 8189
+            return InvalidOrder(cls.code, bytes(body), str(exc))
 
 
 @dataclass(frozen=True)
 class Stop:
+    """Not sequenced (1.1): carries SEQ = ACK and never flips ACK (§2)."""
+
     code: ClassVar[int] = OrderCode.STOP
-    one_shot: ClassVar[bool] = True
+    one_shot: ClassVar[bool] = False
 
     def encode_body(self) -> bytes:
         return b""
@@ -254,17 +269,25 @@ class Stop:
         return cls()
 
 
+MAX_RESERVED_BODY = 9
+
+
 @dataclass(frozen=True)
 class ReservedOrder:
-    """An order code 5..15: answered and ignored by the ROV."""
+    """An order code 5..15 with a body of 0..9 bytes: a one-shot the ROV rejects (REASON 0)."""
 
     order_code: int
     body: bytes = b""
 
-    one_shot: ClassVar[bool] = False
+    one_shot: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         _check_int("reserved ORDER", self.order_code, 5, 15)
+        if not isinstance(self.body, (bytes, bytearray)):
+            raise ProtocolError("reserved order body must be bytes")
+        object.__setattr__(self, "body", bytes(self.body))
+        if len(self.body) > MAX_RESERVED_BODY:
+            raise ProtocolError(f"reserved order body must be at most {MAX_RESERVED_BODY} bytes, got {len(self.body)}")
 
     @property
     def code(self) -> int:  # type: ignore[override]
@@ -274,8 +297,32 @@ class ReservedOrder:
         return bytes(self.body)
 
 
-Order = Union[NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder]
-ONE_SHOT_ORDERS = (Position, ImageSettings, Stop)
+@dataclass(frozen=True)
+class InvalidOrder:
+    """A well-formed order body with a value out of range (§1, §3): decoded, never built by a sender.
+
+    For VELOCITY the wish is invalid (neutral, no ARM/MODE action, does not feed
+    the failsafe); for a one-shot order the ROV rejects it with REASON 0.
+    """
+
+    order_code: int
+    body: bytes
+    why: str
+
+    @property
+    def code(self) -> int:
+        return self.order_code
+
+    @property
+    def one_shot(self) -> bool:
+        return self.order_code not in (OrderCode.NONE, OrderCode.VELOCITY, OrderCode.STOP)
+
+    def encode_body(self) -> bytes:
+        return bytes(self.body)
+
+
+Order = Union[NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder, InvalidOrder]
+ONE_SHOT_ORDERS = (Position, ImageSettings, ReservedOrder)
 
 _ORDER_CLASSES = {c.code: c for c in (NoOrder, Velocity, Position, ImageSettings, Stop)}
 
@@ -300,12 +347,17 @@ class Poll:
         _check_int("poll SIZE", self.size, 0, 3)
         _check_int("poll IMG", self.img, 0, 7)
         _check_int("poll OFFSET", self.offset, 0, NO_IMAGE_DATA)
-        if not isinstance(self.order, (NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder)):
+        if not isinstance(self.order, (NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder, InvalidOrder)):
             raise ProtocolError(f"poll order must be an order dataclass, got {self.order!r}")
 
     @property
     def wants_image(self) -> bool:
         return self.offset != NO_IMAGE_DATA
+
+    @property
+    def order_key(self) -> tuple[int, bytes]:
+        """What tells one order from another for the supersede rule (§3): ORDER and body."""
+        return (self.order.code, self.order.encode_body())
 
     def encode(self) -> bytes:
         head = (self.seq << 7) | (self.size << 4) | self.order.code
@@ -325,14 +377,13 @@ class Poll:
     def decode_header(payload: bytes) -> tuple[int, int, int, int, int]:
         """(SEQ, SIZE, ORDER code, IMG, OFFSET) of a poll, without its body.
 
-        Lets the ROV answer a poll whose order body is invalid (it must answer
-        and ignore such an order) while refusing a poll whose header is bad.
+        Bit 6 (HELLO in version 2) is a structural fault in version 1.1.
         """
         if len(payload) < 3:
             raise ProtocolError(f"poll payload must be at least 3 bytes, got {len(payload)}")
         head = payload[0]
         if head & 0x40:
-            raise ProtocolError("poll byte 0 bit 6 is reserved and must be 0")
+            raise ProtocolError("poll byte 0 bit 6 (HELLO) must be 0 in version 1.1")
         request = (payload[1] << 8) | payload[2]
         return head >> 7, (head >> 4) & 0x3, head & 0xF, request >> 13, request & 0x1FFF
 
@@ -340,6 +391,15 @@ class Poll:
 # --------------------------------------------------------------------------
 # Reply
 # --------------------------------------------------------------------------
+
+
+class Reason(enum.IntEnum):
+    """REASON of a rejected order (§3, §5)."""
+
+    INVALID = 0  # invalid body or reserved order code
+    IMPOSSIBLE = 1  # impossible now: no position estimate, no autopilot, disarmed; abandoned by STOP/failsafe
+    REFUSED = 2  # the autopilot refused, or gave no answer within 2 s
+    UNKNOWN = 3  # reserved: shown as unknown
 
 
 @dataclass(frozen=True)
@@ -362,6 +422,11 @@ class Reply:
     offset: int | None = None
     trunk: bytes = b""
     last: bool = False
+    hold: bool = False  # (1.1) non-zero velocity ignored until a neutral wish
+    attitude_valid: bool = False  # (1.1) roll/pitch/yaw from the autopilot, < 1 s old
+    rejected: bool = False  # (1.1) the order named by ACK was rejected ...
+    reason: int = 0  # (1.1) ... for this REASON (meaningful only with `rejected`)
+    sync: bool = False  # version 2 only (§8); a structural fault in 1.1
 
     def __post_init__(self) -> None:
         _check_int("reply ACK", self.ack, 0, 1)
@@ -371,8 +436,9 @@ class Reply:
             _check_int(f"reply {name}", getattr(self, name), -32768, 32767)
         for name in ("roll_cdeg", "pitch_cdeg", "yaw_cdeg"):
             _check_int(f"reply {name}", getattr(self, name), -18000, 18000)
-        for name in ("autopilot", "failsafe", "position_valid", "last"):
+        for name in ("autopilot", "failsafe", "position_valid", "last", "hold", "attitude_valid", "rejected", "sync"):
             _check_bool(f"reply {name}", getattr(self, name))
+        _check_int("reply REASON", self.reason, 0, 3)
         if not isinstance(self.trunk, (bytes, bytearray)):
             raise ProtocolError("reply trunk must be bytes")
         object.__setattr__(self, "trunk", bytes(self.trunk))
@@ -382,7 +448,7 @@ class Reply:
             if self.offset + len(self.trunk) > MAX_OBJECT:
                 raise ProtocolError(
                     f"reply trunk of {len(self.trunk)} bytes at OFFSET {self.offset} runs past the "
-                    f"{MAX_OBJECT}-byte object limit"
+                    f"object's last byte ({MAX_OBJECT - 1})"
                 )
             if len(self.trunk) > 255 - REPLY_IMAGE_HEADER:
                 raise ProtocolError(f"reply trunk must be at most {255 - REPLY_IMAGE_HEADER} bytes")
@@ -400,9 +466,24 @@ class Reply:
     def has_trunk(self) -> bool:
         return bool(self.trunk)
 
+    @property
+    def rejection(self) -> "Reason | None":
+        """The REASON of a rejection this reply reports (UNKNOWN for 3), None without REJECTED."""
+        return Reason(self.reason) if self.rejected else None
+
     def encode(self) -> bytes:
-        head = (self.first << 7) | (self.last << 6) | (self.ack << 5) | (self.armed << 4) | self.mode
-        status = (self.autopilot << 7) | (self.failsafe << 6) | (self.position_valid << 5)
+        head = (
+            (self.first << 7) | (self.last << 6) | (self.ack << 5) | (self.armed << 4) | (self.hold << 3) | self.mode
+        )
+        status = (
+            (self.autopilot << 7)
+            | (self.failsafe << 6)
+            | (self.position_valid << 5)
+            | (self.attitude_valid << 4)
+            | (self.rejected << 3)
+            | (self.reason << 1)
+            | self.sync
+        )
         out = bytes((head,)) + struct.pack(
             ">hhhhhhB", self.x_cm, self.y_cm, self.z_cm, self.roll_cdeg, self.pitch_cdeg, self.yaw_cdeg, status
         )
@@ -411,19 +492,20 @@ class Reply:
         return out
 
     @classmethod
-    def decode(cls, payload: bytes) -> "Reply":
+    def decode(cls, payload: bytes, *, allow_sync: bool = False) -> "Reply":
+        """Parse a reply payload; `allow_sync` only for version 2 (SYNC is a fault in 1.1)."""
         n = len(payload)
         if n < REPLY_HEADER:
             raise ProtocolError(f"reply payload must be at least {REPLY_HEADER} bytes, got {n}")
         if REPLY_HEADER < n <= REPLY_IMAGE_HEADER:
             raise ProtocolError(f"reply of {n} bytes has an image header but no trunk byte")
         head = payload[0]
-        first, last, ack, armed, mode = head >> 7, (head >> 6) & 1, (head >> 5) & 1, (head >> 4) & 1, head & 0xF
-        if mode > 7:
-            raise ProtocolError(f"reply MODE {mode} is reserved")
+        first, last, ack, armed, hold, mode = (
+            head >> 7, (head >> 6) & 1, (head >> 5) & 1, (head >> 4) & 1, (head >> 3) & 1, head & 0x7
+        )
         x, y, z, roll, pitch, yaw, status = struct.unpack(">hhhhhhB", payload[1:14])
-        if status & 0x1F:
-            raise ProtocolError("reply byte 13 bits 4-0 are reserved and must be 0")
+        if status & 0x01 and not allow_sync:
+            raise ProtocolError("reply SYNC must be 0 in version 1.1")
         img = offset = None
         trunk = b""
         if n > REPLY_HEADER:
@@ -432,8 +514,8 @@ class Reply:
             trunk = bytes(payload[16:])
             if bool(first) != (offset == 0):
                 raise ProtocolError(f"reply FIRST={first} disagrees with OFFSET {offset}")
-        elif first:
-            raise ProtocolError("reply FIRST needs a trunk")
+        elif first or last:
+            raise ProtocolError("reply FIRST/LAST need a trunk")
         return cls(
             ack=ack,
             armed=bool(armed),
@@ -447,10 +529,15 @@ class Reply:
             autopilot=bool(status & 0x80),
             failsafe=bool(status & 0x40),
             position_valid=bool(status & 0x20),
+            attitude_valid=bool(status & 0x10),
+            rejected=bool(status & 0x08),
+            reason=(status >> 1) & 0x3,
+            sync=bool(status & 0x01),
             img=img,
             offset=offset,
             trunk=trunk,
             last=bool(last),
+            hold=bool(hold),
         )
 
 

@@ -8,7 +8,9 @@ Plan: a small discrete-event loop.  The clock jumps to the next thing that
 can happen (a packet arrives, the master's reply timeout, the slave's
 failsafe, a scheduled callback); at each instant deliveries are handed to the
 receiving machine and whatever it sends goes back into the channel.  The
-master side "a", the slave side "b".
+master side "a", the slave side "b".  The slave's `OrderStarted` is answered
+by `autopilot(event, now)` -> (accepted, reason) or None (no answer yet; the
+caller may answer later with `slave.order_outcome`); by default at once, accepted.
 """
 
 from __future__ import annotations
@@ -19,7 +21,11 @@ from typing import Callable
 
 from .channel import Channel
 from .master import Master
-from .slave import Slave
+from .slave import OrderStarted, Slave
+
+
+def accept_at_once(event: OrderStarted, now: float) -> tuple[bool, int | None]:
+    return True, None
 
 
 class SimLink:
@@ -33,6 +39,7 @@ class SimLink:
         on_master_event: Callable[[object, float], None] | None = None,
         on_slave_event: Callable[[object, float], None] | None = None,
         start: float = 0.0,
+        autopilot: Callable[[OrderStarted, float], tuple[bool, int | None] | None] | None = accept_at_once,
     ) -> None:
         self.master = master
         self.slave = slave
@@ -46,6 +53,7 @@ class SimLink:
         self._master_ready_at = start  # the master may poll from here on
         self.master_down = False  # set to emulate an operator that went away
         self.slave_down = False
+        self.autopilot = autopilot
 
     def at(self, t: float, fn: Callable[[float], None]) -> None:
         """Call fn(now) at simulated time t."""
@@ -58,9 +66,13 @@ class SimLink:
                 self.on_master_event(e, self.now)
 
     def _slave_events(self, events) -> None:
-        if self.on_slave_event:
-            for e in events:
+        for e in events:
+            if self.on_slave_event:
                 self.on_slave_event(e, self.now)
+            if isinstance(e, OrderStarted) and self.autopilot is not None:
+                answer = self.autopilot(e, self.now)
+                if answer is not None:
+                    self._slave_events(self.slave.order_outcome(e.token, answer[0], answer[1], self.now))
 
     def run_until(self, t_end: float) -> None:
         while True:

@@ -6,8 +6,10 @@ backoff, and whatever was sent while it was down is counted, not queued (a
 stale poll or reply is worse than none on a token-passing link).
 
 Plan: `open_transport(url)` parses a URL and returns an `Endpoint`:
-    udp://HOST:PORT?peer=HOST:PORT     one frame per datagram; without peer,
-                                        replies go to the last sender
+    udp://HOST:PORT?peer=HOST:PORT     one frame per datagram, to and from the
+                                        peer only: datagrams from any other
+                                        address are counted and dropped (logged
+                                        at most once a second); peer is required
     serial:///dev/ttyUSB0?baud=9600&crlf=1&mtu=64
                                         raw bytes on a serial line; crlf ends
                                         each frame with CR LF (S100); mtu caps
@@ -42,6 +44,7 @@ class TransportStats:
     bytes_sent: int = 0
     bytes_received: int = 0
     dropped_while_down: int = 0
+    foreign_dropped: int = 0  # UDP datagrams from an address other than the peer
     last_error: str | None = None
     history: list[tuple[float, str]] = field(default_factory=list)  # (time, "up"/"down: why")
 
@@ -212,16 +215,28 @@ def _hostport(text: str, what: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+FOREIGN_LOG_INTERVAL_S = 1.0
+
+
 class _UdpDriver(_Driver, asyncio.DatagramProtocol):
-    def __init__(self, endpoint: Endpoint, local: tuple[str, int], peer: tuple[str, int] | None) -> None:
+    """One UDP socket talking to one peer: a token-passing link has exactly two
+    ends, and a datagram from anyone else (a second console, an injected poll)
+    must never reach the protocol machine (it would flip ACK or feed the failsafe)."""
+
+    def __init__(self, endpoint: Endpoint, local: tuple[str, int], peer: tuple[str, int]) -> None:
         self.endpoint = endpoint
         self.local = local
         self.peer = peer
-        self.last_sender: tuple[str, int] | None = None
+        self._peer_addrs: set[tuple[str, int]] = set()
+        self._foreign_logged_at = -float("inf")
+        self._foreign_since_log = 0
         self.transport: asyncio.DatagramTransport | None = None
 
     async def open(self) -> None:
         loop = asyncio.get_running_loop()
+        # The peer's name resolved once per opening: datagrams are matched by address.
+        infos = await loop.getaddrinfo(self.peer[0], self.peer[1], type=socket.SOCK_DGRAM)
+        self._peer_addrs = {(info[4][0], info[4][1]) for info in infos}
         self.transport, _ = await loop.create_datagram_endpoint(lambda: self, local_addr=self.local)
 
     @property
@@ -230,18 +245,30 @@ class _UdpDriver(_Driver, asyncio.DatagramProtocol):
         return self.transport.get_extra_info("sockname")[:2]
 
     def write(self, data: bytes) -> None:
-        target = self.peer or self.last_sender
-        if target is None or self.transport is None:
-            raise TransportError("no peer to send to yet (no datagram received and no ?peer=)")
-        self.transport.sendto(data, target)
+        if self.transport is None:
+            raise TransportError("udp socket not open")
+        self.transport.sendto(data, self.peer)
 
     def close(self) -> None:
         if self.transport is not None:
             self.transport.close()
 
     def datagram_received(self, data: bytes, addr) -> None:
-        self.last_sender = addr[:2]
-        self.endpoint._received(data)
+        if (addr[0], addr[1]) in self._peer_addrs:
+            self.endpoint._received(data)
+            return
+        stats = self.endpoint.stats
+        stats.foreign_dropped += 1
+        self._foreign_since_log += 1
+        now = time.monotonic()
+        if now - self._foreign_logged_at >= FOREIGN_LOG_INTERVAL_S:
+            log.warning(
+                "%s: dropped %d datagram(s) from %s:%s, not the peer %s:%s (%d in all)",
+                self.endpoint.url, self._foreign_since_log, addr[0], addr[1], self.peer[0], self.peer[1],
+                stats.foreign_dropped,
+            )
+            self._foreign_logged_at = now
+            self._foreign_since_log = 0
 
     def error_received(self, exc: Exception) -> None:
         # ICMP "port unreachable" when the peer is not up yet: not a failure
@@ -254,7 +281,7 @@ class _UdpDriver(_Driver, asyncio.DatagramProtocol):
 
 
 class UdpEndpoint(Endpoint):
-    def __init__(self, url: str, local: tuple[str, int], peer: tuple[str, int] | None, **kw) -> None:
+    def __init__(self, url: str, local: tuple[str, int], peer: tuple[str, int], **kw) -> None:
         super().__init__(url, lambda ep: _UdpDriver(ep, local, peer), **kw)
 
     @property
@@ -377,7 +404,11 @@ def open_transport(url: str) -> Endpoint:
         common["crlf"] = query.pop("crlf") in ("1", "true", "yes")
     if parts.scheme == "udp":
         local = _hostport(parts.netloc, "udp:// address")
-        peer = _hostport(query.pop("peer"), "peer") if "peer" in query else None
+        if "peer" not in query:
+            raise TransportError(
+                f"udp:// needs ?peer=HOST:PORT (datagrams are taken only from the peer), got {url!r}"
+            )
+        peer = _hostport(query.pop("peer"), "peer")
         _no_extra(query, url)
         return UdpEndpoint(url, local, peer, **common)
     if parts.scheme == "serial":

@@ -65,7 +65,8 @@ def test_channel_process_carries_frames_with_delay_and_logs(tmp_path):
                    "--bitrate", "1900", "--delay", "0.085", "--log", str(log), "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(1.5)  # let it bind
+        banner = proc.stderr.readline()  # printed once both ends are bound (a fixed sleep flaked under load)
+        assert banner.startswith("channel: "), banner
         frame = encode_frame(bytes(range(20)))  # 24 bytes: 101 ms on the air + 85 ms
         a_user.settimeout(10)
         b_user.settimeout(10)

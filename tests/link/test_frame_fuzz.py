@@ -8,11 +8,27 @@ from rovlink.link.frame import START, FrameDecoder, encode_frame
 from rovlink.link.messages import Poll, ProtocolError, Reply
 
 
-def test_false_start_with_large_len_does_not_hold_back_a_true_frame():
+def test_false_start_with_len_over_the_cap_is_no_start():
+    # (1.1) a LEN above the largest the receiver expects is no start.
     frame = encode_frame(b"hello")
-    d = FrameDecoder()
+    d = FrameDecoder(max_len=12)
     # 0x55 0xff claims 255 payload bytes; the real frame follows at once.
     assert d.feed(bytes([START, 0xFF]) + frame) == [b"hello"]
+    assert d.counters.oversize == 1
+
+
+def test_false_start_within_the_cap_holds_a_frame_back_only_until_enough_bytes_follow():
+    # (1.1) no early delivery: a CRC-valid frame inside an incomplete candidate waits.
+    frame = encode_frame(b"hello")
+    d = FrameDecoder(max_len=12)
+    assert d.feed(bytes([START, 12]) + frame) == []
+    assert d.feed(b"\x00" * 8) == [b"hello"]  # the next transmission's bytes complete the false candidate
+
+
+def test_frame_longer_than_the_cap_is_refused():
+    d = FrameDecoder(max_len=12)
+    assert d.feed(encode_frame(bytes(13))) == []
+    assert d.feed(encode_frame(bytes(12))) == [bytes(12)]
 
 
 def test_crc_failure_drops_only_the_start_byte():
@@ -77,7 +93,9 @@ def test_fuzz_random_and_mutated_streams_never_raise_and_recover_embedded_frames
             data = first[: rng.randint(1, len(first) - 1)] + encode_frame(payload)
             expect = payload
         d = FrameDecoder()
-        # Feed in random chunks, as a serial line delivers them.
+        # Feed in random chunks, as a serial line delivers them; then the
+        # line's next bytes (a noise start holds a frame back until they come).
+        data += bytes(260)
         out = []
         i = 0
         while i < len(data):

@@ -1,5 +1,6 @@
 """Master and slave over the emulated channel, in simulated time."""
 
+import dataclasses
 import random
 
 import pytest
@@ -7,14 +8,18 @@ import pytest
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.frame import FrameDecoder, encode_frame
 from rovlink.link.master import (
+    ImageAbandoned,
     ImageComplete,
     ImageProgress,
     Master,
     OrderAcknowledged,
     OrderCancelled,
+    OrderNotSent,
+    OrderRejected as MasterOrderRejected,
     PoseReceived,
     ReplyLost,
     RequestExpired,
+    StopConfirmed,
 )
 from rovlink.link.messages import (
     ImageSettings,
@@ -26,17 +31,23 @@ from rovlink.link.messages import (
     Stop,
     Velocity,
 )
-from rovlink.link.sim import SimLink
+from rovlink.link.sim import SimLink, accept_at_once
 from rovlink.link.slave import (
+    ArmRequested,
+    BrakeRequested,
     FailsafeCleared,
     FailsafeEntered,
     ImageWanted,
+    ModeRequested,
     OrderExecuted,
     OrderRejected,
     Slave,
     Status,
     VelocityCommanded,
+    WishInvalid,
 )
+
+READY = Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
 
 
 class Recorder:
@@ -54,7 +65,7 @@ class Recorder:
         return [e for _, e in getattr(self, side) if isinstance(e, kind)]
 
 
-def make(ber=0.0, seed=0, source=None, loss=0.0, **master_kw):
+def make(ber=0.0, seed=0, source=None, loss=0.0, autopilot=accept_at_once, **master_kw):
     images = {}
 
     def default_source(img, settings):
@@ -64,10 +75,38 @@ def make(ber=0.0, seed=0, source=None, loss=0.0, **master_kw):
 
     master = Master(rng=random.Random(seed), **master_kw)
     slave = Slave(image_source=source or default_source)
+    slave.update_status(READY)
     channel = Channel(LinkParams(ber=ber, loss=loss), seed=seed)
     rec = Recorder()
-    sim = SimLink(master, slave, channel, on_master_event=rec.m, on_slave_event=rec.s)
+    sim = SimLink(master, slave, channel, on_master_event=rec.m, on_slave_event=rec.s, autopilot=autopilot)
+    polls = []
+    next_poll = master.next_poll
+
+    def recording_next_poll(now):
+        frame = next_poll(now)
+        if frame is not None:
+            polls.append((now, Poll.decode(FrameDecoder().feed(frame)[0])))
+        return frame
+
+    master.next_poll = recording_next_poll
+    sim.polls = polls
     return sim, rec, images
+
+
+def vehicle(sim, rec):
+    """A fake autopilot behind the slave: brakes to POS_HOLD, arms and changes mode at once."""
+
+    def on_slave(e, now):
+        rec.s(e, now)
+        st = sim.slave.status
+        if isinstance(e, BrakeRequested):
+            sim.slave.update_status(dataclasses.replace(st, mode=Mode.POS_HOLD))
+        elif isinstance(e, ArmRequested):
+            sim.slave.update_status(dataclasses.replace(st, armed=e.arm))
+        elif isinstance(e, ModeRequested):
+            sim.slave.update_status(dataclasses.replace(st, mode=e.mode))
+
+    sim.on_slave_event = on_slave
 
 
 def test_images_arrive_byte_exact_at_ber_1e_3():
@@ -130,54 +169,67 @@ def test_orders_survive_a_restart_of_the_rov():
     # one-bit SEQ nothing can tell that window apart, see link.master), the
     # next order must run exactly once.
     sim.slave = Slave(image_source=sim.slave.image_source, now=sim.now)
+    sim.slave.update_status(READY)
     replies = sim.slave.stats.replies_sent
     while sim.slave.stats.replies_sent == replies or sim.master.awaiting_reply:
         sim.run_until(sim.now + 0.05)
-    sim.master.send_order(Stop())
+    sim.master.send_order(Position(5, 6, 7, 8))
     sim.run_until(sim.now + 20)
-    assert [type(e.order) for e in rec.of("slave", OrderExecuted)] == [Position, Stop]
+    # (1.1: STOP is no longer a sequenced order, so a second POSITION stands in for it.)
+    assert [e.order for e in rec.of("slave", OrderExecuted)] == [Position(1, 2, 3, 4), Position(5, 6, 7, 8)]
 
 
 def test_orders_survive_a_restart_of_the_console():
     sim, rec, _ = make(seed=4)
-    sim.at(1.0, lambda now: sim.master.send_order(Stop()))
+    sim.at(1.0, lambda now: sim.master.send_order(Position(1, 1, 1, 0)))
     sim.run_until(10)
-    # The console restarts: a fresh master learns the ACK from the first reply
-    # and must neither replay the STOP nor lose its own next order.
+    # The console restarts: a fresh master learns the ACK from the replies of
+    # its first 3 s and must neither replay the order nor lose its own next one.
+    # (1.1: STOP is not sequenced any more, so a POSITION stands in for it.)
     sim.master = Master(rng=random.Random(9))
     sim._master_ready_at = sim.now
     sim.master.send_order(Position(5, 5, 5, 0))
     sim.run_until(30)
-    assert [type(e.order) for e in rec.of("slave", OrderExecuted)] == [Stop, Position]
+    assert [e.order for e in rec.of("slave", OrderExecuted)] == [Position(1, 1, 1, 0), Position(5, 5, 5, 0)]
 
 
-def test_stop_jumps_the_queue_and_cancels_queued_targets():
+def test_stop_cancels_every_queued_order_which_is_shown_as_not_sent():
+    # 1.1 (§3): a STOP cancels the pending order and every queued one, IMAGE
+    # settings too (1.0 kept the IMAGE order); queued ones are shown as not sent.
     sim, rec, _ = make(seed=1)
-    sim.run_until(2)
+    vehicle(sim, rec)
+    sim.run_until(4)
     sim.master.send_order(Position(1, 0, 0, 0))
     sim.master.send_order(Position(2, 0, 0, 0))
     sim.master.send_order(ImageSettings(budget_bytes=500))
-    sim.master.send_order(Stop())
+    stop_id = sim.master.send_order(Stop())
     sim.run_until(30)
-    executed = [e.order for e in rec.of("slave", OrderExecuted)]
-    assert executed == [Stop(), ImageSettings(budget_bytes=500)]
-    cancelled = [e.order for e in rec.of("master", OrderCancelled)]
-    assert cancelled == [Position(1, 0, 0, 0), Position(2, 0, 0, 0)]
+    assert rec.of("slave", OrderExecuted) == []
+    assert [e.order for e in rec.of("master", OrderNotSent)] == [
+        Position(1, 0, 0, 0), Position(2, 0, 0, 0), ImageSettings(budget_bytes=500)
+    ]
+    assert [e.order_id for e in rec.of("master", StopConfirmed)] == [stop_id]
+    assert not sim.master.stopping
 
 
-def test_stop_waits_for_the_order_in_flight():
-    sim, rec, _ = make(seed=1)
-    sim.run_until(2)
-    sim.master.send_order(Position(1, 0, 0, 0))
-    while not sim.master._orders[0].sent:  # until the POSITION is on the air
+def test_stop_abandons_the_order_in_progress_which_is_rejected_reason_1():
+    # 1.1: STOP does not wait for the order in flight (1.0 did): the ROV abandons
+    # it, its ACK flips with REJECTED, REASON 1, and the operator shows that.
+    sim, rec, _ = make(seed=1, autopilot=lambda e, now: None)  # the autopilot never answers
+    vehicle(sim, rec)
+    sim.run_until(4)
+    order_id = sim.master.send_order(Position(1, 0, 0, 0))
+    while sim.slave.order_in_progress is None:
         sim.run_until(sim.now + 0.05)
     sim.master.send_order(Position(2, 0, 0, 0))
     sim.master.send_order(Stop())
     sim.run_until(30)
-    executed = [e.order for e in rec.of("slave", OrderExecuted)]
-    # Its SEQ may already have run: it is finished, never replaced; then STOP.
-    assert executed == [Position(1, 0, 0, 0), Stop()]
-    assert [e.order for e in rec.of("master", OrderCancelled)] == [Position(2, 0, 0, 0)]
+    rejected = rec.of("master", MasterOrderRejected)
+    assert [(e.order_id, e.reason) for e in rejected] == [(order_id, 1)]
+    assert [e.order for e in rec.of("master", OrderNotSent)] == [Position(2, 0, 0, 0)]
+    assert rec.of("master", StopConfirmed)
+    assert [e.why for e in rec.of("slave", BrakeRequested)][:1] == ["start"]
+    assert "STOP" in [e.why for e in rec.of("slave", BrakeRequested)]
 
 
 def test_velocity_is_soft_state_in_every_poll():
@@ -192,19 +244,14 @@ def test_velocity_is_soft_state_in_every_poll():
 
 def test_arm_request_rides_until_the_reply_shows_it_then_stops():
     sim, rec, _ = make()
-    sim.slave.update_status(Status(autopilot=True, armed=False))
+    vehicle(sim, rec)
+    sim.slave.update_status(dataclasses.replace(READY, armed=False))
     sim.at(1.0, lambda now: sim.master.request_arm(True, now))
-
-    def vehicle_arms(e, now):
-        rec.s(e, now)
-        if isinstance(e, VelocityCommanded) and e.velocity.arm == 1:
-            sim.slave.update_status(Status(autopilot=True, armed=True))
-
-    sim.on_slave_event = vehicle_arms
     sim.run_until(10)
-    arms = [e.velocity.arm for e in rec.of("slave", VelocityCommanded)]
+    arms = [p.order.arm for _, p in sim.polls if isinstance(p.order, Velocity)]
     assert 1 in arms
     assert arms[-1] == 0  # no longer requested once the reply showed ARMED
+    assert [e.arm for e in rec.of("slave", ArmRequested)] == [True]  # acted on once: the change
     assert not rec.of("master", RequestExpired)
 
 
@@ -213,8 +260,9 @@ def test_unanswered_mode_request_expires():
     sim.at(1.0, lambda now: sim.master.request_mode(Mode.GUIDED, now))
     sim.run_until(10)
     assert rec.of("master", RequestExpired)
-    modes = [e.velocity.mode for e in rec.of("slave", VelocityCommanded)]
+    modes = [p.order.mode for _, p in sim.polls if isinstance(p.order, Velocity)]
     assert Mode.GUIDED in modes and modes[-1] == Mode.KEEP
+    assert [e.mode for e in rec.of("slave", ModeRequested)] == [Mode.GUIDED]  # once, not every poll
 
 
 def test_failsafe_trips_when_polls_stop_and_is_reported_when_they_return():
@@ -227,7 +275,8 @@ def test_failsafe_trips_when_polls_stop_and_is_reported_when_they_return():
     entered = [(t, e) for t, e in rec.slave if isinstance(e, FailsafeEntered)]
     assert len(entered) == 1
     assert sim.slave.failsafe and sim.slave.velocity.is_neutral
-    assert sim.slave.held_img is None  # a stale image is not served after the loss
+    # 1.1 (§4): the ROV keeps its image through a failsafe (1.0 dropped it).
+    assert sim.slave.held_img is not None
     sim.master_down = False
     sim._master_ready_at = sim.now
     sim.run_until(15)
@@ -235,17 +284,29 @@ def test_failsafe_trips_when_polls_stop_and_is_reported_when_they_return():
     replies = [e.reply for e in rec.of("master", PoseReceived)]
     assert any(r.failsafe for r in replies)  # the operator learns of it
     assert not replies[-1].failsafe
+    # 1.1 (§5): the old wish (still full ahead) does not resume: HOLD until re-centred.
+    assert replies[-1].hold and sim.slave.velocity.is_neutral
+    sim.master.set_velocity(0, 0, 0, 0, sim.now)
+    sim.run_until(16)
+    assert not rec.of("master", PoseReceived)[-1].reply.hold
+    sim.master.set_velocity(100, 0, 0, 0, sim.now)
+    sim.run_until(17)
+    assert sim.slave.velocity.vx == 100
 
 
-def test_reserved_and_invalid_orders_are_answered_and_ignored():
+def test_reserved_and_invalid_orders_are_answered_and_rejected_reason_0():
+    # 1.1 (§3): a reserved order code consumes its SEQ: ACK flips with REJECTED, REASON 0
+    # (1.0 answered and ignored it without a flip).
     slave = Slave(image_source=lambda img, s: b"x" * 10)
-    out = slave.receive(Poll(order=ReservedOrder(9, b"\x01\x02")).encode(), 0.0)
-    assert out.reply and isinstance(out.events[-1], OrderRejected)
-    bad_velocity = bytes([0x01, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0])  # VX -128
+    out = slave.receive(Poll(seq=1, order=ReservedOrder(9, b"\x01\x02")).encode(), 0.0)
+    reply = Reply.decode(FrameDecoder().feed(out.reply)[0])
+    assert (reply.ack, reply.rejected, reply.reason) == (1, True, 0)
+    assert isinstance(out.events[-1], OrderRejected) and out.events[-1].reason == 0
+    bad_velocity = bytes([0x01, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0])  # VX -128: an invalid wish
     out = slave.receive(bad_velocity, 0.1)
     assert out.reply is not None
-    assert any(isinstance(e, OrderRejected) for e in out.events)
-    assert slave.velocity.is_neutral and slave.ack == 0
+    assert any(isinstance(e, WishInvalid) for e in out.events)
+    assert slave.velocity.is_neutral and slave.ack == 1
 
 
 def test_corrupted_polls_are_never_answered():

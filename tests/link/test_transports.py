@@ -3,6 +3,7 @@
 import asyncio
 import os
 import random
+import socket
 import tempfile
 import tty
 
@@ -11,10 +12,12 @@ import pytest
 from rovlink.link.aio import run_channel, run_master, run_slave
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import ImageComplete, Master, PoseReceived
-from rovlink.link.messages import Stop
-from rovlink.link.slave import OrderExecuted, Slave
+from rovlink.link.master import ImageComplete, Master, PoseReceived, StopConfirmed
+from rovlink.link.messages import ImageSettings, Mode, Poll, Stop
+from rovlink.link.slave import BrakeRequested, OrderExecuted, Slave, Status
 from rovlink.link.transport import TransportError, free_udp_port, inproc_pair, open_transport
+
+HOLDING = Status(armed=True, mode=Mode.POS_HOLD, autopilot=True, position_valid=True, attitude_valid=True)
 
 
 def run(coro, timeout=60):
@@ -22,9 +25,10 @@ def run(coro, timeout=60):
 
 
 async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None, channel_eps=None):
-    master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2)
+    master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2, start_wait_s=0.2)
     slave = Slave(image_source=lambda img, s: stream)
-    got = {"poses": 0, "images": [], "executed": []}
+    slave.update_status(HOLDING)
+    got = {"poses": 0, "images": [], "executed": [], "stops": [], "confirmed": []}
 
     def on_master(events, now):
         for e in events:
@@ -32,9 +36,12 @@ async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None, 
                 got["poses"] += 1
             elif isinstance(e, ImageComplete):
                 got["images"].append(e.data)
+            elif isinstance(e, StopConfirmed):
+                got["confirmed"].append(e)
 
     def on_slave(events, now):
         got["executed"] += [e.order for e in events if isinstance(e, OrderExecuted)]
+        got["stops"] += [e for e in events if isinstance(e, BrakeRequested) and e.why == "STOP"]
 
     if order is not None:
         master.send_order(order)
@@ -51,11 +58,11 @@ def test_udp_loopback_master_and_slave():
     async def main():
         pm, ps = free_udp_port(), free_udp_port()
         m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
-        s = open_transport(f"udp://127.0.0.1:{ps}")  # replies to whoever polled
+        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
         await m.start()
         await s.start()
         try:
-            return await drive(m, s, 1.5, order=Stop())
+            return await drive(m, s, 1.5, order=ImageSettings(budget_bytes=300))
         finally:
             await m.close()
             await s.close()
@@ -63,7 +70,55 @@ def test_udp_loopback_master_and_slave():
     got, master, slave = run(main())
     assert got["poses"] > 10
     assert got["images"] and got["images"][0] == b"s" * 300
-    assert got["executed"] == [Stop()]
+    assert got["executed"] == [ImageSettings(budget_bytes=300)]
+
+
+def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a_stop_ack():
+    """Issue 11: a second sender's polls flipped ACK so that STOP showed acknowledged and never ran."""
+
+    async def main():
+        pm, ps = free_udp_port(), free_udp_port()
+        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
+        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
+        await m.start()
+        await s.start()
+        intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        intruder.bind(("127.0.0.1", 0))
+        stop_flag = asyncio.Event()
+
+        async def inject():
+            seq = 0
+            while not stop_flag.is_set():
+                # One-shot orders with alternating SEQ: each would flip ACK if taken.
+                seq ^= 1
+                poll = Poll(seq=seq, order=ImageSettings(budget_bytes=100 + seq), offset=8191)
+                intruder.sendto(encode_frame(poll.encode()), ("127.0.0.1", ps))
+                await asyncio.sleep(0.005)
+
+        injector = asyncio.create_task(inject())
+        try:
+            got = await drive(m, s, 1.5, order=Stop())
+        finally:
+            stop_flag.set()
+            await injector
+            intruder.close()
+            dropped = s.stats.foreign_dropped
+            await m.close()
+            await s.close()
+        return got, dropped
+
+    (got, master, slave), dropped = run(main())
+    assert dropped > 50  # counted and dropped
+    assert slave.ack == 0 and slave.stats.orders_executed == 0  # nothing of the intruder's was taken
+    assert got["executed"] == []
+    assert got["stops"]  # the real peer's STOP ran ...
+    assert len(got["confirmed"]) == 1  # ... and was confirmed by a reply to a STOP poll
+    assert got["poses"] > 10
+
+
+def test_udp_needs_a_peer():
+    with pytest.raises(TransportError, match="peer"):
+        open_transport("udp://127.0.0.1:7000")
 
 
 def test_udp_through_the_channel_process_model():
@@ -97,10 +152,10 @@ def test_inproc_pair():
         a, b = inproc_pair()
         await a.start()
         await b.start()
-        return await drive(a, b, 0.5, order=Stop())
+        return await drive(a, b, 0.8, order=Stop())
 
     got, _, _ = run(main())
-    assert got["poses"] > 5 and got["executed"] == [Stop()]
+    assert got["poses"] > 5 and got["stops"] and len(got["confirmed"]) == 1
 
 
 class Pty:
@@ -193,7 +248,7 @@ def test_serial_port_absent_at_start_is_reported():
     ("tcp://1.2.3.4:5", "unknown transport"),
     ("udp://127.0.0.1", "HOST:PORT"),
     ("udp://127.0.0.1:7000?peer=nowhere", "HOST:PORT"),
-    ("udp://127.0.0.1:7000?color=red", "unknown option"),
+    ("udp://127.0.0.1:7000?peer=127.0.0.1:7001&color=red", "unknown option"),
     ("serial://", "device path"),
     ("serial:///dev/ttyS0?baud=fast", "baud"),
     ("serial:///dev/ttyS0?mtu=5", "mtu"),

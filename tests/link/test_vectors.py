@@ -3,7 +3,7 @@
 import pytest
 
 from rovlink.link.frame import FrameDecoder, crc16, encode_frame
-from rovlink.link.messages import Arm, ImageSettings, Mode, Poll, Position, Reply, Velocity
+from rovlink.link.messages import Arm, ImageSettings, Mode, Poll, Position, Reason, Reply, Velocity
 
 VECTORS = [
     (
@@ -25,6 +25,19 @@ VECTORS = [
         "55 15 b3 04 e2 fe d4 01 c2 00 96 ff 24 23 28 a0 20 00 00 05 61 62 63 fb ab",
     ),
     (Reply(mode=Mode.MANUAL), "55 0e 01 00 00 00 00 00 00 00 00 00 00 00 00 00 c4 8c"),
+    # (1.1) rows
+    (
+        Reply(ack=1, mode=Mode.MANUAL, autopilot=True, rejected=True, reason=0),
+        "55 0e 21 00 00 00 00 00 00 00 00 00 00 00 00 88 49 c3",
+    ),
+    (
+        Reply(ack=1, mode=Mode.MANUAL, autopilot=True, attitude_valid=True, rejected=True, reason=2),
+        "55 0e 21 00 00 00 00 00 00 00 00 00 00 00 00 9c 1b 76",
+    ),
+    (
+        Reply(armed=True, hold=True, mode=Mode.POS_HOLD, autopilot=True, position_valid=True, attitude_valid=True),
+        "55 0e 1c 00 00 00 00 00 00 00 00 00 00 00 00 b0 c8 0f",
+    ),
 ]
 
 
@@ -48,3 +61,11 @@ def test_reply_vector_flags():
     reply = Reply.decode(FrameDecoder().feed(bytes.fromhex(VECTORS[3][1]))[0])
     assert reply.first and not reply.last
     assert reply.trunk == b"\x00\x05abc"
+
+
+def test_1_1_reply_vectors_status_bits():
+    invalid, refused, held = (Reply.decode(FrameDecoder().feed(bytes.fromhex(w))[0]) for _, w in VECTORS[5:8])
+    assert invalid.rejection == Reason.INVALID and invalid.ack == 1 and not invalid.attitude_valid
+    assert refused.rejection == Reason.REFUSED and refused.attitude_valid
+    assert held.hold and held.mode == Mode.POS_HOLD and held.armed and held.rejection is None
+    assert held.position_valid and held.attitude_valid and not held.sync
