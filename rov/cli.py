@@ -177,6 +177,8 @@ def _add_sim(subparsers) -> None:
                    help="starting depth in metres (default: 2 m above the simulated seabed)")
     p.add_argument("--no-position", action="store_true",
                    help="no position estimate (no DVL/GPS): GUIDED and POSHOLD are refused, no LOCAL_POSITION_NED")
+    p.add_argument("--position-after", type=float, default=0.0, metavar="S",
+                   help="the position estimate comes S seconds after start (ArduSub SITL: ~41 s; default 0)")
     p.add_argument("--pilot-timeout", type=float, default=3.0, metavar="S",
                    help="disarm after this long without MANUAL_CONTROL while armed (ArduSub: 3 s)")
     p.add_argument("--status-every", type=float, default=2.0, metavar="S",
@@ -206,6 +208,8 @@ def run_sim(args) -> int:
         print(f"sim: warning: listening on {url.host}, reachable from other machines", file=sys.stderr)
     if not 1 <= args.system_id <= 255:
         raise CommandError("--system-id must be 1..255")
+    if args.position_after < 0 or not math.isfinite(args.position_after):
+        raise CommandError("--position-after must be 0 or more seconds")
     if args.pilot_timeout <= 0 or not math.isfinite(args.pilot_timeout):
         raise CommandError("--pilot-timeout must be a positive number of seconds")
     state = START_STATE
@@ -219,6 +223,7 @@ def run_sim(args) -> int:
         system_id=args.system_id,
         initial_state=state,
         has_position=not args.no_position,
+        position_after_s=args.position_after,
         pilot_timeout_s=args.pilot_timeout,
     )
     try:

@@ -1,6 +1,7 @@
 """Issue 11's findings on the ROV's autopilot side, each against the simulated
 ArduSub (or a real loopback TCP server) over real sockets.  Every test here failed
-before its fix."""
+before its fix, except the last two (the simulator's POSHOLD/ALT_HOLD already
+behaved, and its tcpin server recovered within a beat)."""
 
 from __future__ import annotations
 
@@ -267,3 +268,16 @@ def test_the_simulator_poshold_brakes_and_alt_hold_coasts():
                 time.sleep(1.0)
                 assert sim.truth().state.z_m == pytest.approx(depth, abs=0.05)  # both hold depth
     assert drift[SubMode.POSHOLD] < 0.3 < drift[SubMode.ALT_HOLD]
+
+
+def test_the_simulator_takes_the_next_tcp_client_at_once_when_one_closes():
+    port = free_udp_port()  # the same number is very likely free for TCP too
+    with SimulatedVehicle(f"tcpin:127.0.0.1:{port}") as sim:
+        with AutopilotBridge(sim.bridge_url) as first:
+            assert wait_for(lambda: first.snapshot().autopilot_alive, 6.0)
+        closed = time.monotonic()
+        with AutopilotBridge(sim.bridge_url) as second:
+            # (Not one of the issue's findings: pymavlink's tcpin reads EOF from the
+            # closed client until its next send fails; rov.mavurl drops it at once.)
+            assert wait_for(lambda: second.snapshot().autopilot_alive, 6.0)
+            assert time.monotonic() - closed < 3.0
