@@ -128,7 +128,8 @@ class SecureSlave(_Wrapper):
 
         status = self.slave.status
         reply = Reply(**{k: getattr(status, k) for k in status.__dataclass_fields__}, ack=self.slave.ack,
-                      failsafe=self.slave.failsafe)
+                      failsafe=self.slave.failsafe, hold=self.slave.hold, rejected=self.slave.rejected,
+                      reason=self.slave.reason)
         payload = bytearray(reply.encode())
         payload[13] |= SYNC_BIT
         return bytes(payload)

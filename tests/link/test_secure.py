@@ -8,10 +8,10 @@ import random
 
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import Master, OrderAcknowledged, PoseReceived
-from rovlink.link.messages import Position
+from rovlink.link.messages import Mode, Position
 from rovlink.link.secure import InauthenticFrame, SecureMaster, SecureSlave, Synced
 from rovlink.link.sim import SimLink
-from rovlink.link.slave import OrderExecuted, Slave, VelocityCommanded
+from rovlink.link.slave import OrderExecuted, Slave, Status, VelocityCommanded
 
 K = bytes(range(32))
 
@@ -23,6 +23,9 @@ def _source(img, settings):
 def _session(duration_s=60.0, seed=1, ber=0.0, order_at=None):
     master = SecureMaster(Master(rng=random.Random(seed)), K)
     slave = SecureSlave(Slave(image_source=_source), K)
+    # An armed vehicle with a position estimate: a POSITION can be carried out.
+    slave.update_status(Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True,
+                               attitude_valid=True))
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=ber), seed=seed)
     master_events, slave_events, polls = [], [], []
     link = SimLink(master, slave, channel, on_master_event=lambda e, t: master_events.append(e),
@@ -42,7 +45,7 @@ def _session(duration_s=60.0, seed=1, ber=0.0, order_at=None):
 
 
 def test_an_authenticated_session_carries_images_and_orders():
-    master, slave, _, mev, sev, _ = _session(90.0, order_at=5.0)
+    master, slave, _, mev, sev, _ = _session(90.0, order_at=8.0)  # after the 3 s start rule
     assert master.stats2.syncs == 1 and master.stats2.hellos_sent >= 1
     assert master.master.stats.images_completed >= 5
     assert sum(isinstance(e, OrderExecuted) for e in sev) == 1
@@ -51,7 +54,7 @@ def test_an_authenticated_session_carries_images_and_orders():
 
 
 def test_a_recorded_session_replayed_to_the_rov_moves_nothing():
-    _, _, _, _, _, polls = _session(60.0, order_at=5.0)
+    _, _, _, _, _, polls = _session(60.0, order_at=8.0)
     # The same ROV after the session, and a new ROV process with the same key.
     _, slave, _, _, _, _ = _session(1.0)
     for victim in (slave, SecureSlave(Slave(image_source=_source), K)):
