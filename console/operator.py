@@ -71,6 +71,14 @@ OrderRejected = getattr(_master, "OrderRejected", _Never)
 OrderNotSent = getattr(_master, "OrderNotSent", _Never)
 StopConfirmed = getattr(_master, "StopConfirmed", _Never)
 StopNotCarriedOut = getattr(_master, "StopNotCarriedOut", _Never)
+try:  # protocol 2's authenticated link, where it exists
+    from rovlink.link import secure as _secure
+except ImportError:
+    _secure = None
+InauthenticFrame = getattr(_secure, "InauthenticFrame", _Never)
+LateReply = getattr(_secure, "LateReply", _Never)
+Synced = getattr(_secure, "Synced", _Never)
+AUTH_ALERT_COUNT, AUTH_ALERT_WINDOW_S = 3, 10.0  # more forged replies than this in the window: alert
 
 log = logging.getLogger("rovlink.console.operator")
 
@@ -222,6 +230,9 @@ class Operator:
         self._one_shot: dict[int, object] = {}  # our id -> the order object, while not yet sent
         self._requests: dict[str, int] = {}  # "arm"/"mode" -> our id of the request awaiting its effect
         self._crc_seen = 0
+        self.inauthentic_frames = 0
+        self.late_replies = 0
+        self._auth_alerted_at: float | None = None
         self.lost_after_s = LOST_AFTER_S
         self.rov_failsafe_s = ROV_FAILSAFE_S
         self._pending_decode: tuple[int, bytes] | None = None
@@ -378,8 +389,29 @@ class Operator:
             elif isinstance(event, ReplyLost):
                 self.history.link_events.append((t, "lost", 0))
                 self._publish("link", {"t": t, "lost": True})
+            elif isinstance(event, InauthenticFrame):
+                self._inauthentic(t)
+            elif isinstance(event, LateReply):
+                self.late_replies += 1
+            elif isinstance(event, Synced):
+                self.note("ROV restarted (new BOOT): link synchronised again" if event.restarted and not event.first
+                          else "link synchronised")
             elif isinstance(event, RequestExpired):
                 self._refuse_request(event.what, t, "not confirmed by the ROV within its time")
+
+    def _inauthentic(self, t: float) -> None:
+        """A forged or replayed frame: counted; more than a few in a while is an alert."""
+        self.inauthentic_frames += 1
+        self.history.link_events.append((t, "forged", 0))
+        if self._auth_recent(t) > AUTH_ALERT_COUNT and (
+                self._auth_alerted_at is None or t - self._auth_alerted_at > AUTH_ALERT_WINDOW_S):
+            self._auth_alerted_at = t
+            self.note(f"ALERT: {self._auth_recent(t)} inauthentic frames in {AUTH_ALERT_WINDOW_S:g} s "
+                      f"(forged or replayed replies on the link)")
+
+    def _auth_recent(self, t: float) -> int:
+        return sum(1 for e in list(self.history.link_events)[-300:]
+                   if e[1] == "forged" and t - e[0] <= AUTH_ALERT_WINDOW_S)
 
     def _pose(self, reply: Reply, t: float, round_trip_s: float | None) -> None:
         # The ROV sampled its odometry when the poll arrived: the reply's own
@@ -802,6 +834,9 @@ class Operator:
             "estimated_ber": self.master.estimated_ber(),
             "images_completed": m.images_completed,
             "images_abandoned": m.images_abandoned,
+            "inauthentic_frames": self.inauthentic_frames,
+            "late_replies": self.late_replies,
+            "auth_alert": self._auth_recent(t) > AUTH_ALERT_COUNT,
             # Up means replies arrive, not that polls leave (a dead channel still takes polls).
             "link_up": state in ("up", "degraded"),
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,

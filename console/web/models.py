@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from rovlink.console.control import MODES
 from rovlink.link.messages import MAX_BUDGET
@@ -27,6 +27,9 @@ ModeName = Literal[tuple(MODES)]  # type: ignore[valid-type]
 
 class Request(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+MAX_POSITION_M = 327.67  # the protocol's int16 centimetres
 
 
 def fraction(description: str):
@@ -50,12 +53,23 @@ class VelocityOrder(Request):
 class PositionOrder(Request):
     """A position target (local NED, metres and degrees); GUIDED on the ROV."""
 
-    x_m: float = Field(description="north (or forward with body=true), metres")
-    y_m: float = Field(description="east (or right with body=true), metres")
-    z_m: float = Field(description="down, metres")
-    yaw_deg: float = Field(0.0, description="heading, degrees, clockwise from north")
+    x_m: float = Field(ge=-MAX_POSITION_M, le=MAX_POSITION_M,
+                       description=f"north (or forward with body=true), metres, within ±{MAX_POSITION_M}")
+    y_m: float = Field(ge=-MAX_POSITION_M, le=MAX_POSITION_M,
+                       description=f"east (or right with body=true), metres, within ±{MAX_POSITION_M}")
+    z_m: float = Field(ge=-MAX_POSITION_M, le=MAX_POSITION_M,
+                       description=f"down, metres: 0..{MAX_POSITION_M} (below the surface), or a change of "
+                                   f"depth with relative=true")
+    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0, description="heading, degrees, clockwise from north, -360..360")
     relative: bool = Field(False, description="relative to the current position")
     body: bool = Field(False, description="x/y in the vehicle's frame; needs relative=true")
+
+    @model_validator(mode="after")
+    def _below_the_surface(self):
+        if not self.relative and self.z_m < 0:
+            raise ValueError(f"z_m must be 0 or more (depth below the surface) for an absolute target, "
+                             f"got {self.z_m}")
+        return self
 
 
 class ArmOrder(Request):
@@ -163,6 +177,9 @@ class LinkState(BaseModel):
     estimated_ber: float | None
     images_completed: int
     images_abandoned: int
+    inauthentic_frames: int = Field(0, description="forged or replayed frames dropped (protocol 2)")
+    late_replies: int = Field(0, description="authentic replies that came too late (protocol 2)")
+    auth_alert: bool = Field(False, description="more than 3 inauthentic frames in the last 10 s")
     link_up: bool = Field(description="replies arrive (state up or degraded)")
     transport_up: bool
 

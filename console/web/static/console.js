@@ -337,6 +337,9 @@ function render(s) {
   $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
   $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
   $("link-crc").textContent = `${l.crc_errors}`;
+  $("link-auth").textContent = `${l.inauthentic_frames ?? 0} / ${l.late_replies ?? 0}`;
+  if (l.auth_alert && !page.authAlert) showError("ALERT: forged or replayed replies on the link");
+  page.authAlert = !!l.auth_alert;
   $("link-bps").textContent = `${fmt(l.bytes_per_s, 0)} B/s`;
   $("link-odo-age").textContent = l.odometry_age_s === null ? "—" : `${fmt(l.odometry_age_s, 2)} s`;
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
