@@ -598,6 +598,31 @@ class Operator:
         if changed:
             self._publish("wish", self.wish_state())
 
+    def replayed_wish(self, values: tuple[float, ...]) -> None:
+        """A recorded wish change, shown as it was (a replay sends nothing)."""
+        with self._lock:
+            self._wish = tuple(float(v) for v in values)
+            self.history.commanded.append((self.now(), *self._wish))
+        self._publish("wish", self.wish_state())
+
+    def replayed_order(self, record: dict) -> None:
+        """A recorded order or change of its state, listed as it was."""
+        order_id = record.get("id")
+        if order_id is None:  # recordings older than order ids
+            self.note("(replay) " + ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("k", "t")))
+            return
+        t = self.now()
+        with self._lock:
+            if record["k"] == "order":
+                detail = {k: v for k, v in record.items() if k not in ("k", "t", "id", "kind")}
+                self._orders[order_id] = {"id": order_id, "kind": record.get("kind", "?"), "state": "queued",
+                                          "t_queued": t, **detail}
+            elif order_id in self._orders:
+                self._orders[order_id]["state"] = record.get("state", "?")
+            info = dict(self._orders[order_id]) if order_id in self._orders else None
+        if info is not None:
+            self._publish("order", info)
+
     def velocity_wish(self) -> tuple[float, float, float, float]:
         return self._wish
 

@@ -125,10 +125,10 @@ async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None
             operator._frame_sent(bytes.fromhex(record["hex"]), operator.now())
         elif kind == "wish":
             counts["wish"] += 1
-            operator.history.commanded.append((operator.now(), *(v / 127 for v in record["v"])))
+            operator.replayed_wish(tuple(v / 127 for v in record["v"]))
         elif kind in ("order", "order_state"):
             counts["orders"] += 1
-            operator.note(f"(replay) {kind}: " + ", ".join(f"{k}={v}" for k, v in record.items() if k not in ("k", "t")))
+            operator.replayed_order(record)
     operator.note(f"replay finished: {counts['rx']} frames received, {counts['tx']} sent")
     if on_done:
         on_done(counts)

@@ -224,3 +224,33 @@ def test_rest_orders_go_through_the_table(operator):
         sent = http.post("/api/orders/position", json={"x_m": 1, "y_m": 1, "z_m": 2}, headers=other).json()
         assert sent["mode"] == "GUIDED"
         assert [o for o in operator.orders_state() if o["id"] == sent["id"]][0]["mode"] == "GUIDED"
+
+
+def test_the_recording_holds_stop_as_a_neutral_wish_and_each_orders_outcome(operator, clock):
+    from rovlink.console.recording import series
+
+    operator.set_velocity(0.3, 0.0, 0.0, 0.0)
+    clock.t += 1.0
+    stop = operator.stop()
+    operator._order_state(max(operator._by_master_id), "acknowledged", operator.now())
+    operator.close()
+    s = series(operator.recorder.path)
+    # Fig. 5: the commanded surge drops to 0 at STOP (it used to stay at 0.3).
+    assert [(round(t, 3), v[0]) for t, v in s.commanded] == [(0.0, 0.0), (0.0, pytest.approx(0.3, abs=0.01)),
+                                                            (1.0, 0.0)]
+    records = [json.loads(line) for line in open(operator.recorder.path)]
+    assert {"k": "order_state", "id": stop, "kind": "STOP", "state": "acknowledged"}.items() <= \
+        [r for r in records if r["k"] == "order_state"][-1].items()
+
+
+def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator, clock):
+    from rovlink.link.secure import InauthenticFrame, LateReply
+
+    for _ in range(4):
+        operator._on_events([InauthenticFrame("reply"), LateReply(False)], operator.now())
+        clock.t += 1.0
+    link = operator.link_state()
+    assert link["inauthentic_frames"] == 4 and link["late_replies"] == 4 and link["auth_alert"]
+    assert any("ALERT" in text for _, text in operator.history.log)
+    clock.t += 20.0
+    assert not operator.link_state()["auth_alert"]
