@@ -11,11 +11,23 @@ slave's events are turned into bridge calls here.  Images are captured and
 encoded in one worker thread; the result is handed to the slave from the
 loop, and until then the slave answers without image data (PROTOCOL.md §4).
 
+The slave decides what the protocol means (PROTOCOL.md 1.1: ARM/MODE acted
+on when they change, HOLD, the velocity lapse, the failsafe); the node turns
+its events into bridge calls and reports the autopilot's answers back:
+`OrderStarted` -> `bridge.goto(...)`, whose ticket is watched (10 Hz) and
+reported with `slave.order_outcome(token, accepted, reason)`, also after the
+slave abandoned the order (a late accept then brakes).
+
 Decisions:
-- ARM and MODE ride in the operator's soft state until the reply shows them,
-  so the same request arrives many times: a request is passed to the bridge
-  only when it differs from what the autopilot reports and no identical
-  request is still pending.
+- A POSITION ticket "cancelled" by the bridge (another mode was requested,
+  a brake, the bridge stopping) is reported as not accepted, REASON 1
+  (impossible now); "failed" carries the bridge's own REASON (1 or 2).
+- STOP acts on every poll that carries it (§2): a brake is asked of the bridge
+  unless one is still pending.  A disarm acts whenever it arrives: one is
+  asked unless one is pending or the vehicle already shows disarmed.
+- A wish that replaces a standing POSITION target while the autopilot is in
+  GUIDED asks for the hold mode (POS_HOLD with a position estimate, else
+  DEPTH_HOLD), in which the sticks drive; a brake already is such a mode.
 - When the last trunk of an image goes out, the next image is captured and
   encoded at once, with the current settings, so it is ready when asked for
   (saving one empty reply per image).  Settings changed since, or an image
@@ -39,16 +51,22 @@ from typing import Callable
 import numpy as np
 
 from rovlink.link.aio import run_slave
-from rovlink.link.messages import Arm, ImageSettings, Mode, Position, Stop
+from rovlink.link.messages import ImageSettings, Mode, Position
 from rovlink.link.slave import (
+    ArmRequested,
+    BrakeRequested,
     FailsafeCleared,
     FailsafeEntered,
     ImageDelivered,
     ImageWanted,
+    ModeRequested,
+    OrderAbandoned,
     OrderExecuted,
     OrderRejected,
+    OrderStarted,
     Slave,
     VelocityCommanded,
+    WishInvalid,
     status_from_pose,
 )
 from rovlink.link.transport import Endpoint
@@ -65,6 +83,7 @@ class NodeStats:
     encode_failures: int = 0
     orders_rejected: int = 0
     goto_failed: int = 0
+    brakes: int = 0
     failsafes: int = 0
     last_encode_s: float | None = None
     worst_encode_s: float = 0.0
@@ -85,6 +104,11 @@ def clip_roi(roi, width: int, height: int):
 
 def _warm_up(encode) -> None:
     try:
+        from rovlink import debt
+
+        if encode is debt.encode:
+            debt.warm_up()  # every kernel, grey and colour, with and without ROI
+            return
         for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
             encode(image, 200, roi=(0, 0, 8, 8), shift=4, mono=image.ndim == 2)
     except Exception:  # a warm-up only; the real encode reports real errors
@@ -129,10 +153,10 @@ class RovNode:
         self._worker.submit(_warm_up, self._encode)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._prefetched_image: tuple[int, ImageSettings, float, bytes] | None = None
-        self._arm_ticket = None
-        self._arm_wanted: bool | None = None
-        self._mode_ticket = None
-        self._mode_wanted: int | None = None
+        self._arm_ticket = None  # (ticket, wanted)
+        self._brake_ticket = None
+        self._brake_stands = False  # no goto, mode request or moving wish since the last brake
+        self._order_tickets: dict[int, tuple[object, float]] = {}  # slave token -> (goto ticket, since)
         self._lock = threading.Lock()
 
     # ------------------------------------------------------------------
@@ -150,7 +174,27 @@ class RovNode:
     async def _status_loop(self) -> None:
         while True:
             self._refresh_status()
+            self._check_order_tickets(time.monotonic())
             await asyncio.sleep(0.1)
+
+    def _check_order_tickets(self, now: float) -> None:
+        """Report the autopilot's answers to POSITION orders back to the slave."""
+        for token, (ticket, since) in list(self._order_tickets.items()):
+            if not ticket.done:
+                if now - since > 30.0:  # a ticket that never resolves: stop watching it
+                    del self._order_tickets[token]
+                continue
+            del self._order_tickets[token]
+            accepted = ticket.status == "accepted"
+            reason = None
+            if ticket.status == "failed":
+                self.stats.goto_failed += 1
+                reason = ticket.reject_reason
+                self._note(f"POSITION order failed: {ticket.reason}")
+            elif ticket.status == "cancelled":
+                reason = 1
+                self._note(f"POSITION order cancelled: {ticket.reason}")
+            self._on_events(self.slave.order_outcome(token, accepted, reason, now), now)
 
     def _refresh_status(self) -> None:
         snap = self.bridge.snapshot()
@@ -166,6 +210,7 @@ class RovNode:
                 mode=snap.mode,
                 autopilot=snap.autopilot_alive,
                 position_valid=snap.position_valid,
+                attitude_valid=bool(getattr(snap, "attitude_valid", False)),
             )
         )
 
@@ -176,78 +221,93 @@ class RovNode:
     def _on_events(self, events: list, now: float) -> None:
         for event in events:
             if isinstance(event, VelocityCommanded):
-                self._velocity(event.velocity)
+                self._velocity(event)
+            elif isinstance(event, ArmRequested):
+                self._arm(event.arm)
+            elif isinstance(event, ModeRequested):
+                self._brake_stands = False
+                self.bridge.request_mode(int(event.mode))
+                self._note(f"mode {Mode(event.mode).name} requested")
+            elif isinstance(event, OrderStarted):
+                self._goto(event.token, event.order)
             elif isinstance(event, OrderExecuted):
                 self._order(event.order)
+            elif isinstance(event, BrakeRequested):
+                self._brake(event)
             elif isinstance(event, ImageWanted):
                 self._start_encode(event.img, event.settings, deliver=True)
             elif isinstance(event, ImageDelivered):
                 if self.prefetch:
                     self._start_encode((event.img + 1) % 8, self.slave.settings, deliver=False)
             elif isinstance(event, FailsafeEntered):
+                self._brake_stands = False  # the bridge brakes on its own: a STOP after brakes again
                 self.stats.failsafes += 1
-                self._note(f"FAILSAFE: no valid poll for {event.silent_s:.1f} s: neutral, depth hold")
+                self._note(f"FAILSAFE: no valid poll for {event.silent_s:.1f} s: neutral, brake")
                 self.bridge.failsafe(True)
             elif isinstance(event, FailsafeCleared):
-                self._note("failsafe cleared: polls are back")
+                self._note("failsafe cleared: polls are back (HOLD until the sticks are re-centred)")
                 self.bridge.failsafe(False)
             elif isinstance(event, OrderRejected):
                 self.stats.orders_rejected += 1
-                self._note(f"order rejected (answered, ignored): {event.reason}")
+                self._note(f"order rejected (REASON {event.reason}): {event.why}")
+            elif isinstance(event, OrderAbandoned):
+                self._note(f"order abandoned: {event.why}")
+            elif isinstance(event, WishInvalid):
+                self._note(f"invalid wish applied as neutral: {event.why}")
 
-    def _velocity(self, v) -> None:
+    def _velocity(self, event: VelocityCommanded) -> None:
+        v = event.velocity
         self.bridge.set_velocity(v.vx / 127.0, v.vy / 127.0, v.vz / 127.0, v.vyaw / 127.0)
-        snap = self.bridge.snapshot()
-        if v.arm != Arm.NONE:
-            want = v.arm == Arm.ARM
-            if snap.armed != want and not self._in_progress(self._arm_ticket, self._arm_wanted == want):
-                self._arm_wanted = want
-                self._arm_ticket = (self.bridge.request_arm(want), time.monotonic())
-                self._note(f"{'arm' if want else 'disarm'} requested")
-        if v.mode != Mode.KEEP:
-            if snap.mode != v.mode and not self._in_progress(self._mode_ticket, self._mode_wanted == v.mode):
-                self._mode_wanted = int(v.mode)
-                self._mode_ticket = (self.bridge.request_mode(int(v.mode)), time.monotonic())
-                self._note(f"mode {Mode(v.mode).name} requested")
+        if not v.is_neutral:
+            self._brake_stands = False
+        if event.replaces_target:
+            snap = self.bridge.snapshot()
+            if snap.mode == Mode.GUIDED:
+                hold = Mode.POS_HOLD if snap.position_valid else Mode.DEPTH_HOLD
+                self.bridge.request_mode(int(hold))
+                self._note(f"the wish replaces the position target: {hold.name}")
 
-    @staticmethod
-    def _in_progress(issued, same_wish: bool, settle_s: float = 2.0) -> bool:
-        """An identical request is pending, or was accepted so recently that the
-        autopilot's HEARTBEAT may not show it yet."""
-        if issued is None or not same_wish:
-            return False
-        ticket, at = issued
-        if not ticket.done:
-            return True
-        return ticket.status == "accepted" and time.monotonic() - at < settle_s
+    def _arm(self, arm: bool) -> None:
+        pending = self._arm_ticket
+        if pending is not None and not pending[0].done and pending[1] == arm:
+            return  # the same request is on its way
+        if not arm and not self.bridge.snapshot().armed and (pending is None or pending[1] is False):
+            return  # a disarm acts whenever it arrives, but a disarmed vehicle needs none
+        self._arm_ticket = (self.bridge.request_arm(arm), arm)
+        self._note(f"{'arm' if arm else 'disarm'} requested")
+
+    def _brake(self, event: BrakeRequested) -> None:
+        pending = self._brake_ticket
+        if pending is not None and not pending.done:
+            return  # a STOP repeated until confirmed: one brake at a time
+        if pending is not None and pending.status == "accepted" and self._brake_stands:
+            if self.bridge.snapshot().mode in (Mode.POS_HOLD, Mode.DEPTH_HOLD):
+                return  # still braked since: nothing new to do for a repeated STOP
+        brake = getattr(self.bridge, "brake", None) or self.bridge.stop_motion
+        self._brake_ticket = brake()
+        self._brake_stands = True
+        self.stats.brakes += 1
+        self._note(f"brake ({event.why}): neutral, target cancelled, POS_HOLD or DEPTH_HOLD")
+
+    def _goto(self, token: int, order: Position) -> None:
+        self._brake_stands = False
+        yaw = math.radians(order.yaw_cdeg / 100.0)
+        ticket = self.bridge.goto(
+            order.x_cm / 100.0, order.y_cm / 100.0, order.z_cm / 100.0, yaw,
+            relative=order.relative, body=order.body,
+        )
+        self._note(
+            f"POSITION {'relative ' if order.relative else ''}{'body ' if order.body else ''}"
+            f"({order.x_cm / 100:.2f}, {order.y_cm / 100:.2f}, {order.z_cm / 100:.2f}) m"
+        )
+        self._order_tickets[token] = (ticket, time.monotonic())
+        if ticket.done:  # refused at once (impossible now): the reply to this poll says so
+            self._check_order_tickets(time.monotonic())
 
     def _order(self, order) -> None:
-        if isinstance(order, Stop):
-            self._note("STOP: neutral, target cancelled, depth hold")
-            self.bridge.stop_motion()
-        elif isinstance(order, Position):
-            yaw = math.radians(order.yaw_cdeg / 100.0)
-            ticket = self.bridge.goto(
-                order.x_cm / 100.0, order.y_cm / 100.0, order.z_cm / 100.0, yaw,
-                relative=order.relative, body=order.body,
-            )
-            self._note(
-                f"POSITION {'relative ' if order.relative else ''}{'body ' if order.body else ''}"
-                f"({order.x_cm / 100:.2f}, {order.y_cm / 100:.2f}, {order.z_cm / 100:.2f}) m"
-            )
-            self._watch_goto(ticket)
-        elif isinstance(order, ImageSettings):
+        if isinstance(order, ImageSettings):
             self._prefetched_image = None  # encoded with the old settings
             self._note(f"IMAGE settings: {order}")
-
-    def _watch_goto(self, ticket) -> None:
-        def watch() -> None:
-            ticket.wait(30.0)
-            if ticket.status == "failed":
-                self.stats.goto_failed += 1
-                self._note(f"POSITION order failed: {ticket.reason}")
-
-        threading.Thread(target=watch, daemon=True, name="goto-watch").start()
 
     def _note(self, text: str) -> None:
         log.info("%s", text)

@@ -21,7 +21,14 @@ import pytest
 from rovlink import debt
 from rovlink.link.aio import run_master
 from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import ImageComplete, Master, OrderAcknowledged, PoseReceived
+from rovlink.link.master import (
+    ImageComplete,
+    Master,
+    OrderAcknowledged,
+    OrderRejected,
+    PoseReceived,
+    StopConfirmed,
+)
 from rovlink.link.messages import (
     ImageSettings,
     Mode,
@@ -48,7 +55,7 @@ class CountingBridge:
 
     def __getattr__(self, name):
         attr = getattr(self._bridge, name)
-        if name in ("goto", "stop_motion", "request_arm", "request_mode", "failsafe"):
+        if name in ("goto", "brake", "stop_motion", "request_arm", "request_mode", "failsafe"):
             def record(*a, **kw):
                 self.calls.append((name, a))
                 return attr(*a, **kw)
@@ -69,6 +76,8 @@ class Rig:
         self.replies = []
         self.images = []
         self.acks = []
+        self.rejected = []
+        self.stops = []
 
     def on_master(self, events, now):
         for e in events:
@@ -78,11 +87,15 @@ class Rig:
                 self.images.append(e.data)
             elif isinstance(e, OrderAcknowledged):
                 self.acks.append(e.order)
+            elif isinstance(e, OrderRejected):
+                self.rejected.append(e)
+            elif isinstance(e, StopConfirmed):
+                self.stops.append(e)
 
     async def start(self):
         pm, pr = free_udp_port(), free_udp_port()
         self.master_ep = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{pr}")
-        self.rov_ep = open_transport(f"udp://127.0.0.1:{pr}")
+        self.rov_ep = open_transport(f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{pm}")
         await self.master_ep.start()
         await self.rov_ep.start()
         self.node = RovNode(self.rov_ep, self.bridge, self.grab, failsafe_s=self.failsafe_s)
@@ -148,11 +161,17 @@ def test_node_answers_polls_sends_roi_images_and_runs_orders_once():
             rig.master.send_order(Position(int(start.x_m * 100) + 200, int(start.y_m * 100), 200, 0))
             assert await rig.until(lambda: rig.replies[-1][1].mode == Mode.GUIDED, 15)
             assert await rig.until(lambda: abs(rig.sim.truth().state.x_m - (start.x_m + 2.0)) < 0.3, 30)
+            # 1.1: STOP is not sequenced; it is confirmed by a reply to a STOP poll showing
+            # HOLD and the brake, POS_HOLD with a position estimate (1.0: acknowledged, DEPTH_HOLD).
+            brakes = rig.bridge.count("brake")
+            assert brakes == 1  # the brake at start
             rig.master.send_order(Stop())
-            assert await rig.until(lambda: Stop() in rig.acks, 10)
-            assert await rig.until(lambda: rig.replies[-1][1].mode == Mode.DEPTH_HOLD, 10)
+            assert await rig.until(lambda: rig.stops, 10)
+            assert rig.stops[0].mode == Mode.POS_HOLD
+            assert rig.replies[-1][1].mode == Mode.POS_HOLD
+            assert Stop() not in rig.acks
             assert rig.bridge.count("goto") == 1
-            assert rig.bridge.count("stop_motion") == 1
+            assert rig.bridge.count("brake") - brakes == 1  # every STOP poll acts; the vehicle stayed braked
             # The arm request rode in many polls but reached the autopilot once.
             assert rig.bridge.count("request_arm") == 1
             assert rig.node.stats.images_encoded >= 2
@@ -167,6 +186,9 @@ def test_failsafe_stops_the_vehicle_and_is_reported_when_polls_return():
         rig = Rig(failsafe_s=1.0)
         await rig.start()
         try:
+            # 1.1: the first VELOCITY after start only sets the ARM/MODE reference, so the
+            # pilot's requests go out once the link is up (the console's do the same).
+            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].autopilot, 15)
             rig.master.request_arm(True, now())
             rig.master.request_mode(Mode.MANUAL, now())
             assert await rig.until(lambda: rig.replies and rig.replies[-1][1].armed, 15)
@@ -176,15 +198,22 @@ def test_failsafe_stops_the_vehicle_and_is_reported_when_polls_return():
             rig.master_task.cancel()
             await asyncio.gather(rig.master_task, return_exceptions=True)
             assert await rig.until(lambda: rig.node.slave.failsafe, 5)
-            assert await rig.until(lambda: rig.sim.truth().mode == SubMode.ALT_HOLD, 10)
-            truth = rig.sim.truth()
-            assert abs(truth.pilot.x) < 50 and truth.armed  # neutral, holding depth, still armed
-            # Polls return: the first reply says FAILSAFE, then it clears.
-            rig.master.set_velocity(0, 0, 0, 0, now())
+            # 1.1: the failsafe brakes: POS_HOLD with a position estimate (1.0: ALT_HOLD, which coasts).
+            assert await rig.until(lambda: rig.sim.truth().mode == SubMode.POSHOLD, 10)
+            assert await rig.until(lambda: abs(rig.sim.truth().pilot.x) < 50, 5)  # neutral
+            assert rig.sim.truth().armed  # holding position, still armed
+            # Polls return with the old wish still full ahead: the first reply says FAILSAFE,
+            # then it clears, and HOLD keeps the vehicle still until the sticks are re-centred.
             rig.master_task = asyncio.create_task(run_master(rig.master, rig.master_ep, rig.on_master))
             assert await rig.until(lambda: any(r.failsafe for _, r in rig.replies), 10)
             assert await rig.until(lambda: not rig.replies[-1][1].failsafe, 10)
             assert not rig.node.slave.failsafe
+            await asyncio.sleep(1.0)
+            assert rig.replies[-1][1].hold and abs(rig.sim.truth().pilot.x) < 50
+            rig.master.set_velocity(0, 0, 0, 0, now())
+            assert await rig.until(lambda: not rig.replies[-1][1].hold, 5)
+            rig.master.set_velocity(100, 0, 0, 0, now())
+            assert await rig.until(lambda: rig.sim.truth().pilot.x > 500, 10)
             assert rig.bridge.calls.count(("failsafe", (True,))) == 1
             assert rig.bridge.calls.count(("failsafe", (False,))) == 1
         finally:
@@ -217,30 +246,33 @@ def test_replies_never_wait_for_the_encoder():
     run(main())
 
 
-def test_reserved_and_out_of_range_orders_are_answered_and_ignored():
+def test_reserved_and_out_of_range_orders_are_answered_and_rejected():
+    # 1.1 (§3): a reserved order or an invalid one-shot consumes its SEQ: ACK flips with
+    # REJECTED, REASON 0 (1.0 answered and ignored them with ACK unchanged).  An invalid
+    # VELOCITY is applied as neutral and rejects nothing (soft state has no REJECTED).
     async def main():
         rig = Rig()
-        pr = free_udp_port()
-        rig.rov_ep = open_transport(f"udp://127.0.0.1:{pr}")
-        await rig.rov_ep.start()
-        rig.node = RovNode(rig.rov_ep, rig.bridge, rig.grab)
-        task = asyncio.create_task(rig.node.run())
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.bind(("127.0.0.1", 0))
         sock.settimeout(5)
+        pr = free_udp_port()
+        rig.rov_ep = open_transport(f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{sock.getsockname()[1]}")
+        await rig.rov_ep.start()
+        rig.node = RovNode(rig.rov_ep, rig.bridge, rig.grab)
+        task = asyncio.create_task(rig.node.run())
         try:
             polls = [
-                Poll(order=ReservedOrder(9, b"junk")).encode(),
-                bytes([0x01, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0]),  # VELOCITY VX -128
-                bytes([0x02, 0x1F, 0xFF, 0x40]) + bytes(8),  # POSITION BODY without RELATIVE
+                (Poll(seq=1, order=ReservedOrder(9, b"junk")).encode(), (1, True, 0)),
+                (bytes([0x81, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0]), (1, True, 0)),  # VELOCITY VX -128
+                (bytes([0x02, 0x1F, 0xFF, 0x40]) + bytes(8), (0, True, 0)),  # POSITION BODY without RELATIVE
             ]
             loop = asyncio.get_running_loop()
-            for payload in polls:
+            for payload, (ack, rejected, reason) in polls:
                 sock.sendto(encode_frame(payload), ("127.0.0.1", pr))
                 data = await loop.run_in_executor(None, sock.recv, 4096)
                 reply = Reply.decode(FrameDecoder().feed(data)[0])
-                assert reply.ack == 0
-            assert rig.node.stats.orders_rejected == 3
+                assert (reply.ack, reply.rejected, reply.reason) == (ack, rejected, reason)
+            assert rig.node.stats.orders_rejected == 2
             assert rig.bridge.count("goto") == 0
             assert rig.sim.truth().pilot.x == 0
         finally:
@@ -250,6 +282,24 @@ def test_reserved_and_out_of_range_orders_are_answered_and_ignored():
             await rig.rov_ep.close()
             rig.bridge.stop()
             rig.sim.stop()
+
+    run(main())
+
+
+def test_position_while_disarmed_is_rejected_reason_1_and_never_reaches_the_autopilot():
+    async def main():
+        rig = Rig()
+        await rig.start()
+        try:
+            assert await rig.until(lambda: rig.replies and rig.replies[-1][1].position_valid, 15)
+            assert not rig.replies[-1][1].armed
+            rig.master.send_order(Position(100, 0, 200, 0))
+            assert await rig.until(lambda: rig.rejected, 10)
+            assert rig.rejected[0].reason == 1 and rig.rejected[0].order == Position(100, 0, 200, 0)
+            assert rig.bridge.count("goto") == 0
+            assert rig.replies[-1][1].attitude_valid  # the autopilot's attitude is fresh
+        finally:
+            await rig.close()
 
     run(main())
 
@@ -298,6 +348,6 @@ def test_bad_rov_arguments():
     out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "bogus://x"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1 and "unknown transport" in out.stderr
-    out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "udp://127.0.0.1:1",
+    out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "udp://127.0.0.1:1?peer=127.0.0.1:2",
                           "--failsafe", "-1"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
