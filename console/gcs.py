@@ -40,10 +40,12 @@ it, and is refused while a page holds it):
   README says so): MAVLink's video stream types are all video codecs, and a
   DEBT picture refines as trunks arrive, so it is not advertised as a stream.
 
-Plan: one thread per connection (pymavlink is blocking); the commands it
-needs go through a `Commands` object (`DeskCommands` wraps the control desk
-and the operator), so the gateway holds no order state of its own beyond the
-outcomes it is waiting for.
+Plan: one thread per connection (pymavlink is blocking); every order goes
+through `DeskCommands`, a client of the console's one command layer
+(`console.control.ControlDesk.submit`, as `Caller(via="gcs")`), and its
+outcome is the fate the console gives the order (acknowledged or followed,
+rejected or refused with a reason), so the gateway holds no order state of
+its own beyond the commands it is waiting to answer.
 """
 
 from __future__ import annotations
@@ -59,8 +61,7 @@ log = logging.getLogger("rovlink.console.gcs")
 
 LINK_LOST_S = 3.0  # no reply for this long: the link is lost (the ROV's failsafe time)
 EARTH_RADIUS_M = 6_378_137.0
-OUTCOME_TIMEOUT_S = 3.0  # arm/mode: the replies must show it within this (§2: the request's life)
-ORDER_TIMEOUT_S = 15.0
+ORDER_TIMEOUT_S = 15.0  # no fate by then: FAILED (the console gives arm/mode theirs within 3 s)
 MANUAL_CONTROL_NEUTRAL_Z = 500
 
 # Protocol mode names (link.messages.Mode) <-> ArduSub's custom modes.
@@ -96,56 +97,72 @@ class CommandRefused(Exception):
 
 
 class DeskCommands:
-    """The console's command layer as the ground station uses it: orders from
-    one desk client named "ground station", taking control when free."""
+    """The console's command layer (console/control.py) as the ground station
+    uses it: typed orders submitted as one desk client, "ground station",
+    which takes control when nobody holds it."""
 
-    def __init__(self, operator, desk, name: str = "ground station") -> None:
-        self.operator = operator
+    def __init__(self, desk, name: str = "ground station") -> None:
         self.desk = desk
+        self.operator = desk.operator
         self.name = name
         self._client_id: str | None = None
         self._lock = threading.Lock()
 
-    def _holder(self) -> str:
+    def _caller(self, need_control: bool = True):
+        from rovlink.console.control import Caller
+
         m = _mavlink()
         with self._lock:
             status = self.desk.status(self._client_id)
-            if self._client_id is not None and status.get("you"):
-                self.desk.touch(self._client_id)
-                return self._client_id
+            if not need_control or status.get("you"):
+                return Caller(self._client_id, via="gcs")
             if status.get("held"):
                 raise CommandRefused(m.MAV_RESULT_DENIED,
                                      f"control is held by {status.get('holder') or 'another client'}")
-            if self._client_id is None:
-                self._client_id = self.desk.connect(self.name).id
-            self.desk.take(self._client_id, self.name)
-            return self._client_id
+            self._client_id = self.desk.take(self._client_id, self.name).id
+            return Caller(self._client_id, via="gcs")
+
+    def heard(self) -> None:
+        """The ground station is still there (its HEARTBEAT): keep its lease."""
+        if self._client_id is not None:
+            try:
+                self.desk.touch(self._client_id)
+            except Exception:  # a client the desk has forgotten: it takes control again when it orders
+                self._client_id = None
 
     def release(self) -> None:
         with self._lock:
             if self._client_id is not None:
                 try:
-                    self.desk.disconnect(self._client_id)
-                finally:
-                    self._client_id = None
+                    self.desk.release(self._client_id)
+                except Exception:
+                    pass
+                self._client_id = None
 
     def velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
-        self.desk.stream_velocity(self._holder(), vx, vy, vz, vyaw)
+        from rovlink.console.control import Drive
 
-    def arm(self, armed: bool) -> None:
-        self._holder()
-        self.operator.arm(armed)
+        self.desk.submit(Drive(vx, vy, vz, vyaw, streamed=True), self._caller())
 
-    def mode(self, name: str) -> None:
-        self._holder()
-        self.operator.set_mode(name)
+    def arm(self, armed: bool) -> int:
+        from rovlink.console.control import Arm
+
+        return self.desk.submit(Arm(armed), self._caller())
+
+    def mode(self, name: str) -> int:
+        from rovlink.console.control import SetMode
+
+        return self.desk.submit(SetMode(name), self._caller())
 
     def goto(self, x_m: float, y_m: float, z_m: float, yaw_deg: float) -> int:
-        self._holder()
-        return self.operator.send_position(x_m, y_m, z_m, yaw_deg)
+        from rovlink.console.control import GoTo
+
+        return self.desk.submit(GoTo(x_m, y_m, z_m, yaw_deg), self._caller())
 
     def stop(self) -> int:
-        return self.operator.stop()  # open to everyone
+        from rovlink.console.control import Stop
+
+        return self.desk.submit(Stop(), self._caller(need_control=False))  # open to everyone
 
     def order_state(self, order_id: int) -> str | None:
         for info in self.operator.orders_state():
@@ -419,7 +436,9 @@ class GcsLink:
         target_system = getattr(msg, "target_system", 1)
         if target_system not in (0, 1):
             return
-        if kind == "MANUAL_CONTROL":
+        if kind == "HEARTBEAT":
+            self.commands.heard()
+        elif kind == "MANUAL_CONTROL":
             self._manual_control(msg)
         elif kind == "COMMAND_LONG":
             self._command_long(msg)
@@ -525,40 +544,31 @@ class GcsLink:
 
     def _arm(self, armed: bool) -> _Awaited:
         m = _mavlink()
-        self.commands.arm(armed)
-
-        def done():
-            reply = self.operator.last_reply
-            return reply is not None and reply.armed == armed and not self._link_lost()
-
-        return _Awaited(m.MAV_CMD_COMPONENT_ARM_DISARM, self.now() + OUTCOME_TIMEOUT_S, done,
+        order_id = self.commands.arm(armed)
+        return _Awaited(m.MAV_CMD_COMPONENT_ARM_DISARM, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
                         "arm" if armed else "disarm")
 
     def _mode_by_number(self, custom_mode: int) -> _Awaited:
         from pymavlink import mavutil
-
-        from rovlink.link.messages import Mode
 
         m = _mavlink()
         sub_name = mavutil.mode_mapping_sub.get(custom_mode)
         names = {sub: proto for proto, sub in SUB_MODE_FOR.items()}
         if sub_name not in names:
             raise CommandRefused(m.MAV_RESULT_DENIED, f"mode {sub_name or custom_mode} not offered over the link")
-        name = names[sub_name]
-        self.commands.mode(name)
-
-        def done():
-            reply = self.operator.last_reply
-            return reply is not None and reply.mode == Mode[name] and not self._link_lost()
-
-        return _Awaited(m.MAV_CMD_DO_SET_MODE, self.now() + OUTCOME_TIMEOUT_S, done, f"mode {sub_name}")
+        order_id = self.commands.mode(names[sub_name])
+        return _Awaited(m.MAV_CMD_DO_SET_MODE, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
+                        f"mode {sub_name}")
 
     def _order_done(self, order_id: int):
+        """The order's fate as the console tracks it: acknowledged by the ROV
+        (or, for arm and mode, followed by the vehicle), or refused."""
+
         def done():
             state = self.commands.order_state(order_id) or ""
-            if state.startswith(("acknowledged", "confirmed", "done", "taken")):
+            if state.startswith(("acknowledged", "followed")):
                 return True
-            if state.startswith(("rejected", "cancelled", "failed", "not sent", "unknown")):
+            if state.startswith(("rejected", "refused", "cancelled", "not carried out", "unknown")):
                 return state
             return None
 

@@ -125,7 +125,7 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
         from rovlink.console.gcs import DeskCommands, GcsGateway
 
         try:
-            gateway = GcsGateway(args.gcs, operator, DeskCommands(operator, app.state.desk),
+            gateway = GcsGateway(args.gcs, operator, DeskCommands(app.state.desk),
                                  home=args.gcs_home).start()
         except (OSError, ValueError) as exc:
             server.cancel()

@@ -158,7 +158,7 @@ def test_the_ground_station_sees_the_link_lost_and_restored():
     gcs = _ground_station(port)
     with running_console() as live:
         gateway = GcsGateway([f"udpout:127.0.0.1:{port}"], live.operator,
-                             DeskCommands(live.operator, live.app.state.desk)).start()
+                             DeskCommands(live.app.state.desk)).start()
         try:
             assert gcs.recv_match(type="ATTITUDE", blocking=True, timeout=15) is not None
             # A page holds control: the ground station is refused, with the reason.
