@@ -167,6 +167,7 @@ class AutopilotBridge:
         self._last_manual_s = -math.inf
         self.manual_controls_sent = 0  # counters for tests and diagnostics
         self.reconnects = 0
+        self.heartbeats_received = 0
 
     # --- lifecycle -------------------------------------------------------------
 
@@ -416,6 +417,7 @@ class AutopilotBridge:
         self._target_system = system
         self._target_component = msg.get_srcComponent()
         self._last_seen_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
+        self.heartbeats_received += 1
         self._backoff_s = BACKOFF_FIRST_S
         self._tracker.on_state(armed, custom)
 
