@@ -108,6 +108,13 @@ from rovlink.rov.mavurl import open_mavlink, parse_mavlink_url
 from rovlink.rov.telemetry import HEARTBEAT_TIMEOUT_S, AutopilotSnapshot, Telemetry  # noqa: F401
 from rovlink.rov.vehicle import PilotInput
 
+__all__ = [  # the bridge, and what callers used to import from here
+    "AutopilotBridge", "AutopilotSnapshot", "BrakeTicket", "GotoTicket", "Ticket",
+    "REASON_IMPOSSIBLE", "REASON_INVALID", "REASON_REFUSED",
+    "PROTOCOL_MODE_OTHER", "PROTOCOL_MODE_UNKNOWN", "PROTOCOL_TO_SUB", "SUB_TO_PROTOCOL",
+    "SubMode", "protocol_mode", "sub_mode",
+]
+
 log = logging.getLogger(__name__)
 
 HEARTBEAT_PERIOD_S = 1.0

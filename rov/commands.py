@@ -116,6 +116,7 @@ class Request:
     acked: bool = False  # answered "in progress": no more resends
     want_mode: int | None = None  # accept when the HEARTBEAT shows this mode
     want_armed: bool | None = None
+    timed_out: bool = False  # failed for want of an answer within the deadline
 
 
 class CommandTracker:
@@ -202,6 +203,7 @@ class CommandTracker:
         expired = []
         for request in list(self.requests):
             if now - request.created_s >= self.deadline_s:
+                request.timed_out = True
                 if reachable:
                     request.ticket.fail(
                         f"autopilot did not answer within {self.deadline_s:g} s", REASON_REFUSED

@@ -130,8 +130,9 @@ class GotoDriver:
             return None
         if request is not None and request.ticket.status == Ticket.FAILED:
             self.active = None
-            ticket.fail(f"autopilot refused GUIDED ({request.ticket.reason})", request.ticket.reject_reason or REASON_REFUSED)
-            if "did not answer" in request.ticket.reason:
+            reason = request.ticket.reject_reason or REASON_REFUSED
+            ticket.fail(f"autopilot refused GUIDED ({request.ticket.reason})", reason)
+            if request.timed_out and request.ticket.reject_reason == REASON_REFUSED:
                 self._late_until_s = now + LATE_ANSWER_WATCH_S
             return None
         if snap.custom_mode == SubMode.GUIDED:

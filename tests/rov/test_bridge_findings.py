@@ -6,7 +6,6 @@ behaved, and its tcpin server recovered within a beat)."""
 from __future__ import annotations
 
 import logging
-import math
 import socket
 import threading
 import time
