@@ -455,7 +455,6 @@ class Slave:
         return events
 
     def _one_shot(self, poll: Poll, now: float) -> list[object]:
-        order = poll.order
         key = poll.order_key
         running = self._running
         if running is not None and poll.seq == running.seq:
@@ -539,7 +538,8 @@ class Slave:
         if offset == NO_IMAGE_DATA or self.settings.budget_bytes == 0:
             return None, None, b""  # no image data and no capture (§4)
         obj = self._held_object
-        held = img == self._held_img and (obj is None or offset < len(obj))
+        # A fresh capture answers from offset 0 whatever OFFSET is asked for.
+        held = img == self._held_img and (obj is None or self._fresh or offset < len(obj))
         if not held:
             # Another IMG, or an OFFSET at or past the end of the one held: a
             # new capture under this IMG, sent from offset 0 first (§4 (1.1)).
