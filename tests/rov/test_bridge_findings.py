@@ -1,7 +1,10 @@
 """Issue 11's findings on the ROV's autopilot side, each against the simulated
 ArduSub (or a real loopback TCP server) over real sockets.  Every test here failed
-before its fix, except the last two (the simulator's POSHOLD/ALT_HOLD already
-behaved, and its tcpin server recovered within a beat)."""
+before its fix, except these, kept as guards: the simulator's POSHOLD/ALT_HOLD
+(the model already braked and coasted as measured), its tcpin server taking the
+next client (it recovered within a beat), and the failsafe not resuming the old
+velocity (the bridge already cleared the wish; resuming came from the node's
+repeated polls, which protocol 1.1's HOLD answers)."""
 
 from __future__ import annotations
 
@@ -282,3 +285,13 @@ def test_a_brake_whose_poshold_is_refused_falls_back_to_depth_hold(sim, bridge):
     assert ticket.wait(3) == Ticket.ACCEPTED
     assert ticket.hold_mode == SubMode.ALT_HOLD
     assert sim.truth().mode == SubMode.ALT_HOLD and sim.truth().pilot == PilotInput()
+
+
+def test_after_the_failsafe_the_old_velocity_does_not_come_back_by_itself(sim, bridge):
+    bridge.set_velocity(0.8, 0.0, 0.0, 0.0)
+    assert wait_for(lambda: sim.truth().pilot.x == 800, 2.0)
+    bridge.failsafe(True)
+    assert wait_for(lambda: sim.truth().pilot.x == 0, 2.0)
+    bridge.failsafe(False)  # polls are back, but nobody has asked for motion again
+    time.sleep(0.5)
+    assert sim.truth().pilot == PilotInput()
