@@ -90,11 +90,17 @@ async def _measure(seconds: float, telemetry_hz: float) -> dict:
                 t0 = time.time()
                 # Steer, so the dead-reckoned pose really changes between
                 # telemetry messages (idle, it rightly stands still).
-                op.arm(True)
+                # Through the command layer as a pilot: with nobody in control
+                # the console keeps the wish neutral.
+                from rovlink.console import control
+
+                desk = app.state.desk
+                pilot = control.Caller(desk.take(None, "bench").id)
+                desk.submit(control.Arm(True), pilot)
                 await asyncio.sleep(2.0)
-                op.set_velocity(0.4, 0.0, 0.0, 0.15)
+                desk.submit(control.Drive(0.4, 0.0, 0.0, 0.15), pilot)
                 await asyncio.sleep(max(0.0, seconds - 2.0))
-                op.set_velocity(0.0, 0.0, 0.0, 0.0)
+                desk.submit(control.Drive(), pilot)
                 rec = await page.evaluate("window.__rovlinkBench")
                 await browser.close()
         finally:

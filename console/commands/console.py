@@ -21,6 +21,9 @@ def add_parser(subparsers) -> None:
                    help="the link's bit/s, for reply timeouts (default 1900)")
     p.add_argument("--delay", type=non_negative, default=0.085, metavar="S",
                    help="the link's intrinsic delay, s, for reply timeouts (default 0.085)")
+    p.add_argument("--rov-failsafe", type=positive, default=3.0, metavar="S",
+                   help="the ROV's failsafe time (its --failsafe): after this long without a reply the page says "
+                        "the ROV is in FAILSAFE (default 3)")
     add_key_arguments(p)
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")

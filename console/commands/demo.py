@@ -50,6 +50,8 @@ def run(args) -> int:
                          camera=args.camera, record=record, key=key,
                          channel_log=None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl")
 
+    args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
+
     async def main() -> None:
         stack = Stack(config)
         try:

@@ -7,7 +7,7 @@ import asyncio
 import sys
 from pathlib import Path
 
-from rovlink.command import port
+from rovlink.command import port, positive
 
 
 def add_server_arguments(p) -> None:
@@ -15,6 +15,10 @@ def add_server_arguments(p) -> None:
                    help="address to serve the page on (default 127.0.0.1, this machine only; 0.0.0.0 opens it)")
     p.add_argument("--port", type=port, default=8000, help="operator page and API port (default 8000)")
     p.add_argument("--viser-port", type=port, default=8080, help="3D scene (viser) port (default 8080)")
+    p.add_argument("--unattended-warn", type=positive, default=60.0, metavar="S",
+                   help="warn every page when the vehicle stays armed this long with nobody in control (default 60)")
+    p.add_argument("--disarm-unattended", type=positive, default=None, metavar="S",
+                   help="disarm the vehicle when it stays armed this long with nobody in control (default: never)")
     p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                    help="a further name the browser may reach the console by (its Host header), e.g. the "
                         "laptop's DNS name; requests naming any other host are refused (DNS rebinding). Repeatable")
@@ -109,7 +113,9 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
 
     viser_port = urlsplit(scene.url).port or args.viser_port
     viser_url = f"http://{browser_host(args.host)}:{viser_port}"
-    app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0, policy=policy)
+    app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0, policy=policy,
+                     unattended_warn_s=args.unattended_warn, disarm_unattended_s=args.disarm_unattended,
+                     rov_failsafe_s=getattr(args, "rov_failsafe", None))
     tasks = [asyncio.create_task(coro) for coro in background]
     url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
     if policy.token:
