@@ -29,6 +29,8 @@ equal to the last one the ROV saw goes out only after a reply to a poll with
 that field 0; the receive LEN cap follows the last poll's SIZE.
 
 Decisions where PROTOCOL.md is silent:
+- A STOP pressed while one is being sent joins it: both ids are confirmed,
+  shown not carried out or cancelled together.
 - A STOP whose replies show AUTOPILOT 0 is reported (`StopNotCarriedOut`)
   once per spell; `cancel_stop()` is allowed only then.  The STOP goes on
   being sent until it is confirmed or cancelled.
@@ -207,7 +209,7 @@ class _PendingOrder:
 
 @dataclass
 class _StopState:
-    order_id: int
+    order_ids: list[int]  # a STOP pressed again while one is sent joins it
     not_carried_out: bool = False  # StopNotCarriedOut reported for this spell
     orphan: _PendingOrder | None = None  # the pending order it cancelled, fate unknown yet
 
@@ -340,17 +342,17 @@ class Master:
         return order_id
 
     def _start_stop(self, order_id: int) -> None:
-        previous = self._stop
-        orphan = previous.orphan if previous else None
-        if previous is not None:
-            self._events.append(OrderCancelled(previous.order_id, Stop(), "replaced by a newer STOP"))
+        if self._stop is not None:
+            self._stop.order_ids.append(order_id)  # the same STOP, confirmed together
+            return
+        orphan = None
         for p in self._orders:
             if p.sent:
                 orphan = p  # its fate is what the next replies show
             else:
                 self._events.append(OrderNotSent(p.order_id, p.order, "cancelled by STOP"))
         self._orders.clear()
-        self._stop = _StopState(order_id, orphan=orphan)
+        self._stop = _StopState([order_id], orphan=orphan)
 
     def cancel_stop(self) -> bool:
         """Give up a STOP shown as not carried out (no autopilot), so that other
@@ -359,7 +361,8 @@ class Master:
         if stop is None or not stop.not_carried_out:
             return False
         self._stop = None
-        self._events.append(OrderCancelled(stop.order_id, Stop(), "cancelled by the pilot"))
+        for order_id in stop.order_ids:
+            self._events.append(OrderCancelled(order_id, Stop(), "cancelled by the pilot"))
         self._settle_orphan(stop)
         return True
 
@@ -603,11 +606,11 @@ class Master:
             self._stop = None
             self._settle_orphan(stop)
             events = self.take_events()
-            events.append(StopConfirmed(stop.order_id, reply.mode, now))
+            events.extend(StopConfirmed(order_id, reply.mode, now) for order_id in stop.order_ids)
             return events
         if not reply.autopilot and not stop.not_carried_out:
             stop.not_carried_out = True
-            return [StopNotCarriedOut(stop.order_id, now)]
+            return [StopNotCarriedOut(order_id, now) for order_id in stop.order_ids]
         if reply.autopilot:
             stop.not_carried_out = False
         return []

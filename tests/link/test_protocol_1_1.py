@@ -691,3 +691,13 @@ def test_end_to_end_orders_are_acknowledged_or_rejected_and_stop_confirmed():
     assert replies[-1].mode == Mode.POS_HOLD
     assert all(not r.sync for r in replies) and all(r.attitude_valid for r in replies)
     assert isinstance(Poll().order, NoOrder)
+
+
+def test_a_second_stop_while_one_is_sent_joins_it():
+    master = started_master()
+    first, second = master.send_order(Stop()), None
+    polls_of(master, 3.1)
+    second = master.send_order(Stop())
+    events = answer(master, 3.2, hold=True, autopilot=True, mode=Mode.POS_HOLD)
+    assert [e.order_id for e in of(events, StopConfirmed)] == [first, second]
+    assert not of(events, OrderCancelled)
