@@ -104,11 +104,6 @@ def clip_roi(roi, width: int, height: int):
 
 def _warm_up(encode) -> None:
     try:
-        from rovlink import debt
-
-        if encode is debt.encode:
-            debt.warm_up()  # every kernel, grey and colour, with and without ROI
-            return
         for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
             encode(image, 200, roi=(0, 0, 8, 8), shift=4, mono=image.ndim == 2)
     except Exception:  # a warm-up only; the real encode reports real errors
