@@ -11,9 +11,10 @@ Plan: `open_transport(url)` parses a URL and returns an `Endpoint`:
                                         address are counted and dropped (logged
                                         at most once a second); peer is required
     serial:///dev/ttyUSB0?baud=9600&crlf=1&mtu=64
-                                        raw bytes on a serial line; crlf ends
-                                        each frame with CR LF (S100); mtu caps
-                                        the frame size the protocol may use
+                                        raw bytes on a serial line (a single
+                                        peer by nature); crlf ends each frame
+                                        with CR LF (S100); mtu caps the frame
+                                        size the protocol may use
     inproc://NAME                       two in-process ends with the same NAME
 `Endpoint.start()` opens it under a supervisor task; `send(data)` writes a
 frame (never blocks); `await recv()` returns the next chunk of bytes.

@@ -73,7 +73,7 @@ def test_udp_loopback_master_and_slave():
     assert got["executed"] == [ImageSettings(budget_bytes=300)]
 
 
-def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a_stop_ack():
+def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a_stop_ack(caplog):
     """Issue 11: a second sender's polls flipped ACK so that STOP showed acknowledged and never ran."""
 
     async def main():
@@ -107,8 +107,11 @@ def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a
             await s.close()
         return got, dropped
 
+    caplog.set_level("WARNING", logger="rovlink.link.transport")
     (got, master, slave), dropped = run(main())
     assert dropped > 50  # counted and dropped
+    logged = [r for r in caplog.records if "not the peer" in r.getMessage()]
+    assert 1 <= len(logged) <= 3  # at most once a second over a 1.5 s run
     assert slave.ack == 0 and slave.stats.orders_executed == 0  # nothing of the intruder's was taken
     assert got["executed"] == []
     assert got["stops"]  # the real peer's STOP ran ...

@@ -37,6 +37,7 @@ from rovlink.link.messages import (
     Reply,
     ReservedOrder,
     Stop,
+    Velocity,
 )
 from rovlink.link.transport import free_udp_port, open_transport
 from rovlink.rov.autopilot import AutopilotBridge
@@ -351,3 +352,132 @@ def test_bad_rov_arguments():
     out = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", "udp://127.0.0.1:1?peer=127.0.0.1:2",
                           "--failsafe", "-1"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
+
+
+class FakeTicket:
+    def __init__(self, status="pending", reject_reason=None):
+        self.status, self.reject_reason, self.reason = status, reject_reason, ""
+
+    @property
+    def done(self):
+        return self.status != "pending"
+
+
+class FakeBridge:
+    """Only what the node asks of an AutopilotBridge, with tickets the test resolves."""
+
+    def __init__(self):
+        from rovlink.rov.telemetry import AutopilotSnapshot
+
+        self.snap = AutopilotSnapshot(armed=True, mode=Mode.MANUAL, autopilot_alive=True, position_valid=True,
+                                      attitude_valid=True)
+        self.calls = []
+        self.tickets = []
+
+    def _ticket(self, name, *a):
+        self.calls.append(name)
+        ticket = FakeTicket()
+        self.tickets.append(ticket)
+        return ticket
+
+    def snapshot(self):
+        return self.snap
+
+    def set_velocity(self, *a):
+        self.calls.append("set_velocity")
+
+    def goto(self, *a, **kw):
+        return self._ticket("goto")
+
+    def brake(self):
+        return self._ticket("brake")
+
+    def request_arm(self, arm):
+        return self._ticket("arm" if arm else "disarm")
+
+    def request_mode(self, mode):
+        return self._ticket(f"mode {mode}")
+
+    def failsafe(self, active):
+        self.calls.append(f"failsafe {active}")
+
+
+class FakeEndpoint:
+    max_frame = None
+
+
+def fake_node():
+    bridge = FakeBridge()
+    node = RovNode(FakeEndpoint(), bridge, lambda snap: np.zeros((8, 8), np.uint8), encode=lambda *a, **k: b"x")
+    node._refresh_status()
+    return node, bridge
+
+
+def exchange(node, poll, t):
+    out = node.slave.receive(poll.encode(), t)
+    node._on_events(out.events, t)
+    return Reply.decode(FrameDecoder().feed(out.reply)[0]), out.events
+
+
+@pytest.mark.parametrize("status,reject_reason,reason", [
+    ("failed", 2, 2),  # the autopilot refused GUIDED
+    ("failed", 1, 1),  # the bridge found it impossible
+    ("cancelled", None, 1),  # another mode was requested, the bridge stopped
+    ("accepted", None, None),
+])
+def test_the_node_reports_the_autopilots_answer_and_ack_flips_then(status, reject_reason, reason):
+    node, bridge = fake_node()
+    try:
+        exchange(node, Poll(order=Velocity()), 0.0)
+        reply, _ = exchange(node, Poll(seq=1, order=Position(100, 0, 100, 0)), 0.1)
+        assert bridge.calls.count("goto") == 1 and reply.ack == 0  # waiting for the answer
+        bridge.tickets[-1].status, bridge.tickets[-1].reject_reason = status, reject_reason
+        node._check_order_tickets(time.monotonic())
+        reply, _ = exchange(node, Poll(seq=1, order=Velocity()), 0.2)
+        assert reply.ack == 1
+        assert (reply.rejected, reply.reason) == ((False, 0) if reason is None else (True, reason))
+        assert reply.attitude_valid and reply.position_valid
+    finally:
+        node._worker.shutdown(wait=True)
+
+
+def test_the_node_brakes_at_start_on_stop_and_on_a_late_accept_of_an_abandoned_order():
+    node, bridge = fake_node()
+    try:
+        node._on_events(node.slave.tick(0.0), 0.0)
+        assert bridge.calls.count("brake") == 1  # at start
+        bridge.tickets[-1].status = "accepted"
+        exchange(node, Poll(order=Velocity()), 0.1)
+        exchange(node, Poll(seq=1, order=Position(100, 0, 100, 0)), 0.2)
+        goto = bridge.tickets[-1]
+        reply, _ = exchange(node, Poll(seq=0, order=Stop()), 0.3)
+        assert (reply.ack, reply.rejected, reply.reason, reply.hold) == (1, True, 1, True)
+        assert bridge.calls.count("brake") == 2
+        exchange(node, Poll(seq=1, order=Stop()), 0.4)  # repeated while the brake is pending: one brake
+        assert bridge.calls.count("brake") == 2
+        bridge.tickets[-1].status = "accepted"
+        exchange(node, Poll(seq=1, order=Velocity()), 0.5)
+        goto.status = "accepted"  # the autopilot took the abandoned order after all
+        node._check_order_tickets(time.monotonic())
+        assert bridge.calls.count("brake") == 3 and not node.slave.hold  # brake without HOLD
+    finally:
+        node._worker.shutdown(wait=True)
+
+
+def test_arm_and_mode_reach_the_bridge_once_per_change_and_a_disarm_always():
+    node, bridge = fake_node()
+    try:
+        exchange(node, Poll(order=Velocity(arm=1, mode=Mode.STABILIZE)), 0.0)  # reference only
+        assert "arm" not in bridge.calls and not any(c.startswith("mode") for c in bridge.calls)
+        exchange(node, Poll(order=Velocity()), 0.1)
+        for t in (0.2, 0.3, 0.4):
+            exchange(node, Poll(order=Velocity(mode=Mode.STABILIZE)), t)
+        assert bridge.calls.count(f"mode {int(Mode.STABILIZE)}") == 1
+        exchange(node, Poll(order=Velocity(arm=2)), 0.5)
+        exchange(node, Poll(order=Velocity(arm=2)), 0.6)  # pending: not asked twice
+        assert bridge.calls.count("disarm") == 1
+        bridge.tickets[-1].status = "accepted"
+        exchange(node, Poll(order=Velocity(arm=2)), 0.7)  # still armed says the autopilot: asked again
+        assert bridge.calls.count("disarm") == 2
+    finally:
+        node._worker.shutdown(wait=True)
