@@ -12,7 +12,9 @@
 #   sets are tested before the big ones (single coefficients first), a
 #   significant set splits into its four quadrants, a coefficient found
 #   significant sends its sign, and then every coefficient already significant
-#   sends its bit of this plane (refinement).
+#   sends its bit of this plane (refinement).  A block of four whose
+#   neighbouring blocks are significant skips its set decision and tests its
+#   members one by one (dense texture: the set would be significant anyway).
 # - A coefficient may carry a "floor" plane below which its bits are known to be
 #   zero (bands scaled up by a shift in the reversible mode, the region of
 #   interest there); sets whose every member lies above the plane are skipped,
@@ -47,6 +49,7 @@ CTX_SIGN = CTX_SET + NCLS * 32   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 REF_GROUP = 32
+FORCE_SPLIT_CTX = 2
 SIG_GROUP = 8
 
 
@@ -321,9 +324,17 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     nlsp = r
                     continue
                 kk = k if k < 7 else 7
-                ctx = CTX_SET + cls * 32 + kk * 4 + _set_context(nsig, sig, noff, nw, binfo, b, k, y, x)
-                a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                              ctx, bit)
+                sctx = _set_context(nsig, sig, noff, nw, binfo, b, k, y, x)
+                # A block of four among significant blocks is likely
+                # significant too: test its members one by one instead
+                # (no set decision, and no member implied).
+                forced = k == 1 and sctx == FORCE_SPLIT_CTX
+                if forced:
+                    r = 1
+                else:
+                    ctx = CTX_SET + cls * 32 + kk * 4 + sctx
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                                                  ctx, bit)
                 if r < 0:
                     _save(st, a0, a1, a2, a3, a4)
                     return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
@@ -331,7 +342,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     lis[base + j] = e
                     j += 1
                     continue
-                nsig[noff[b, k] + y * nw[b, k] + x] = 1
+                if not forced:
+                    nsig[noff[b, k] + y * nw[b, k] + x] = 1
                 # Significant set: split it, depth first, until every piece
                 # is either an insignificant set (back in a list) or a
                 # significant coefficient.
@@ -378,7 +390,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             lis_len[ck] += 1
                             continue
                         cls = bcls + (16 if v >= 128 else 0)
-                        if t == last and not any_sig:
+                        if t == last and not any_sig and not forced:
                             r = 1  # the parent is significant, so this one is
                         else:
                             cbit = 0
@@ -402,6 +414,8 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             lis_len[ck] += 1
                             continue
                         any_sig = True
+                        if forced:
+                            nsig[noff[b, k] + y * nw[b, k] + x] = 1
                         if ck == 0:
                             c = off + yy * w + xx
                             a0, a1, a2, a3, a4, r = _new_significant(
