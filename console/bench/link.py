@@ -117,7 +117,9 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
             pending_wish.append((now, wish))
             sim.at(now + change_s, change)
 
-        sim.at(0.0, change)
+        # A pilot starts from centred sticks: the ROV ignores non-zero wishes
+        # until a neutral one has arrived (HOLD at start, PROTOCOL.md §5).
+        sim.at(2.0, change)
     sim.run_until(duration_s)
     result.replies_lost = master.stats.replies_lost
     result.polls = master.stats.polls_sent

@@ -105,6 +105,8 @@ def test_bench_link_prints_a_table_and_json():
     for mode in ("rovlink", "rovlink v2"):
         # Never faster than physics: 2000 bytes at 1900 bit/s.
         assert by[(mode, 0.0)]["idle_image_s_median"] >= by[(mode, 0.0)]["floor_s"]
+    # Wishes reach the ROV (a pilot starts from centred sticks, as HOLD at start asks).
+    assert all(by[(mode, 7e-6)]["wish_latency_s_median"] is not None for mode in ("rovlink", "rovlink v2"))
     # Authentication costs bytes: never faster than version 1.1 on a clean link.
     assert by[("rovlink v2", 0.0)]["poll_interval_s_median"] > by[("rovlink", 0.0)]["poll_interval_s_median"]
     assert set(doc["targets"]) == {"idle_2000B_at_ber_7e-6_le_1.4x_floor", "steering_median_poll_interval_le_0.5s",
