@@ -25,7 +25,7 @@ from __future__ import annotations
 import signal
 import threading
 
-from rovlink.command import CommandError, positive
+from rovlink.command import CommandError, add_key_arguments, link_key, positive
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
@@ -74,6 +74,7 @@ def _add_rov(subparsers) -> None:
                    help="image budget until the operator sets one (default 2000)")
     p.add_argument("--colour", action="store_true", help="colour images until the operator sets otherwise")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    add_key_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
     p.set_defaults(func=run_rov)
 
@@ -102,6 +103,7 @@ def run_rov(args) -> int:
         endpoint = open_transport(args.link)
     except TransportError as exc:
         raise CommandError(str(exc)) from None
+    key = link_key(args)  # None: --insecure, protocol version 1.1
     try:
         camera = open_camera(args.camera)
     except (CameraError, ValueError) as exc:
@@ -127,8 +129,14 @@ def run_rov(args) -> int:
         except TransportError as exc:
             raise CommandError(str(exc)) from None
         node = RovNode(endpoint, bridge, camera.capture, failsafe_s=args.failsafe, default_settings=settings)
+        if key is not None:
+            from rovlink.link.secure import SecureSlave
+
+            node.slave = SecureSlave(node.slave, key)
+        version = ("link version 2, every frame authenticated" if key is not None else
+                   "INSECURE: link version 1.1, frames not authenticated")
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
-              f"camera {args.camera}, failsafe {args.failsafe:g} s", file=sys.stderr, flush=True)
+              f"camera {args.camera}, failsafe {args.failsafe:g} s; {version}", file=sys.stderr, flush=True)
         task = asyncio.create_task(node.run())
         try:
             if args.duration:
