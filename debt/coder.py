@@ -242,7 +242,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
     the end of the certain data (decoder) stopped it first."""
     ncoef = cfloor.shape[0]
-    probs = np.full(NCTX, PROB_ONE // 2, dtype=np.int64)
+    probs = np.full(2 * NCTX, PROB_ONE // 2, dtype=np.int64)  # fast, then slow estimates
     counts = np.zeros(NCTX, dtype=np.int64)
     lis = np.empty(max(int(seg[kmax + 1]), 1), dtype=np.int64)
     lis_len = np.zeros(kmax + 1, dtype=np.int64)

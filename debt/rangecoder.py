@@ -16,9 +16,15 @@ from .jit import _inline, _jit
 PROB_BITS = 15
 PROB_ONE = 1 << PROB_BITS
 # Adaptation speed per context as it sees more decisions: fast at first (few
-# decisions at low budgets), then steadier.
-RATE = np.array([1, 2, 2, 3, 3, 3, 3] + [4] * 9 + [5] * 48, dtype=np.int64)
+# decisions at low budgets), then steadier.  Each context keeps two estimates,
+# one that stops slowing down at FAST_CAP and one that follows RATE to the
+# end, and codes with their mean: the statistics drift from plane to plane,
+# and the mix tracks drift and settles noise both (measured on the
+# photographs: +0.004 to +0.014 dB mean at 1000-8000 B over one estimate with
+# RATE ending at 5; a single slower estimate lost 0.01 dB).
+RATE = np.array([1, 2, 2, 3, 3, 3, 3] + [4] * 9 + [5] * 48 + [6] * 128 + [7] * 64, dtype=np.int64)
 RATE_LAST = RATE.shape[0] - 1
+FAST_CAP = 4
 
 
 @_jit
@@ -71,7 +77,8 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
     byte limit or the number of bytes the decoder holds.  Returns the new
     state and the bit, or -1 when the encoder reached its byte limit or the
     decoder cannot be sure of the decision from the bytes it has."""
-    p = probs[ctx]
+    half = probs.shape[0] >> 1
+    p = (probs[ctx] + probs[half + ctx]) >> 1
     if mode == 0:
         if a4 >= lim:
             return a0, a1, a2, a3, a4, -1
@@ -107,18 +114,28 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
                 a2 = (a2 << 8) | 0xFF
             a3 += 1
     n = counts[ctx]
-    shift = RATE[n]
+    slow = RATE[n]
+    fast = slow if slow < FAST_CAP else FAST_CAP
     if n < RATE_LAST:
         counts[ctx] = n + 1
+    pf = probs[ctx]
+    ps = probs[half + ctx]
     if bit == 0:
-        p += (PROB_ONE - p) >> shift
+        pf += (PROB_ONE - pf) >> fast
+        ps += (PROB_ONE - ps) >> slow
     else:
-        p -= p >> shift
-    if p < 32:
-        p = 32
-    elif p > PROB_ONE - 32:
-        p = PROB_ONE - 32
-    probs[ctx] = p
+        pf -= pf >> fast
+        ps -= ps >> slow
+    if pf < 32:
+        pf = 32
+    elif pf > PROB_ONE - 32:
+        pf = PROB_ONE - 32
+    if ps < 32:
+        ps = 32
+    elif ps > PROB_ONE - 32:
+        ps = PROB_ONE - 32
+    probs[ctx] = pf
+    probs[half + ctx] = ps
     return a0, a1, a2, a3, a4, bit
 
 
