@@ -97,7 +97,7 @@ def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a
 
         injector = asyncio.create_task(inject())
         try:
-            got = await drive(m, s, 1.5, order=Stop())
+            got = await drive(m, s, 3.0, order=Stop())
         finally:
             stop_flag.set()
             await injector
@@ -111,7 +111,7 @@ def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a
     (got, master, slave), dropped = run(main())
     assert dropped > 50  # counted and dropped
     logged = [r for r in caplog.records if "not the peer" in r.getMessage()]
-    assert 1 <= len(logged) <= 3  # at most once a second over a 1.5 s run
+    assert 1 <= len(logged) <= 4  # at most once a second over a 3 s run
     assert slave.ack == 0 and slave.stats.orders_executed == 0  # nothing of the intruder's was taken
     assert got["executed"] == []
     assert got["stops"]  # the real peer's STOP ran ...
