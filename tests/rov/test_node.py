@@ -309,7 +309,7 @@ def test_rovlink_rov_process_answers_polls_over_udp():
     pm, pr = free_udp_port(), free_udp_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "rovlink", "rov", "--link", f"udp://127.0.0.1:{pr}?peer=127.0.0.1:{pm}",
-         "--failsafe", "2", "--budget", "600"],
+         "--failsafe", "2", "--budget", "600", "--insecure"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     async def main():
