@@ -21,7 +21,8 @@ Events for the node:
   standing POSITION target or brake is replaced by this wish (§2).
 - `ArmRequested(arm)`, `ModeRequested(mode)`: an ARM/MODE request acted on (§2).
 - `OrderStarted(token, order)`: a POSITION the autopilot must answer.
-- `OrderExecuted(order)`: IMAGE settings taken; `OrderRejected(code, reason, why)`.
+- `OrderExecuted(order)`: IMAGE settings taken, or a POSITION the autopilot
+  accepted; `OrderRejected(code, reason, why)`: ACK flipped with REJECTED.
 - `OrderAbandoned(token, why)`: an order in progress given up (STOP, failsafe,
   superseded, no answer within 2 s).  The node keeps watching its ticket: a
   late accept is still reported with `order_outcome`.
