@@ -38,14 +38,17 @@ def test_console_and_rov_as_two_programs_over_udp_then_replay_and_plot(tmp_path)
     console_port, rov_port = free_udp_port(), free_udp_port()
     page, scene = free_tcp_port(), free_tcp_port()
     record = tmp_path / "session.jsonl"
-    # A fast link (no emulated modem between them): the real deployment's shape.
+    key = tmp_path / "link.key"
+    subprocess.run(ROVLINK + ["keygen", str(key)], check=True, capture_output=True, timeout=60)
+    # A fast link (no emulated modem between them): the real deployment's shape,
+    # with both ends holding the same key (protocol version 2).
     rov = subprocess.Popen(ROVLINK + ["rov", "--link", f"udp://127.0.0.1:{rov_port}?peer=127.0.0.1:{console_port}",
-                                      "--budget", "800"],
+                                      "--budget", "800", "--key", str(key)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     console = subprocess.Popen(
         ROVLINK + ["console", "--link", f"udp://127.0.0.1:{console_port}?peer=127.0.0.1:{rov_port}",
                    "--bitrate", "115200", "--delay", "0.01", "--port", str(page), "--viser-port", str(scene),
-                   "--record", str(record), "--insecure"],
+                   "--record", str(record), "--key", str(key)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     base = f"http://127.0.0.1:{page}"
     try:
