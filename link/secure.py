@@ -159,7 +159,7 @@ class SecureSlave(_Wrapper):
 
 class SecureMaster(_Wrapper):
     _own = frozenset({"master", "chain", "decoder", "stats2", "_hello_deadline", "_last_was_hello", "_events",
-                      "_last_size", "_boot", "next_poll"})
+                      "_last_size", "_boot", "next_poll", "on_reply"})
 
     def __init__(self, master, key: bytes) -> None:
         object.__setattr__(self, "_inner", master)
@@ -174,6 +174,9 @@ class SecureMaster(_Wrapper):
         self._events: list[object] = []
         self._last_size = 3
         self._boot: bytes | None = None
+        # Called with (payload, sync, now) for every authentic, timely reply
+        # handed to the master: what a recording must keep to be replayed.
+        self.on_reply = None
 
     # -- timing -------------------------------------------------------------
 
@@ -255,6 +258,8 @@ class SecureMaster(_Wrapper):
         if got.late:
             self.stats2.late += 1
             return [LateReply(got.sync)]
+        if self.on_reply is not None:
+            self.on_reply(got.payload, got.sync, now)
         if not got.sync:
             return self.master.receive(got.payload, now)
         self._hello_deadline = None

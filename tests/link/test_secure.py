@@ -107,3 +107,17 @@ def test_a_rov_restart_is_seen_by_its_boot():
     assert [s.restarted for s in synced] == [False, True]
     assert synced[0].boot != synced[1].boot
     assert master.stats2.hellos_sent >= 2
+
+
+def test_the_replies_handed_to_the_master_are_reported_without_their_tags():
+    master = SecureMaster(Master(rng=random.Random(4)), K)
+    slave = SecureSlave(Slave(image_source=_source), K)
+    seen = []
+    master.on_reply = lambda payload, sync, now: seen.append((payload, sync))
+    link = SimLink(master, slave, Channel(LinkParams(bitrate_bps=1900, delay_s=0.085), seed=4))
+    link.run_until(15.0)
+    assert seen[0][1] is True and len(seen[0][0]) == 14  # the SYNC's reply payload
+    assert all(not sync for _, sync in seen[1:]) and len(seen) > 5
+    from rovlink.link.messages import Reply
+
+    assert all(Reply.decode(payload) for payload, _ in seen[1:])  # plain 1.1 replies
