@@ -8,7 +8,7 @@ session: the caller creates the Operator, runs `operator.run()` in the loop
 uvicorn runs in, and hands both to us.
 
 Plan: FastAPI's "bigger applications" layout.  `create_app` puts the
-Operator, the control desk (`control.ControlDesk`), the shared snapshot and
+Operator, the control desk (`rovlink.console.control.ControlDesk`: the one command layer), the shared snapshot and
 the page's configuration on `app.state`; the routers (state, orders, image,
 link, control, ws) reach them through the dependencies in `deps`.  A
 lifespan task ticks the desk's timers (script leases, the velocity dead man)

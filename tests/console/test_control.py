@@ -254,3 +254,21 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
     assert any("ALERT" in text for _, text in operator.history.log)
     clock.t += 20.0
     assert not operator.link_state()["auth_alert"]
+
+
+def test_the_shared_target_says_sent_whoever_sent_it(operator, clock):
+    desk = ControlDesk(operator, clock=clock)
+    pilot = desk.connect("pilot", scene_key=KEY)
+    desk.take(pilot.id)
+    seen = []
+    operator.subscribe(lambda topic, payload: seen.append(payload) if topic == "target" else None)
+    # Previewed in the scene, sent from the page (REST): the scene's card follows the desk's target.
+    desk.submit(control.PreviewTarget(1.0, 2.0, 3.0, 90.0), Caller(scene_key=KEY, via="scene"))
+    assert seen[-1]["sent"] is False and len(seen[-1]["points"]) > 1
+    order_id = desk.submit(control.GoTo(1.0, 2.0, 3.0, 90.0), Caller(pilot.id))
+    assert seen[-1]["sent"] is True and seen[-1]["order_id"] == order_id and len(seen[-1]["points"]) > 1
+    # STOP, from anywhere, ends the target for every surface.
+    desk.submit(control.Stop(), Caller(scene_key="w" * 32, via="scene"))
+    assert seen[-1] is None and desk.target_state() is None
+    with pytest.raises(control.OrderError, match="no target"):
+        desk.submit(control.SendTarget(), Caller(pilot.id))

@@ -259,10 +259,11 @@ def test_image_plane_shows_each_decoded_picture(live):
 
     def same_picture():
         picture = op.picture()
-        return scene.images_shown > 0 and np.array_equal(scene.screen_node.image, as_rgb(picture))
+        # The screen and the frustum show the same picture (both set by one update).
+        return scene.images_shown > 0 and np.array_equal(scene.screen_node.image, as_rgb(picture)) \
+            and np.array_equal(scene.frustum_node.image, scene.screen_node.image)
 
     assert wait_for(same_picture, 5.0)
-    assert np.array_equal(scene.frustum_node.image, scene.screen_node.image)
     h, w = scene.screen_node.image.shape[:2]
     assert scene.image_px == (w, h)
     assert scene.screen_node.render_width / scene.screen_node.render_height == pytest.approx(w / h)
@@ -351,8 +352,11 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
     assert [o["kind"] for o in sent] == ["POSITION"] and sent[0]["id"] == order_id
     assert wait_for(lambda: math.dist(received_pose(op)[:3], target_ned) < 0.3, 25.0), received_pose(op)
     assert wait_for(lambda: abs((received_pose(op)[3] - 30.0 + 180) % 360 - 180) < 10.0, 10.0)
-    scene.stop_vehicle()
+    stop_id = scene.stop_vehicle()
     assert not scene.preview_node.visible and scene.target is None
+    # STOP's fate: the ROV confirms it holds.
+    assert wait_for(lambda: [o for o in op.orders_state() if o["id"] == stop_id][0]["state"]
+                    .startswith("acknowledged"), 15), op.orders_state()[-3:]
 
 
 def test_panel_controls_reach_the_operator(live):
@@ -391,7 +395,7 @@ def test_panel_controls_reach_the_operator(live):
 
     # Readouts and plots refresh in place.
     panel.refresh()
-    assert "link up" in panel.link_md.content and "AUTOPILOT ok" in panel.link_md.content
+    assert panel.link_md.content.startswith(("link up", "link degraded")) and "AUTOPILOT ok" in panel.link_md.content
     assert "STABILIZE" in panel.vehicle_md.content
     t, commanded, received = panel.velocity_plot.data
     assert len(t) == len(commanded) == len(received) > 100 and commanded.max() == pytest.approx(0.2)
