@@ -170,10 +170,17 @@ class Stop(Order):
     kind = "STOP"
 
 
+@dataclass(frozen=True)
+class CancelStop(Order):
+    """Give up a STOP the ROV cannot carry out (no autopilot), so that a DISARM can go out."""
+
+    kind = "CANCEL_STOP"
+
+
 ANYONE, HOLDER = "anyone", "holder"
 PERMISSION: dict[type, str] = {Stop: ANYONE, Arm: HOLDER, SetMode: HOLDER, Drive: HOLDER, GoTo: HOLDER,
                                PreviewTarget: HOLDER, ClearTarget: HOLDER, SendTarget: HOLDER,
-                               ChangeImage: HOLDER, NextImage: HOLDER}
+                               ChangeImage: HOLDER, NextImage: HOLDER, CancelStop: HOLDER}
 
 
 @dataclass(frozen=True)
@@ -273,7 +280,7 @@ class ControlDesk:
         self._effects: dict[type, Callable] = {
             Arm: self._arm, SetMode: self._mode, Drive: self._drive, GoTo: self._go_to,
             PreviewTarget: self._preview, ClearTarget: self._clear_target, SendTarget: self._send_target,
-            ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop}
+            ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop}
         assert set(self._effects) == set(PERMISSION)
 
     # ------------------------------------------------------------------
@@ -394,6 +401,11 @@ class ControlDesk:
             self.target = None
             self._publish_target()
         return order_id
+
+    def _cancel_stop(self, order: CancelStop, caller: Caller) -> bool:
+        if not self.operator.cancel_stop():
+            raise OrderError("no STOP to cancel: only a STOP the ROV shows it cannot carry out may be cancelled")
+        return True
 
     def _publish_target(self) -> None:
         self.operator.publish("target", self.target_state())

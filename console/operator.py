@@ -715,6 +715,20 @@ class Operator:
             self._image_orders[order_id] = settings
         return order_id
 
+    def cancel_stop(self) -> bool:
+        """Give up a STOP the ROV shows it cannot carry out (no autopilot), so that
+        a DISARM or a SURFACE can go out (protocol 1.1); False if there is none."""
+        cancel = getattr(self.master, "cancel_stop", None)
+        with self._lock:
+            done = bool(cancel()) if cancel is not None else False
+        if done:
+            self.note("STOP cancelled by the pilot")
+        return done
+
+    def stopping(self) -> bool:
+        """A STOP is being sent until the ROV confirms it: no order and no wish goes out meanwhile."""
+        return bool(getattr(self.master, "stopping", False))
+
     def next_image(self) -> None:
         with self._lock:
             self.master.abandon_image()
@@ -788,6 +802,7 @@ class Operator:
             out.update(armed=reply.armed, mode=REPORTED_MODE_NAMES.get(reply.mode, "OTHER"), failsafe=reply.failsafe,
                        autopilot=reply.autopilot, position_valid=reply.position_valid,
                        hold=getattr(reply, "hold", None), attitude_valid=getattr(reply, "attitude_valid", None),
+                       stopping=self.stopping(),
                        odometry_age_s=age, stale=self.link_condition()[0] == "lost",
                        uncertainty_m=None if age is None else round(MAX_SPEED_MPS * max(0.0, age), 3))
             predicted = self.predicted_pose()

@@ -181,7 +181,10 @@ class ControlPanel:
         if pose is None:
             return
         flags = " · ".join(f for f, on in (("**FAILSAFE**", state.get("failsafe")),
-                                             ("autopilot lost", not state.get("autopilot"))) if on)
+                                             ("autopilot lost", not state.get("autopilot")),
+                                             ("**STOP in force**", state.get("stopping")),
+                                             ("HOLD (centre the sticks)", state.get("hold")),
+                                             ("attitude not measured", state.get("attitude_valid") is False)) if on)
         stale = " · *(old: the link is lost)*" if state.get("stale") else ""
         self.vehicle_md.content = (
             f"{'**ARMED**' if state.get('armed') else 'disarmed'} · {state.get('mode')}"

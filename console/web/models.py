@@ -126,6 +126,7 @@ class PoseState(BaseModel):
     odometry_age_s: float | None = None
     hold: bool | None = Field(None, description="the ROV holds position after a STOP or failsafe (protocol 1.1)")
     attitude_valid: bool | None = Field(None, description="roll, pitch and yaw are measured (protocol 1.1)")
+    stopping: bool | None = Field(None, description="a STOP goes out until the ROV confirms it (no wish meanwhile)")
     stale: bool | None = Field(None, description="the link is lost: the received pose is old news")
     uncertainty_m: float | None = Field(None, description="how far the vehicle may be from the prediction")
 

@@ -26,7 +26,7 @@ KEY = "k" * 32
 # One example of every order the console knows.
 EXAMPLES = [control.Arm(True), control.SetMode("DEPTH_HOLD"), control.Drive(0.3), control.GoTo(1.0, 2.0, 3.0),
             control.PreviewTarget(1.0, 1.0, 2.0), control.ClearTarget(), control.SendTarget(),
-            control.ChangeImage(budget_bytes=1500), control.NextImage(), control.Stop()]
+            control.ChangeImage(budget_bytes=1500), control.NextImage(), control.CancelStop(), control.Stop()]
 
 
 class Clock:
@@ -216,6 +216,9 @@ def test_rest_orders_go_through_the_table(operator):
                   ("/api/orders/position/preview", {"x_m": 1, "y_m": 1, "z_m": 2}),
                   ("/api/orders/arm", {"armed": True}), ("/api/orders/mode", {"mode": "MANUAL"}),
                   ("/api/image/settings", {"budget_bytes": 1000}), ("/api/image/next", {})]
+        # (/api/orders/stop/cancel: 409 for the pilot, 422 for the holder while no STOP needs cancelling.)
+        assert http.post("/api/orders/stop/cancel", headers=pilot).status_code == 409
+        assert http.post("/api/orders/stop/cancel", headers=other).status_code == 422
         for path, body in routes:
             assert http.post(path, json=body, headers=pilot).status_code == 409, path
             assert http.post(path, json=body, headers=other).status_code in (200, 204), path

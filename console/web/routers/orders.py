@@ -6,7 +6,7 @@ desk's permission table decides (STOP open to all, the rest the holder's:
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from rovlink.console import control
 from rovlink.console.control import Caller
@@ -60,6 +60,13 @@ def preview_position(order: PositionOrder, desk: DeskDep, cid: ClientIdDep) -> d
              summary="STOP: neutral velocity, cancel targets, hold depth; anyone may press it")
 def post_stop(desk: DeskDep, cid: ClientIdDep) -> dict:
     return {"id": desk.submit(control.Stop(), Caller(cid)), "kind": "STOP"}
+
+
+@router.post("/stop/cancel", status_code=204, response_class=Response, responses=HOLDER_ONLY,
+             summary="Give up a STOP the ROV cannot carry out (no autopilot), so that a DISARM can go out")
+def cancel_stop(desk: DeskDep, cid: ClientIdDep) -> Response:
+    desk.submit(control.CancelStop(), Caller(cid))
+    return Response(status_code=204)
 
 
 @router.post("/arm", response_model=Requested, responses=HOLDER_ONLY,

@@ -323,6 +323,11 @@ function render(s) {
       ? ` ± ${fmt(pose.uncertainty_m, 1)} m` : "");
   $("pose-table").classList.toggle("stale", lost);
   $("image-frame").classList.toggle("stale", lost);
+  $("hold").hidden = !pose.hold;
+  $("stopping").hidden = !pose.stopping;
+  $("attitude").hidden = !pose.received || pose.attitude_valid !== false;
+  $("cancel-stop").hidden = !(pose.stopping && s.orders.some((o) => o.kind === "STOP" &&
+                                                              o.state.startsWith("not carried out")));
   if (pose.received) {
     setBadge($("armed"), pose.armed ? "ARMED" : "DISARMED", pose.armed ? "warn" : "");
     setBadge($("mode"), pose.mode, "");
@@ -626,6 +631,7 @@ function wire() {
     if (r) renderControl(r);
   };
   $("stop").onclick = stop;
+  $("cancel-stop").onclick = () => api("/api/orders/stop/cancel");
   $("arm").onclick = () => api("/api/orders/arm", { armed: true });
   $("disarm").onclick = () => api("/api/orders/arm", { armed: false });
   $("set-mode").onclick = () => api("/api/orders/mode", { mode: $("mode-select").value });
