@@ -204,7 +204,7 @@ ALLOWED_IMPORTS = {
     "link": {"rovlink.link", "rovlink.command"},
     "debt": {"rovlink.debt", "rovlink.command"},
     "rov": {"rovlink.rov", "rovlink.link", "rovlink.debt", "rovlink.assets", "rovlink.command"},
-    "rovlink": {"rovlink.command", "rovlink.console.cli"},
+    "rovlink": {"rovlink.command", "rovlink.console.cli", "rovlink.link"},  # link_key reads key files
 }
 
 
