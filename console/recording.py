@@ -67,9 +67,12 @@ class _Assembly:
 class ReplyReplayer:
     """Turns received bytes back into the master's events, without a master."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, skip_first_image: bool = True) -> None:
         self.decoder = FrameDecoder()
         self.image = _Assembly()
+        # As the master (protocol 1.1, §4): the first image completed after
+        # start is not shown; it may be a capture of any age.
+        self._images_to_skip = 1 if skip_first_image else 0
 
     def feed(self, data: bytes, t: float) -> list:
         events: list = []
@@ -90,9 +93,14 @@ class ReplyReplayer:
                 continue
             img.data[reply.offset:] = reply.trunk
             total = 2 + int.from_bytes(img.data[:2], "big") if len(img.data) >= 2 else None
-            events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
+            skipping = self._images_to_skip > 0
+            if not skipping:
+                events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
             if total is not None and len(img.data) >= total:
-                events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
+                if skipping:
+                    self._images_to_skip -= 1
+                else:
+                    events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
                 self.image = _Assembly()
         return events
 

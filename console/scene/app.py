@@ -599,6 +599,8 @@ class ConsoleScene:
                 self.gizmo.wxyz = self.target_ghost_node.wxyz
             if target["points"]:
                 self._show_path(target["points"])
+            else:  # sent without a preview: no path to show, and not an old one
+                self.preview_node.visible = False
         for panel in list(self.panels.values()):
             panel.render_target(target)
 

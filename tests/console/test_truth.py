@@ -197,7 +197,15 @@ def test_the_next_pilot_never_sends_the_previous_pilots_surge(open_page, live):
     scene_may_order(second)
     panel = wait_for(lambda: scene_panel(live, second), 10)
     assert wait_for(lambda: panel.sliders["vx"].value == 0.0, 5)
-    focus_scene(second)
-    second.keyboard.press("e")
-    assert wait_for(lambda: wish(live)["vyaw"] > 0, 5), "the scene's key did not drive"
-    assert wish(live)["vx"] == 0.0, "the previous pilot's surge came back"
+    refused = live.scene.orders_refused
+    # A key press can be lost while the focus moves into the scene's frame
+    # (headless Chromium): click and press again, a few times at most.
+    seen = []
+    for _ in range(3):
+        focus_scene(second)
+        second.keyboard.press("e")
+        if wait_for(lambda: seen.append(dict(wish(live))) or seen[-1]["vyaw"] > 0, 3):
+            break
+    assert seen[-1]["vyaw"] > 0, "the scene's key did not drive"
+    assert seen[-1]["vx"] == 0.0, "the previous pilot's surge came back"
+    assert live.scene.orders_refused == refused
