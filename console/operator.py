@@ -244,6 +244,9 @@ class Operator:
         self._last_poll_at: float | None = None
         self._last_poll_velocity: tuple | None = None
         self.replaying = False
+        # "1.1" until `authenticate` puts version 2 around the master.
+        self.link_version = "1.1"
+        self._poll_payload: Callable[[bytes], bytes | None] = lambda frame: frame[2:-2]
 
     # ------------------------------------------------------------------
     # Time and subscribers
@@ -324,13 +327,33 @@ class Operator:
         finally:
             self._decoder.shutdown(wait=False, cancel_futures=True)
 
+    def authenticate(self, key: bytes) -> None:
+        """Protocol version 2 (PROTOCOL.md §8): every frame authenticated with
+        `key`.  Call before `run`.  The recording then also keeps the reply
+        payloads the master was given ("reply": authentic, timely, tag
+        removed), which is what a replay may show."""
+        from rovlink.link.secure import SecureMaster, poll_payload
+
+        def record_reply(payload: bytes, sync: bool, now: float) -> None:
+            self.recorder.write({"k": "reply", "t": round(now, 4), "hex": payload.hex(), "sync": sync})
+
+        with self._lock:
+            self.master = SecureMaster(self.master, key)
+            self.master.on_reply = record_reply
+            self._poll_payload = poll_payload
+            self.link_version = "2"
+        self.recorder.write({"k": "link", "t": round(self.now(), 4), "version": 2})
+
     def _frame_sent(self, frame: bytes, t: float) -> None:
         self.recorder.write({"k": "tx", "t": round(t, 4), "hex": frame.hex()})
         self.history.link_events.append((t, "tx", len(frame)))
         self._last_poll_at = t
         self._last_poll_velocity = None
+        payload = self._poll_payload(frame)
+        if payload is None:  # a HELLO: no order in it
+            return
         try:
-            poll = Poll.decode(frame[2:-2])
+            poll = Poll.decode(payload)
         except ProtocolError:
             return
         order = poll.order
@@ -874,6 +897,7 @@ class Operator:
             "estimated_ber": self.master.estimated_ber(),
             "images_completed": m.images_completed,
             "images_abandoned": m.images_abandoned,
+            "version": self.link_version,  # "2": every frame authenticated; "1.1": INSECURE
             "inauthentic_frames": self.inauthentic_frames,
             "late_replies": self.late_replies,
             "auth_alert": self._auth_recent(t) > AUTH_ALERT_COUNT,

@@ -75,33 +75,41 @@ class ReplyReplayer:
         self._images_to_skip = 1 if skip_first_image else 0
 
     def feed(self, data: bytes, t: float) -> list:
+        """Received bytes as recorded (protocol 1.1: the link's own frames)."""
         events: list = []
         for payload in self.decoder.feed(data):
-            try:
-                reply = Reply.decode(payload)
-            except ProtocolError:
-                continue
-            events.append(PoseReceived(reply, t, None))
-            if not reply.has_trunk:
-                continue
-            img = self.image
-            if reply.img != img.img:
-                if reply.offset != 0:
-                    continue
-                self.image = img = _Assembly(reply.img, bytearray(), t)
-            if reply.offset > len(img.data):
-                continue
-            img.data[reply.offset:] = reply.trunk
-            total = 2 + int.from_bytes(img.data[:2], "big") if len(img.data) >= 2 else None
-            skipping = self._images_to_skip > 0
-            if not skipping:
-                events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
-            if total is not None and len(img.data) >= total:
-                if skipping:
-                    self._images_to_skip -= 1
-                else:
-                    events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
-                self.image = _Assembly()
+            events.extend(self.feed_payload(payload, t))
+        return events
+
+    def feed_payload(self, payload: bytes, t: float, *, sync: bool = False) -> list:
+        """One reply payload the master was given (protocol 2 records these:
+        authentic, timely, tag removed; a SYNC's reply part with `sync`)."""
+        events: list = []
+        try:
+            reply = Reply.decode(payload, allow_sync=sync)
+        except ProtocolError:
+            return events
+        events.append(PoseReceived(reply, t, None))
+        if not reply.has_trunk:
+            return events
+        img = self.image
+        if reply.img != img.img:
+            if reply.offset != 0:
+                return events
+            self.image = img = _Assembly(reply.img, bytearray(), t)
+        if reply.offset > len(img.data):
+            return events
+        img.data[reply.offset:] = reply.trunk
+        total = 2 + int.from_bytes(img.data[:2], "big") if len(img.data) >= 2 else None
+        skipping = self._images_to_skip > 0
+        if not skipping:
+            events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
+        if total is not None and len(img.data) >= total:
+            if skipping:
+                self._images_to_skip -= 1
+            else:
+                events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
+            self.image = _Assembly()
         return events
 
 
@@ -115,9 +123,12 @@ async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None
     operator.delay_s = meta.get("delay_s", operator.delay_s)
     operator.replaying = True
     replayer = ReplyReplayer()
+    # Protocol 2 sessions record what the master was given ("reply": authentic,
+    # timely, tag removed); their raw frames ("rx") then count only as traffic.
+    authenticated = any(r.get("k") == "reply" for r in records)
     loop = asyncio.get_running_loop()
     start = loop.time()
-    counts = {"rx": 0, "tx": 0, "wish": 0, "orders": 0}
+    counts = {"rx": 0, "tx": 0, "wish": 0, "orders": 0, "replies": 0}
     for record in records[1:]:
         t = float(record.get("t", 0.0))
         delay = start + t / speed - loop.time()
@@ -127,7 +138,12 @@ async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None
         if kind == "rx":
             counts["rx"] += 1
             operator.history.link_events.append((operator.now(), "rx", len(record["hex"]) // 2))
-            operator._on_events(replayer.feed(bytes.fromhex(record["hex"]), operator.now()), operator.now())
+            if not authenticated:
+                operator._on_events(replayer.feed(bytes.fromhex(record["hex"]), operator.now()), operator.now())
+        elif kind == "reply":
+            counts["replies"] += 1
+            events = replayer.feed_payload(bytes.fromhex(record["hex"]), operator.now(), sync=bool(record.get("sync")))
+            operator._on_events(events, operator.now())
         elif kind == "tx":
             counts["tx"] += 1
             operator._frame_sent(bytes.fromhex(record["hex"]), operator.now())
@@ -168,13 +184,18 @@ def series(path: str | Path) -> Series:
     commanded: list = [(0.0, (0.0, 0.0, 0.0, 0.0))]  # the wish is neutral until the pilot moves
     last_poll = None
     replies = FrameDecoder()
+    extra = 0  # bytes after a poll's payload: COUNT and TAG in protocol 2
     for r in records[1:]:
         k, t = r.get("k"), float(r.get("t", 0.0))
-        if k == "tx":
+        if k == "link":
+            extra = 5 if r.get("version") == 2 else 0
+        elif k == "tx":
             data = bytes.fromhex(r["hex"])
             frames.append((t, "tx", len(data)))
             try:
-                poll = Poll.decode(data[2:-2])
+                if extra and data[2] & 0x40:  # a HELLO
+                    raise ProtocolError("HELLO")
+                poll = Poll.decode(data[2:len(data) - 2 - extra])
                 order = poll.order
                 last_poll = (t + 8 * len(data) / bitrate + delay,
                              (order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)) \

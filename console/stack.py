@@ -96,10 +96,10 @@ class Stack:
         self.operator = Operator(op_end, bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, record=c.record,
                                  image_settings=c.image_settings)
         if c.key is not None:
-            from rovlink.link.secure import SecureMaster, SecureSlave
+            from rovlink.link.secure import SecureSlave
 
             self.node.slave = SecureSlave(self.node.slave, c.key)
-            self.operator.master = SecureMaster(self.operator.master, c.key)
+            self.operator.authenticate(c.key)
         loop = asyncio.get_running_loop()
         self._tasks = [
             loop.create_task(run_channel(self.channel, chan_a, chan_b), name="channel"),

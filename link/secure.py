@@ -53,6 +53,15 @@ SYNC_FRAME_BYTES = OVERHEAD + 14 + 12 + TAG_BYTES
 MAX_POLL_LEN = 3 + 9 + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
 
 
+def poll_payload(frame: bytes) -> bytes | None:
+    """The 1.1 poll payload inside a version 2 poll frame (COUNT and TAG
+    removed); None for a HELLO, which carries no order."""
+    contents = frame[2:-2]
+    if contents and contents[0] & HELLO_BIT:
+        return None
+    return contents[:-POLL_EXTRA]
+
+
 @dataclass(frozen=True)
 class InauthenticFrame:
     """A frame whose CRC held but whose tag no kept chain value makes (counted, dropped)."""

@@ -62,9 +62,7 @@ def run(args) -> int:
             raise CommandError(str(exc)) from None
         operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
         if key is not None:
-            from rovlink.link.secure import SecureMaster
-
-            operator.master = SecureMaster(operator.master, key)
+            operator.authenticate(key)
         version = ("link version 2, every frame authenticated" if key is not None else
                    "INSECURE: link version 1.1, frames not authenticated")
         link.spawn(operator.run(), name="operator")

@@ -178,6 +178,7 @@ class LinkState(BaseModel):
     estimated_ber: float | None
     images_completed: int
     images_abandoned: int
+    version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated')
     inauthentic_frames: int = Field(0, description="forged or replayed frames dropped (protocol 2)")
     late_replies: int = Field(0, description="authentic replies that came too late (protocol 2)")
     auth_alert: bool = Field(False, description="more than 3 inauthentic frames in the last 10 s")

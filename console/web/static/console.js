@@ -342,6 +342,9 @@ function render(s) {
   $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
   $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
   $("link-crc").textContent = `${l.crc_errors}`;
+  const secure = l.version === "2";
+  $("link-version").textContent = secure ? "2, authenticated" : "1.1, INSECURE (no key)";
+  $("link-version").classList.toggle("insecure", !secure);
   $("link-auth").textContent = `${l.inauthentic_frames ?? 0} / ${l.late_replies ?? 0}`;
   if (l.auth_alert && !page.authAlert) showError("ALERT: forged or replayed replies on the link");
   page.authAlert = !!l.auth_alert;
