@@ -8,7 +8,7 @@ what the ground station sends into rovlink orders.
 
 What the ground station sees (system 1, component 1, MAVLink 2, an ArduSub
 submarine: MAV_TYPE_SUBMARINE, MAV_AUTOPILOT_ARDUPILOTMEGA, ArduSub's custom
-modes from pymavlink's `mode_mapping_sub`):
+modes through rov.ardusub's one protocol<->ArduSub mode map):
 - HEARTBEAT at 1 Hz with the armed flag and mode of the last reply; system
   status ACTIVE/STANDBY, CRITICAL while the link is lost or the ROV reports
   FAILSAFE, UNINIT before the first reply.
@@ -64,22 +64,12 @@ EARTH_RADIUS_M = 6_378_137.0
 ORDER_TIMEOUT_S = 15.0  # no fate by then: FAILED (the console gives arm/mode theirs within 3 s)
 MANUAL_CONTROL_NEUTRAL_Z = 500
 
-# Protocol mode names (link.messages.Mode) <-> ArduSub's custom modes.
-SUB_MODE_FOR = {"MANUAL": "MANUAL", "STABILIZE": "STABILIZE", "DEPTH_HOLD": "ALT_HOLD", "POS_HOLD": "POSHOLD",
-                "GUIDED": "GUIDED", "SURFACE": "SURFACE"}
 
 
 def _mavlink():
     from pymavlink.dialects.v20 import ardupilotmega
 
     return ardupilotmega
-
-
-def sub_custom_modes() -> dict[str, int]:
-    """ArduSub's custom mode numbers by name, from pymavlink's table."""
-    from pymavlink import mavutil
-
-    return {name: number for number, name in mavutil.mode_mapping_sub.items()}
 
 
 class CommandRefused(Exception):
@@ -375,20 +365,15 @@ class GcsLink:
         return north, east
 
     def _heartbeat(self, reply, lost: bool) -> None:
+        from rovlink.rov.ardusub import PROTOCOL_TO_SUB
+
         m = _mavlink()
-        modes = sub_custom_modes()
         base = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         custom = 0
         if reply is None:
             status = m.MAV_STATE_UNINIT
         else:
-            from rovlink.link.messages import Mode
-
-            try:
-                name = Mode(reply.mode).name
-            except ValueError:
-                name = ""
-            custom = modes.get(SUB_MODE_FOR.get(name, ""), 0)
+            custom = int(PROTOCOL_TO_SUB.get(reply.mode, 0))  # an unknown mode: ArduSub's 0
             if reply.armed:
                 base |= m.MAV_MODE_FLAG_SAFETY_ARMED
             if lost or reply.failsafe:
@@ -549,14 +534,14 @@ class GcsLink:
                         "arm" if armed else "disarm")
 
     def _mode_by_number(self, custom_mode: int) -> _Awaited:
-        from pymavlink import mavutil
+        from rovlink.link.messages import Mode
+        from rovlink.rov.ardusub import SUB_TO_PROTOCOL, mode_name
 
         m = _mavlink()
-        sub_name = mavutil.mode_mapping_sub.get(custom_mode)
-        names = {sub: proto for proto, sub in SUB_MODE_FOR.items()}
-        if sub_name not in names:
-            raise CommandRefused(m.MAV_RESULT_DENIED, f"mode {sub_name or custom_mode} not offered over the link")
-        order_id = self.commands.mode(names[sub_name])
+        sub_name = mode_name(custom_mode)
+        if custom_mode not in SUB_TO_PROTOCOL:
+            raise CommandRefused(m.MAV_RESULT_DENIED, f"mode {sub_name} not offered over the link")
+        order_id = self.commands.mode(Mode(SUB_TO_PROTOCOL[custom_mode]).name)
         return _Awaited(m.MAV_CMD_DO_SET_MODE, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
                         f"mode {sub_name}")
 
