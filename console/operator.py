@@ -69,6 +69,7 @@ class _Never:
 # Protocol 1.1's events, where the master has them.
 OrderRejected = getattr(_master, "OrderRejected", _Never)
 OrderNotSent = getattr(_master, "OrderNotSent", _Never)
+OrderFateUnknown = getattr(_master, "OrderFateUnknown", _Never)
 StopConfirmed = getattr(_master, "StopConfirmed", _Never)
 StopNotCarriedOut = getattr(_master, "StopNotCarriedOut", _Never)
 try:  # protocol 2's authenticated link, where it exists
@@ -416,11 +417,20 @@ class Operator:
                 self._inauthentic(t)
             elif isinstance(event, LateReply):
                 self.late_replies += 1
+            elif isinstance(event, OrderFateUnknown):
+                self._order_state(event.order_id, "unknown: the ROV restarted before its answer came (not resent)", t)
             elif isinstance(event, Synced):
                 self.note("ROV restarted (new BOOT): link synchronised again" if event.restarted and not event.first
                           else "link synchronised")
+                if event.restarted and not event.first:
+                    self._resend_image_settings()
             elif isinstance(event, RequestExpired):
                 self._refuse_request(event.what, t, "not confirmed by the ROV within its time")
+
+    def _resend_image_settings(self) -> None:
+        """A restarted ROV has its default image settings again (§8): ours go again."""
+        s = self.requested_settings
+        self.set_image_settings(roi=s.roi, shift=s.shift, mono=s.mono, budget_bytes=s.budget_bytes)
 
     def _inauthentic(self, t: float) -> None:
         """A forged or replayed frame: counted; more than a few in a while is an alert."""

@@ -137,6 +137,16 @@ class OrderNotSent:
 
 
 @dataclass(frozen=True)
+class OrderFateUnknown:
+    """Version 2 (§8): the ROV restarted (a new BOOT) before the answer to this
+    sent order came; the old ROV may have run it, so it is not sent again."""
+
+    order_id: int
+    order: object
+    at: float
+
+
+@dataclass(frozen=True)
 class StopConfirmed:
     order_id: int
     mode: int  # POS_HOLD or DEPTH_HOLD
@@ -572,6 +582,34 @@ class Master:
         events.extend(self._take_trunk(reply, now))
         events.extend(self.take_events())
         return events
+
+    def on_sync(self, payload: bytes, restarted: bool, now: float) -> list[object]:
+        """Version 2 (§8): a SYNC reply to our HELLO, with `restarted` when its
+        BOOT differs from the last one.  The same ROV: a reply like any other
+        (its ACK and REJECTED judge a pending order).  A restarted ROV: every
+        partial image is discarded, ACK is taken from the SYNC, an order sent
+        and not answered has an unknown fate and is not sent again, queued
+        orders are not sent; a STOP goes on until confirmed."""
+        try:
+            Reply.decode(payload, allow_sync=True)
+        except ProtocolError:
+            self.stats.protocol_errors += 1
+            return self.take_events()
+        plain = bytes(payload[:13]) + bytes((payload[13] & 0xFE,)) + bytes(payload[14:])
+        if not restarted:
+            return self.receive(plain, now)
+        for pending in list(self._orders):
+            if pending.sent:
+                self._events.append(OrderFateUnknown(pending.order_id, pending.order, now))
+            else:
+                self._events.append(OrderNotSent(pending.order_id, pending.order, "the ROV restarted"))
+        self._orders.clear()
+        if self._stop is not None and self._stop.orphan is not None:
+            self._events.append(OrderFateUnknown(self._stop.orphan.order_id, self._stop.orphan.order, now))
+            self._stop.orphan = None
+        self._ack = Reply.decode(plain).ack
+        self._next_image("the ROV restarted")
+        return self.receive(plain, now)
 
     def _update_ack(self, reply: Reply, now: float) -> list[object]:
         events: list[object] = []

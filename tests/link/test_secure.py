@@ -121,3 +121,36 @@ def test_the_replies_handed_to_the_master_are_reported_without_their_tags():
     from rovlink.link.messages import Reply
 
     assert all(Reply.decode(payload) for payload, _ in seen[1:])  # plain 1.1 replies
+
+
+def test_after_a_rov_restart_an_unanswered_order_is_of_unknown_fate_and_not_resent():
+    from rovlink.link.master import OrderFateUnknown
+
+    master = SecureMaster(Master(rng=random.Random(5)), K)
+    armed = Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
+    slave = SecureSlave(Slave(image_source=_source), K)
+    slave.update_status(armed)
+    channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085), seed=5)
+    events, executed = [], []
+    # The autopilot never answers: the order stays in progress (ACK not flipped).
+    link = SimLink(master, slave, channel, on_master_event=lambda e, t: events.append(e),
+                   on_slave_event=lambda e, t: executed.append(e), autopilot=lambda e, t: None)
+    link.run_until(8.0)
+    order_id = master.send_order(Position(100, 0, 200, 0))
+    link.run_until(10.0)
+
+    def restart(t):
+        new = SecureSlave(Slave(image_source=_source, now=t), K)
+        new.update_status(armed)
+        link.slave = new
+
+    link.at(10.0, restart)
+    link.run_until(25.0)
+    unknown = [e for e in events if isinstance(e, OrderFateUnknown)]
+    assert [e.order_id for e in unknown] == [order_id]
+    assert any(isinstance(e, Synced) and e.restarted for e in events)
+    # The new ROV never saw the order: it was not sent again.
+    from rovlink.link.slave import OrderStarted
+
+    started_after = [e for e in executed if isinstance(e, OrderStarted)]
+    assert len(started_after) == 1  # the old ROV's, before the restart
