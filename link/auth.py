@@ -198,6 +198,17 @@ class RovChain:
                 value, _ = kept.popleft()
                 self._sync_unreferenced.discard(value)
 
+    def is_authentic(self, contents: bytes) -> bool:
+        """Whether a HELLO or a poll carries a tag this end accepts (no state moves:
+        the framing asks this; `check_poll` decides what to do with the frame)."""
+        if len(contents) <= TAG_BYTES:
+            return False
+        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
+        if contents[0] & HELLO_BIT and _tag_matches(self.key, KIND_HELLO, b"", signed, tag):
+            return True
+        return any(_tag_matches(self.key, KIND_POLL, prev, signed, tag)
+                   for prev, _ in (*self._replies, *self._syncs))
+
     def check_poll(self, contents: bytes, now: float) -> HelloIn | PollIn | None:
         """Whether the frame contents (payload, extra, TAG) are an authentic
         HELLO to answer or an authentic poll to take (after it parses)."""
@@ -346,6 +357,14 @@ class OperatorChain:
         self._number += 1
         self.counters.polls += 1
         return frame(signed + value[:TAG_BYTES])
+
+    def is_authentic(self, contents: bytes) -> bool:
+        """Whether a reply or SYNC carries a tag this end accepts (no state moves)."""
+        if len(contents) <= TAG_BYTES:
+            return False
+        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
+        return (any(_tag_matches(self.key, KIND_REPLY, s.value, signed, tag) for s in self._polls)
+                or any(_tag_matches(self.key, KIND_SYNC, s.value, signed, tag) for s in self._hellos))
 
     def open_reply(self, contents: bytes, now: float, timeout_s: float) -> ReplyIn | None:
         """An authentic reply or SYNC (possibly `late`: count it, never use it),

@@ -118,19 +118,7 @@ class SecureSlave(_Wrapper):
         # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2).
         slave.max_frame = min(slave.max_frame, 259 - REPLY_EXTRA)
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
-        self.decoder = AuthFrameDecoder(self._authentic, max_len=MAX_POLL_LEN)
-
-    def _authentic(self, contents: bytes) -> bool:
-        # A pure check for the framing (no state moves): the chain decides again below.
-        from .auth import KIND_HELLO, KIND_POLL, _tag_matches
-
-        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
-        if len(contents) <= TAG_BYTES:
-            return False
-        if contents[0] & HELLO_BIT and _tag_matches(self.chain.key, KIND_HELLO, b"", signed, tag):
-            return True
-        kept = [v for v, _ in (*self.chain._replies, *self.chain._syncs)]
-        return any(_tag_matches(self.chain.key, KIND_POLL, prev, signed, tag) for prev in kept)
+        self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=MAX_POLL_LEN)
 
     def _sync_payload(self) -> bytes:
         from .messages import Reply
@@ -176,7 +164,7 @@ class SecureMaster(_Wrapper):
         master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
         master.max_frame = min(master.max_frame, 259 - REPLY_EXTRA)  # the trunks the slave will send
         self.chain = OperatorChain(key)
-        self.decoder = AuthFrameDecoder(self._authentic, max_len=self._max_reply_len)
+        self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=self._max_reply_len)
         self.stats2 = SecureStats()
         self._hello_deadline: float | None = None
         self._last_was_hello = False
@@ -236,16 +224,6 @@ class SecureMaster(_Wrapper):
         return events + self.master.take_events()
 
     # -- receiving ---------------------------------------------------------
-
-    def _authentic(self, contents: bytes) -> bool:
-        from .auth import KIND_REPLY, KIND_SYNC, _tag_matches
-
-        if len(contents) <= TAG_BYTES:
-            return False
-        signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
-        key = self.chain.key
-        return (any(_tag_matches(key, KIND_REPLY, s.value, signed, tag) for s in self.chain._polls)
-                or any(_tag_matches(key, KIND_SYNC, s.value, signed, tag) for s in self.chain._hellos))
 
     def receive_bytes(self, data: bytes, now: float) -> list[object]:
         self.master.stats.bytes_received += len(data)
