@@ -15,7 +15,6 @@ const NEUTRAL = { vx: 0, vy: 0, vz: 0, vyaw: 0 };
 let KEYMAP = {};
 const AXIS_WORDS = { vx: ["surge back", "surge forward"], vy: ["sway left", "sway right"],
                      vz: ["up", "down"], vyaw: ["yaw left", "yaw right"] };
-const GAMEPAD_DEADZONE = 0.12;
 
 const page = {
   ws: null,
@@ -24,7 +23,6 @@ const page = {
   holder: false,
   held: new Set(),
   lastSent: NEUTRAL,
-  gamepadIndex: null,
   shownImage: null,      // "img:decoded_bytes" on screen
   loadingImage: false,
   wantedImage: null,
@@ -214,11 +212,9 @@ function wish() {
     const [axis, sign] = KEYMAP[code];
     v[axis] += sign * gain;
   }
-  const pad = gamepad();
-  if (pad) {
-    const ax = (i) => (Math.abs(pad.axes[i] || 0) < GAMEPAD_DEADZONE ? 0 : pad.axes[i]);
-    v.vx += -ax(1); v.vy += ax(0); v.vyaw += ax(2); v.vz += ax(3);
-  }
+  // The gamepad's sticks (gamepad.js: mapping, deadzone, expo, gain).
+  const pad = window.rovGamepad ? window.rovGamepad.wish() : null;
+  if (pad) { v.vx += pad.vx; v.vy += pad.vy; v.vz += pad.vz; v.vyaw += pad.vyaw; }
   for (const k of Object.keys(v)) v[k] = Math.round(Math.max(-1, Math.min(1, v[k])) * 1000) / 1000;
   return v;
 }
@@ -272,18 +268,8 @@ function letGo() {
   sendVelocity(true);
 }
 
-function gamepad() {
-  if (page.gamepadIndex === null || !navigator.getGamepads) return null;
-  const pad = navigator.getGamepads()[page.gamepadIndex];
-  return pad && pad.connected ? pad : null;
-}
-
-let padStopWasDown = false;
 function pollGamepadButtons() {
-  const pad = gamepad();
-  const down = !!(pad && pad.buttons[1] && pad.buttons[1].pressed);
-  if (down && !padStopWasDown) stop();
-  padStopWasDown = down;
+  if (window.rovGamepad && window.rovGamepad.stopPressed()) stop();
 }
 
 function stop() {
@@ -691,17 +677,12 @@ function wire() {
   window.addEventListener("keyup", onKeyUp);
   window.addEventListener("blur", letGo);
   document.addEventListener("visibilitychange", () => { if (document.hidden) letGo(); });
-  window.addEventListener("gamepadconnected", (ev) => {
-    page.gamepadIndex = ev.gamepad.index;
-    $("gamepad").textContent = `Gamepad: ${ev.gamepad.id}.`;
-  });
-  window.addEventListener("gamepaddisconnected", (ev) => {
-    if (ev.gamepad.index === page.gamepadIndex) {
-      page.gamepadIndex = null;
-      $("gamepad").textContent = "No gamepad.";
-      letGo();
-    }
-  });
+  if (window.rovGamepad) {
+    window.rovGamepad.onChange((text) => {
+      $("gamepad").textContent = text;
+      if (!window.rovGamepad.connected()) letGo();
+    });
+  }
   setInterval(() => { pollGamepadButtons(); sendVelocity(); }, TICK_MS);
   setHolder(false);
   // The one mode list, key map and limits come from the console, then telemetry.
