@@ -244,9 +244,27 @@ class Target:
                 "order_id": self.order_id, "sent": self.order_id is not None, "points": self.points}
 
 
+def wish_scale() -> dict:
+    """What a wish fraction means in m/s and deg/s, for the pilot: the vehicle
+    model's (rov/vehicle.py, a BlueROV2 under ArduSub) steady state in the
+    stabilised modes.  Surge and sway are thrust against linear + quadratic drag
+    (speed = the root of lin*v + quad*v^2 = thrust*fraction); heave and yaw are
+    rate-controlled (climb rate, yaw rate proportional to the stick).  A model's
+    figure, shown as approximate: the real vehicle's speed depends on its tether
+    and current; the received odometry gives the true speed beside it."""
+    from rovlink.rov.vehicle import BlueRovParams
+
+    p = BlueRovParams()
+    return {"vx": {"kind": "drag", "thrust_n": p.thrust_surge_n, "lin": p.drag_lin_surge, "quad": p.drag_quad_surge},
+            "vy": {"kind": "drag", "thrust_n": p.thrust_sway_n, "lin": p.drag_lin_sway, "quad": p.drag_quad_sway},
+            "vz": {"kind": "rate", "max": p.climb_rate_max_mps, "unit": "m/s"},
+            "vyaw": {"kind": "rate", "max": round(math.degrees(p.yaw_rate_max_radps), 2), "unit": "deg/s"}}
+
+
 def page_config(**extra) -> dict:
     """What every surface needs to build its controls: modes, keys, limits, defaults."""
     return {"modes": list(MODES), "keys": {k: [axis, sign] for k, (axis, sign) in KEYS.items()},
+            "wish_scale": wish_scale(),
             "stop_key": STOP_KEY, "key_gain": KEY_GAIN,
             "limits": {k: list(v) for k, v in LIMITS.items()}, "default_target": dict(DEFAULT_TARGET),
             "default_roi_shift": DEFAULT_ROI_SHIFT,
@@ -576,7 +594,7 @@ class ControlDesk:
                     and now - holder.streamed_at > self.deadman_s:
                 holder.streamed_at = None
                 self._set_neutral()
-                self.operator.note(f"velocity from {holder.name} stopped arriving: neutral")
+                self.operator.note(f"velocity from {holder.name} stopped arriving: neutral", "warn")
             if holder is not None and holder.kind == "script" and now - holder.last_seen > self.lease_s:
                 self._release(f"control released: {holder.name} silent for {self.lease_s:g} s")
                 holder = None
@@ -591,7 +609,7 @@ class ControlDesk:
                         and not self.operator.replaying:
                     self._disarmed_unattended = True
                     self.operator.note(f"nobody in control for {self.disarm_unattended_s:g} s with the "
-                                       f"vehicle armed: disarming")
+                                       f"vehicle armed: disarming", "alert")
                     self.operator.arm(False)
 
     def _armed(self) -> bool:

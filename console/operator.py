@@ -94,6 +94,8 @@ DEGRADED_WINDOW_S = 5.0
 ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (PROTOCOL.md §3)
 REQUEST_FOLLOW_S = 3.0    # an arm/disarm/mode the vehicle does not follow in this time is refused
 MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
+IMAGE_HISTORY = 24        # pictures kept to look back at (320x240x3 is 230 kB each)
+LOG_KEPT = 500            # log lines kept (the page filters them)
 
 
 class OrderError(ValueError):
@@ -132,6 +134,8 @@ class ImageView:
     started_at: float | None = None
     settings: ImageSettings | None = None
     images_completed: int = 0
+    serial: int = 0                   # counts images, never wraps (IMG wraps at 8)
+    capture: dict | None = None       # when and where the ROV captured it (Operator._capture_stamp)
 
 
 @dataclass
@@ -142,7 +146,7 @@ class History:
     commanded: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, vx..vyaw)
     received: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, vx..vyaw)
     link_events: collections.deque = field(default_factory=lambda: collections.deque(maxlen=1000))  # (t, kind, n)
-    log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=200))  # (t, text)
+    log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LOG_KEPT))  # (t, text, level)
     round_trips: collections.deque = field(default_factory=lambda: collections.deque(maxlen=50))
 
 
@@ -220,6 +224,8 @@ class Operator:
         self._subscribers: list[Callable[[str, Any], None]] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._t0 = self._clock()
+        # Clock time of session time 0, for the pilot's clock times (a replay sets the recording's).
+        self.wall0 = time.time()
         self._reply: Reply | None = None
         self._reply_at: float | None = None  # monotonic time the reply arrived
         self._odometry_at: float | None = None  # estimated time it was sampled on the ROV
@@ -245,6 +251,9 @@ class Operator:
         self._last_poll_at: float | None = None
         self._last_poll_velocity: tuple | None = None
         self.replaying = False
+        self._shown_link_state: str | None = None
+        self._image_history: collections.deque = collections.deque(maxlen=IMAGE_HISTORY)
+        self._next_capture: tuple[float, Pose | None, str] | None = None  # see _capture_stamp
         # "1.1" until `authenticate` puts version 2 around the master.
         self.link_version = "1.1"
         self._poll_payload: Callable[[bytes], bytes | None] = lambda frame: frame[2:-2]
@@ -279,10 +288,22 @@ class Operator:
             except Exception:
                 log.exception("subscriber failed on %s", topic)
 
-    def note(self, text: str) -> None:
+    def wall(self, t: float) -> float:
+        """Clock time (Unix seconds) of session time `t`."""
+        return self.wall0 + t
+
+    def note(self, text: str, level: str = "info") -> None:
+        """A log line. `level`: "alert" (the pilot must see it: link lost, failsafe,
+        forged frames, an order refused), "warn", or "info" (routine: an image complete)."""
         t = self.now()
-        self.history.log.append((t, text))
-        self._publish("log", {"t": t, "text": text})
+        self.history.log.append((t, text, level))
+        self._publish("log", self._log_entry(t, text, level))
+
+    def _log_entry(self, t: float, text: str, level: str) -> dict:
+        return {"t": t, "wall": round(self.wall(t), 3), "text": text, "level": level}
+
+    def log_entries(self, last: int = LOG_KEPT) -> list[dict]:
+        return [self._log_entry(*e) for e in list(self.history.log)[-last:]]
 
     # ------------------------------------------------------------------
     # The link loop
@@ -395,7 +416,7 @@ class Operator:
             elif isinstance(event, ImageComplete):
                 self._image_complete(event, t)
             elif isinstance(event, ImageAbandoned):
-                self.note(f"image {event.img} abandoned after {event.received_bytes} bytes: {event.reason}")
+                self._image_abandoned(event, t)
             elif isinstance(event, OrderAcknowledged):
                 self._order_state(event.order_id, "acknowledged", t)
             elif isinstance(event, OrderCancelled):
@@ -420,8 +441,9 @@ class Operator:
             elif isinstance(event, OrderFateUnknown):
                 self._order_state(event.order_id, "unknown: the ROV restarted before its answer came (not resent)", t)
             elif isinstance(event, Synced):
-                self.note("ROV restarted (new BOOT): link synchronised again" if event.restarted and not event.first
-                          else "link synchronised")
+                restarted = event.restarted and not event.first
+                self.note("ROV restarted (new BOOT): link synchronised again" if restarted else "link synchronised",
+                          "alert" if restarted else "info")
                 if event.restarted and not event.first:
                     self._resend_image_settings()
             elif isinstance(event, RequestExpired):
@@ -440,7 +462,7 @@ class Operator:
                 self._auth_alerted_at is None or t - self._auth_alerted_at > AUTH_ALERT_WINDOW_S):
             self._auth_alerted_at = t
             self.note(f"ALERT: {self._auth_recent(t)} inauthentic frames in {AUTH_ALERT_WINDOW_S:g} s "
-                      f"(forged or replayed replies on the link)")
+                      f"(forged or replayed replies on the link)", "alert")
 
     def _auth_recent(self, t: float) -> int:
         return sum(1 for e in list(self.history.link_events)[-300:]
@@ -453,6 +475,7 @@ class Operator:
         pose = Pose.from_reply(reply)
         with self._lock:
             previous, previous_at = self._reply, self._odometry_at
+            entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.failsafe)
             self._reply, self._reply_at, self._odometry_at = reply, t, sampled
             if previous is not None and previous_at is not None and sampled - previous_at > 0.05:
                 dt = sampled - previous_at
@@ -472,19 +495,61 @@ class Operator:
         self.recorder.write({"k": "pose", "t": round(t, 4), **{k: round(v, 3) for k, v in pose.as_dict().items()},
                              "armed": reply.armed, "mode": reply.mode, "failsafe": reply.failsafe,
                              "autopilot": reply.autopilot})
+        if entered_failsafe:
+            self.note("ROV reports FAILSAFE: it had no poll for its failsafe time, braked and holds", "alert")
         self._publish("pose", self.pose_state())
         self._check_requests(t)
+
+    # When and where was an image captured?  Decision: the console stamps it from
+    # the replies; the protocol carries no capture time (bytes are dear, and its
+    # image object is fixed by PROTOCOL.md §4).  The ROV (rov/node.py) captures the
+    # next image as the last trunk of the previous one goes out, in the reply that
+    # carries it (prefetch), or, when that capture was thrown away (settings
+    # changed, too old, an image abandoned, the first image), when a poll asks for
+    # the new IMG.  Either way the capture lies between the reply that ended the
+    # previous image (or was the last before it was abandoned) and the reply that
+    # brings the new one's first trunk.  So an image is stamped with that interval,
+    # "not_before" to "not_after", and with the odometry of the "not_before" reply
+    # (the prefetch's pose: the ROV sampled both while answering that poll).  If
+    # the reply that ended the previous image was lost and sent again, the capture
+    # is earlier than "not_before" by the retries (one poll cycle each).  Without an
+    # earlier reply to bound it ("not_before" None) it may be of any age (§4).
+    def _mark_capture_window(self, t: float, why: str) -> None:
+        reply = self._reply
+        pose = Pose.from_reply(reply) if reply is not None and reply.position_valid is not False else None
+        self._next_capture = (t, pose, why)
+
+    def _capture_stamp(self, t_first: float) -> dict:
+        mark = self._next_capture
+        self._next_capture = None
+        reply = self._reply
+        if mark is None:
+            pose = None
+            not_before = None
+            why = "unknown"
+        else:
+            not_before, pose, why = mark
+        # Without a bound below, the first trunk's reply is all there is.
+        if pose is None and reply is not None and mark is None:
+            pose = Pose.from_reply(reply)
+        t_est = not_before if not_before is not None else t_first
+        return {"t": round(t_est, 3), "wall": round(self.wall(t_est), 3),
+                "not_before_wall": None if not_before is None else round(self.wall(not_before), 3),
+                "not_after_wall": round(self.wall(t_first), 3), "how": why,
+                "pose": None if pose is None else {k: round(v, 3) for k, v in pose.as_dict().items()}}
 
     def _image_progress(self, event: ImageProgress, t: float) -> None:
         with self._lock:
             view = self.image
-            if view.img != event.img:
+            if view.img != event.img or event.received_bytes < view.received_bytes:
                 view.img = event.img
                 view.started_at = t
                 view.picture = None
                 view.decoded_bytes = 0
                 view.complete = False
                 view.settings = self._confirmed_settings
+                view.serial += 1
+                view.capture = self._capture_stamp(t)
             view.received_bytes = event.received_bytes
             view.total_bytes = event.total_bytes
             view.stream = event.prefix
@@ -496,9 +561,38 @@ class Operator:
             self.image.complete = True
             self.image.images_completed += 1
             self.image.stream = event.data
+            self._keep_image(t, partial=False)
+            self._mark_capture_window(t, "prefetch")
         self.recorder.write({"k": "image", "t": round(t, 4), "img": event.img, "bytes": len(event.data),
                              "seconds": round(event.at - event.started_at, 3)})
         self.note(f"image {event.img} complete: {len(event.data)} bytes in {event.at - event.started_at:.1f} s")
+
+    def _image_abandoned(self, event, t: float) -> None:
+        with self._lock:
+            if self.image.img == event.img and not self.image.complete and self.image.stream:
+                self._keep_image(t, partial=True)
+            self._mark_capture_window(t, "request")
+        self.note(f"image {event.img} abandoned after {event.received_bytes} bytes: {event.reason}")
+
+    def _keep_image(self, t: float, *, partial: bool) -> None:
+        """Into the pictures to look back at (caller holds the lock)."""
+        v = self.image
+        s = v.settings
+        self._image_history.append({
+            "n": v.serial, "img": v.img, "capture": v.capture, "bytes": len(v.stream),
+            "total_bytes": v.total_bytes, "partial": partial,
+            "received_wall": round(self.wall(t), 3),
+            "seconds": None if v.started_at is None else round(t - v.started_at, 2),
+            "settings": None if s is None else {"roi": list(s.roi) if s.roi else None, "shift": s.shift,
+                                                 "mono": s.mono, "budget_bytes": s.budget_bytes},
+            "stream": bytes(v.stream),
+        })
+
+    def image_history(self) -> list[dict]:
+        """Completed (and abandoned, `partial`) images, oldest first, with their
+        metadata and DEBT stream ("stream": decode it for the picture)."""
+        with self._lock:
+            return [dict(e) for e in self._image_history]
 
     def _decode_later(self, img: int, prefix: bytes) -> None:
         with self._lock:
@@ -558,8 +652,8 @@ class Operator:
         self.recorder.write({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"],
                              "state": state})
         self._publish("order", info)
-        if state.startswith(("rejected", "refused")):
-            self.note(f"{info['kind']} order {order_id} {state}")
+        if state.startswith(("rejected", "refused", "not carried out", "unknown")):
+            self.note(f"{info['kind']} order {order_id} {state}", "alert")
         return info
 
     def _new_order(self, kind: str, state: str, detail: dict, t: float) -> int:
@@ -603,7 +697,7 @@ class Operator:
     def _refuse_request(self, what: str, t: float, why: str) -> None:
         order_id = self._requests.pop(what, None)
         if order_id is None:
-            self.note(f"{what} request {why}")
+            self.note(f"{what} request {why}", "alert")
             return
         self._set_order_state(order_id, f"refused: {why}", t)
 
@@ -840,7 +934,21 @@ class Operator:
                        uncertainty_m=None if age is None else round(MAX_SPEED_MPS * max(0.0, age), 3))
             predicted = self.predicted_pose()
             out["predicted"] = predicted.as_dict() if predicted else None
+            out["velocity"] = self.measured_velocity()
         return out
+
+    def measured_velocity(self) -> dict | None:
+        """Speeds from successive received poses (finite differences, smoothed): body
+        forward and right, down, and yaw rate; None before two replies."""
+        with self._lock:
+            reply, (vn, ve, vd, vyaw) = self._reply, self._velocity_est
+            known = self._odometry_at is not None and len(self.history.trail) >= 2
+        if reply is None or not known:
+            return None
+        yaw = math.radians(reply.yaw_cdeg / 100)
+        return {"forward_mps": round(vn * math.cos(yaw) + ve * math.sin(yaw), 3),
+                "right_mps": round(-vn * math.sin(yaw) + ve * math.cos(yaw), 3),
+                "down_mps": round(vd, 3), "yaw_dps": round(vyaw, 2)}
 
     def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
         """("up" | "degraded" | "lost" | "replay" | "starting", seconds since the last reply)."""
@@ -862,10 +970,21 @@ class Operator:
         return {
             "img": v.img, "received_bytes": v.received_bytes, "total_bytes": v.total_bytes, "complete": v.complete,
             "decoded_bytes": v.decoded_bytes, "started_at": v.started_at, "decoded_at": v.decoded_at,
-            "images_completed": v.images_completed,
+            "images_completed": v.images_completed, "serial": v.serial, "capture": v.capture,
             "settings": None if s is None else {"roi": list(s.roi) if s.roi else None, "shift": s.shift,
                                                  "mono": s.mono, "budget_bytes": s.budget_bytes},
         }
+
+    def _watch_link(self, state: str, silent_s: float | None) -> None:
+        """Link lost and back into the log, once per change."""
+        with self._lock:
+            was, self._shown_link_state = self._shown_link_state, state
+        if was == state or state in ("starting", "replay"):
+            return
+        if state == "lost":
+            self.note("LINK LOST: no reply from the ROV" + (f" for {silent_s:.0f} s" if silent_s else ""), "alert")
+        elif was == "lost":
+            self.note("link back: replies arrive again", "warn")
 
     def link_state(self) -> dict:
         t = self.now()
@@ -876,6 +995,7 @@ class Operator:
         rtts = sorted(self.history.round_trips)
         state, since = self.link_condition(t)
         silent_s = since if since is not None else (t if state == "lost" else None)
+        self._watch_link(state, silent_s)
         inferred = state == "lost" and silent_s is not None and silent_s >= self.rov_failsafe_s
         failsafe_at = time.time() - silent_s + self.rov_failsafe_s if inferred else None
         return {
@@ -928,7 +1048,7 @@ class Operator:
             "link": self.link_state(),
             "velocity_wish": {"vx": wish[0], "vy": wish[1], "vz": wish[2], "vyaw": wish[3]},
             "orders": self.orders_state(),
-            "log": [{"t": t, "text": text} for t, text in list(self.history.log)[-20:]],
+            "log": self.log_entries(20),
             "replaying": self.replaying,
         }
 

@@ -34,7 +34,7 @@ from rovlink.console.operator import Operator
 from . import errors
 from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
 from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
-from .routers import control, image, link, orders, state, ws
+from .routers import control, image, images, link, orders, state, ws
 from .routers.image import PngCache
 from .telemetry import SharedSnapshot
 
@@ -113,7 +113,7 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
         unattended_warn_s=float(unattended_warn_s),
         disarm_unattended_s=None if disarm_unattended_s is None else float(disarm_unattended_s))
     errors.install(app)
-    for module in (state, orders, image, link, control, ws):
+    for module in (state, orders, image, images, link, control, ws):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     # Outermost: a large body is refused before anything reads it (guard.py).

@@ -114,6 +114,13 @@ class Pose(BaseModel):
     yaw_deg: float
 
 
+class MeasuredVelocity(BaseModel):
+    forward_mps: float
+    right_mps: float
+    down_mps: float
+    yaw_dps: float
+
+
 class PoseState(BaseModel):
     t: float = Field(description="session time, seconds")
     received: Pose | None = Field(description="the last odometry the ROV sent")
@@ -129,6 +136,7 @@ class PoseState(BaseModel):
     stopping: bool | None = Field(None, description="a STOP goes out until the ROV confirms it (no wish meanwhile)")
     stale: bool | None = Field(None, description="the link is lost: the received pose is old news")
     uncertainty_m: float | None = Field(None, description="how far the vehicle may be from the prediction")
+    velocity: MeasuredVelocity | None = Field(None, description="speeds from successive received poses")
 
 
 class ImageSettingsState(BaseModel):
@@ -136,6 +144,36 @@ class ImageSettingsState(BaseModel):
     shift: int
     mono: bool
     budget_bytes: int
+
+
+class CapturePose(BaseModel):
+    x_m: float
+    y_m: float
+    z_m: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
+class Capture(BaseModel):
+    t: float = Field(description="session seconds of the best estimate")
+    wall: float = Field(description="clock time of the best estimate, Unix seconds")
+    not_before_wall: float | None = Field(description="the capture was not earlier (null: any age)")
+    not_after_wall: float = Field(description="the capture was not later (its first trunk arrived)")
+    how: Literal["prefetch", "request", "unknown"]
+    pose: CapturePose | None = Field(description="odometry at capture (null: position not valid)")
+
+
+class PastImage(BaseModel):
+    n: int = Field(description="the image's serial (GET /api/images/{n}.png)")
+    img: int | None
+    capture: Capture | None
+    bytes: int = Field(description="bytes of DEBT stream received")
+    total_bytes: int | None
+    partial: bool = Field(description="abandoned before it was complete")
+    received_wall: float
+    seconds: float | None = Field(description="from its first trunk to its last")
+    settings: ImageSettingsState | None
 
 
 class ImageState(BaseModel):
@@ -147,6 +185,8 @@ class ImageState(BaseModel):
     started_at: float | None
     decoded_at: float | None
     images_completed: int
+    serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
+    capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
     settings: ImageSettingsState | None
 
 
@@ -206,8 +246,11 @@ class OrderInfo(BaseModel):
 
 
 class LogEntry(BaseModel):
-    t: float
+    t: float = Field(description="session seconds")
+    wall: float = Field(description="clock time, Unix seconds")
     text: str
+    level: Literal["alert", "warn", "info"] = Field(
+        description="alert: the pilot must see it (link lost, failsafe, an order refused); info: routine")
 
 
 class ControlStatus(BaseModel):
@@ -278,6 +321,9 @@ class Config(BaseModel):
     keys: dict[str, tuple[str, int]] = Field(description="key letter -> (axis, sign); hold to drive")
     stop_key: str
     key_gain: float
+    wish_scale: dict[str, dict[str, float | str]] = Field(
+        description="per axis, what a wish fraction means: 'drag' (steady speed, the root of "
+                    "lin*v + quad*v^2 = thrust_n*fraction, m/s) or 'rate' (max * fraction, in unit)")
     limits: dict[str, tuple[float, float]]
     default_target: dict[str, float]
     default_roi_shift: int

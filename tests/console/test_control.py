@@ -254,7 +254,7 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
         clock.t += 1.0
     link = operator.link_state()
     assert link["inauthentic_frames"] == 4 and link["late_replies"] == 4 and link["auth_alert"]
-    assert any("ALERT" in text for _, text in operator.history.log)
+    assert any("ALERT" in text and level == "alert" for _, text, level in operator.history.log)
     clock.t += 20.0
     assert not operator.link_state()["auth_alert"]
 

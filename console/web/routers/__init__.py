@@ -1,1 +1,1 @@
-"""One APIRouter per concern: state, orders, image, link, control, ws."""
+"""One APIRouter per concern: state, orders, image, images (kept pictures), link, control, ws."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from ..deps import ClientIdDep, DeskDep, OperatorDep
-from ..models import Config, OrderInfo, PoseState, State
+from ..models import Config, LogEntry, OrderInfo, PoseState, State
 from ..telemetry import finite, snapshot
 
 router = APIRouter(prefix="/api", tags=["state"])
@@ -25,6 +25,11 @@ def get_pose(operator: OperatorDep) -> dict:
 @router.get("/orders", response_model=list[OrderInfo], summary="The last 50 one-shot orders and their progress")
 def get_orders(operator: OperatorDep) -> list[dict]:
     return operator.orders_state()
+
+
+@router.get("/log", response_model=list[LogEntry], summary="The log lines kept (the last 500), oldest first")
+def get_log(operator: OperatorDep) -> list[dict]:
+    return operator.log_entries()
 
 
 @router.get("/config", response_model=Config, summary="What the operator page needs to start")
