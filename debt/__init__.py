@@ -9,8 +9,9 @@ longer prefix is a better one.
     data = debt.encode(image, budget, roi=(x0, y0, x1, y1), shift=6)
     picture = debt.decode(data[:n])
     debt.warm_up()   # compile the kernels ahead of the first image
+    debt.warm_up_in_background()   # the same in a daemon thread (returned)
 """
 
-from .codec import Header, decode, encode, unpack_header, warm_up
+from .codec import Header, decode, encode, unpack_header, warm_up, warm_up_in_background
 
-__all__ = ["encode", "decode", "Header", "unpack_header", "warm_up"]
+__all__ = ["encode", "decode", "Header", "unpack_header", "warm_up", "warm_up_in_background"]

@@ -273,3 +273,22 @@ def warm_up() -> None:
         for roi, shift in ((None, 0), ((0, 0, 8, 8), 4)):
             decode(encode(image, 60, roi=roi, shift=shift))     # 9/7
             decode(encode(image, 4000, roi=roi, shift=shift))   # lossless 5/3
+
+
+def warm_up_in_background(name: str = "debt-warm-up"):
+    """Start `warm_up()` in a daemon thread and return the thread.
+
+    The process may exit while it runs (a daemon thread does not hold it);
+    `thread.join()` waits for the kernels when the caller needs them.  Errors
+    are left to the first real encode or decode, which compiles anew."""
+    import threading
+
+    def _run():
+        try:
+            warm_up()
+        except Exception:  # noqa: BLE001 - the first real call reports it
+            pass
+
+    thread = threading.Thread(target=_run, name=name, daemon=True)
+    thread.start()
+    return thread

@@ -68,6 +68,30 @@ def test_warm_up_compiles_and_can_run_twice():
     debt.warm_up()
 
 
+def test_warm_up_in_background_is_a_daemon_thread():
+    # The node and the console start it and may exit before it ends.
+    thread = debt.warm_up_in_background()
+    assert thread.daemon
+    thread.join(timeout=300)
+    assert not thread.is_alive()
+
+
+def test_a_process_exits_while_the_warm_up_runs(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    env = dict(__import__("os").environ, NUMBA_CACHE_DIR=str(tmp_path))  # a cold compile
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-c",
+                          "from rovlink import debt; t = debt.warm_up_in_background(); "
+                          "print(t.is_alive())"],
+                         env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "True"
+    assert time.monotonic() - t0 < 60
+
+
 def test_compiled_cache_goes_when_any_debt_source_changes(tmp_path):
     # numba keys a cached kernel by its own file; the traversal inlines the
     # range coder of another file, so DEBT drops its whole cache when any of
