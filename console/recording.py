@@ -4,7 +4,7 @@ A recording (written by `console.operator.Recorder`) is JSON lines, each with
 `k` (kind) and `t` (session seconds): "meta" first, then "tx"/"rx" frames as
 hex, "wish" velocity changes, "order" and "order_state", "pose", "image".
 
-Playback does not need a ROV: the received bytes are parsed again with the
+Playback does not need a ROV (`replaycontrol` gives it a timeline: pause, seek, speed): the received bytes are parsed again with the
 link's own FrameDecoder and Reply, image trunks reassembled by (IMG, OFFSET)
 exactly as the master did, and the resulting events handed to an Operator,
 which shows them as if live (its scene and web page work unchanged).
@@ -114,49 +114,19 @@ class ReplyReplayer:
 
 
 async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None) -> dict:
-    """Play a recording into `operator` in (scaled) real time; returns counts."""
-    if speed <= 0:
+    """Play a recording into `operator` in (scaled) real time, to its end; returns
+    counts.  A timeline to pause, seek and change speed: `replaycontrol`."""
+    from .replaycontrol import ReplayController
+
+    if not speed > 0:
         raise ValueError("speed must be positive")
-    records = list(read_records(path))
-    meta = records[0]
-    operator.bitrate_bps = meta.get("bitrate_bps", operator.bitrate_bps)
-    operator.delay_s = meta.get("delay_s", operator.delay_s)
-    operator.replaying = True
-    replayer = ReplyReplayer()
-    # Protocol 2 sessions record what the master was given ("reply": authentic,
-    # timely, tag removed); their raw frames ("rx") then count only as traffic.
-    authenticated = any(r.get("k") == "reply" for r in records)
-    loop = asyncio.get_running_loop()
-    start = loop.time()
-    counts = {"rx": 0, "tx": 0, "wish": 0, "orders": 0, "replies": 0}
-    for record in records[1:]:
-        t = float(record.get("t", 0.0))
-        delay = start + t / speed - loop.time()
-        if delay > 0:
-            await asyncio.sleep(delay)
-        kind = record.get("k")
-        if kind == "rx":
-            counts["rx"] += 1
-            operator.history.link_events.append((operator.now(), "rx", len(record["hex"]) // 2))
-            if not authenticated:
-                operator._on_events(replayer.feed(bytes.fromhex(record["hex"]), operator.now()), operator.now())
-        elif kind == "reply":
-            counts["replies"] += 1
-            events = replayer.feed_payload(bytes.fromhex(record["hex"]), operator.now(), sync=bool(record.get("sync")))
-            operator._on_events(events, operator.now())
-        elif kind == "tx":
-            counts["tx"] += 1
-            operator._frame_sent(bytes.fromhex(record["hex"]), operator.now())
-        elif kind == "wish":
-            counts["wish"] += 1
-            operator.replayed_wish(tuple(v / 127 for v in record["v"]))
-        elif kind in ("order", "order_state"):
-            counts["orders"] += 1
-            operator.replayed_order(record)
-    operator.note(f"replay finished: {counts['rx']} frames received, {counts['tx']} sent")
-    if on_done:
-        on_done(counts)
-    return counts
+    controller = ReplayController(operator, path, speed=speed, on_done=on_done).start()
+    try:
+        while not controller.ended:
+            await asyncio.sleep(0.02)
+    finally:
+        controller.close()
+    return dict(controller.counts)
 
 
 # ---------------------------------------------------------------------------

@@ -35,6 +35,7 @@ from . import errors
 from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
 from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
 from .routers import control, image, images, link, orders, state, ws
+from .routers import replay
 from .routers.image import PngCache
 from .telemetry import SharedSnapshot
 
@@ -115,6 +116,7 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     errors.install(app)
     for module in (state, orders, image, images, link, control, ws):
         app.include_router(module.router)
+    app.include_router(replay.router)  # GET/POST /api/replay: the replay's timeline
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
     # Outermost: a large body is refused before anything reads it (guard.py).
     # `policy`: who may connect (Host names, access token); loopback only by default.
