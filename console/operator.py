@@ -495,7 +495,9 @@ class Operator:
         self.recorder.write({"k": "pose", "t": round(t, 4), **{k: round(v, 3) for k, v in pose.as_dict().items()},
                              "armed": reply.armed, "mode": reply.mode, "failsafe": reply.failsafe,
                              "autopilot": reply.autopilot})
-        if entered_failsafe:
+        if entered_failsafe and previous is None:
+            self.note("ROV in FAILSAFE at link start (it had no poll yet)", "warn")
+        elif entered_failsafe:
             self.note("ROV reports FAILSAFE: it had no poll for its failsafe time, braked and holds", "alert")
         self._publish("pose", self.pose_state())
         self._check_requests(t)

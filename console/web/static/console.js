@@ -35,6 +35,12 @@ const page = {
   alerts: 0,             // alarm sounds started (the tests read it)
   audio: null,
   orderStates: {},       // id -> last state shown
+  logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
+  logKeys: new Set(),
+  history: [],           // kept pictures' metadata (GET /api/images)
+  historyKey: "",        // serial and count the history was fetched for
+  shownPast: null,       // n of the kept picture shown large, or null: the latest complete one
+  lastState: null,       // the last telemetry snapshot (for the clock-driven refresh)
 };
 
 const $ = (id) => document.getElementById(id);
@@ -98,6 +104,9 @@ function onMessage(msg) {
       break;
     case "image":
       renderImageProgress(msg.image);
+      break;
+    case "log":
+      addLog([msg.entry]);
       break;
     case "error":
       showError(msg.message);
@@ -309,6 +318,9 @@ function render(s) {
       ? ` ± ${fmt(pose.uncertainty_m, 1)} m` : "");
   $("pose-table").classList.toggle("stale", lost);
   $("image-frame").classList.toggle("stale", lost);
+  $("image-done-frame").classList.toggle("stale", lost);
+  page.lastState = s;
+  renderInstruments(s);
   $("hold").hidden = !pose.hold;
   $("stopping").hidden = !pose.stopping;
   $("attitude").hidden = !pose.received || pose.attitude_valid !== false;
@@ -345,13 +357,121 @@ function render(s) {
 
   renderImageProgress(s.image);
   for (const o of s.orders) renderOrder(o, true);
-  renderList($("orders"), s.orders.slice(-6).reverse(), orderText);
-  renderList($("log"), s.log.slice(-6).reverse(), (e) => `${fmt(e.t, 1)} s ${e.text}`);
+  renderList($("orders"), s.orders.slice(-4).reverse(), orderText);
+  addLog(s.log);
+}
+
+// A wish fraction in the pilot's units: the vehicle model's steady state
+// (GET /api/config wish_scale, console/control.py), so "about".
+function wishUnits(axis, f) {
+  const sc = page.config && page.config.wish_scale && page.config.wish_scale[axis];
+  if (!sc || !f) return 0;
+  if (sc.kind === "rate") return sc.max * f;
+  const thrust = sc.thrust_n * Math.abs(f);
+  const v = (-sc.lin + Math.sqrt(sc.lin * sc.lin + 4 * sc.quad * thrust)) / (2 * sc.quad);
+  return Math.sign(f) * v;
 }
 
 function renderWish(w) {
-  $("wish").textContent = `vx ${fmt(w.vx)} vy ${fmt(w.vy)} vz ${fmt(w.vz)} vyaw ${fmt(w.vyaw)}`;
+  const parts = [];
+  const names = { vx: ["forward", "back"], vy: ["right", "left"], vz: ["down", "up"], vyaw: ["turn right", "turn left"] };
+  for (const axis of ["vx", "vy", "vz", "vyaw"]) {
+    if (!w[axis]) continue;
+    const v = wishUnits(axis, w[axis]);
+    const unit = axis === "vyaw" ? "°/s" : "m/s";
+    parts.push(`${names[axis][w[axis] > 0 ? 0 : 1]} ${Math.abs(v).toFixed(axis === "vyaw" ? 0 : 2)} ${unit}`);
+  }
+  $("wish").textContent = parts.length ? `≈ ${parts.join(", ")}` : "neutral";
+  $("wish").title = `fractions: vx ${fmt(w.vx)} vy ${fmt(w.vy)} vz ${fmt(w.vz)} vyaw ${fmt(w.vyaw)}`;
   document.body.dataset.wish = JSON.stringify(w);
+}
+
+// ---------------------------------------------------------------------------
+// Instruments: from the last reply; grey when old (link lost) or not measured
+// ---------------------------------------------------------------------------
+
+function renderInstruments(s) {
+  const pose = s.pose;
+  const r = pose.received;
+  const lost = s.link.state === "lost";
+  const attOk = !!r && pose.attitude_valid !== false;
+  const posOk = !!r && pose.position_valid !== false;
+  const target = s.target && s.target.sent ? s.target : null;
+  const mark = (id, ok) => {
+    const el = $(id);
+    el.classList.toggle("stale", !!r && lost);
+    el.classList.toggle("invalid", !ok);
+    el.dataset.valid = ok && !lost ? "1" : "0";
+  };
+  mark("inst-attitude", attOk);
+  mark("inst-heading", attOk);
+  mark("inst-depth", posOk);
+  const I = window.rovInstruments;
+  if (I) {
+    I.attitude($("attitude-indicator"), attOk ? r.roll_deg : null, attOk ? r.pitch_deg : null, attOk && !lost);
+    I.heading($("heading-tape"), attOk ? r.yaw_deg : null, target ? target.yaw_deg : null, attOk && !lost);
+    I.depth($("depth-tape"), posOk ? r.z_m : null, target ? target.z_m : null, posOk && !lost);
+  }
+  $("attitude-text").textContent = attOk ? `roll ${fmt(r.roll_deg, 0)}° pitch ${fmt(r.pitch_deg, 0)}°` : "roll — pitch —";
+  $("heading-text").textContent = attOk ? `heading ${fmt((r.yaw_deg % 360 + 360) % 360, 0)}°` +
+    (target ? `, target ${fmt((target.yaw_deg % 360 + 360) % 360, 0)}°` : "") : "heading —";
+  $("depth-text").textContent = posOk ? `depth ${fmt(r.z_m, 1)} m` + (target ? `, target ${fmt(target.z_m, 1)}` : "")
+    : "depth —";
+  const v = pose.velocity;
+  const speed = (x, unit, digits = 2) => (v && !lost ? `${fmt(x, digits)} ${unit}` : "—");
+  $("speed-forward").textContent = speed(v && v.forward_mps, "m/s");
+  $("speed-right").textContent = speed(v && v.right_mps, "m/s");
+  // Vertical: up positive, as a pilot reads a climb.
+  $("speed-vertical").textContent = v && !lost ? `${v.down_mps > 0.005 ? "down" : v.down_mps < -0.005 ? "up" : ""} ${fmt(Math.abs(v.down_mps))} m/s` : "—";
+  $("speed-yaw").textContent = speed(v && v.yaw_dps, "°/s", 0);
+  for (const id of ["speed-forward", "speed-right", "speed-vertical", "speed-yaw"]) {
+    $(id).classList.toggle("stale", !!r && lost);
+  }
+  $("odometry-age").textContent = pose.odometry_age_s === null || pose.odometry_age_s === undefined ? "—"
+    : `${fmt(pose.odometry_age_s, 1)} s old`;
+}
+
+// ---------------------------------------------------------------------------
+// The log: clock time, alerts apart, filterable
+// ---------------------------------------------------------------------------
+
+const clockTime = (wall) => (wall ? new Date(wall * 1000).toLocaleTimeString([], { hour12: false }) : "");
+
+function addLog(entries) {
+  let added = false;
+  for (const e of entries || []) {
+    const key = `${e.t}|${e.text}`;
+    if (page.logKeys.has(key)) continue;
+    page.logKeys.add(key);
+    page.logEntries.push(e);
+    added = true;
+  }
+  if (!added) return;
+  page.logEntries.sort((a, b) => a.t - b.t);
+  if (page.logEntries.length > 500) {
+    for (const e of page.logEntries.splice(0, page.logEntries.length - 500)) page.logKeys.delete(`${e.t}|${e.text}`);
+  }
+  renderLog();
+}
+
+function renderLog() {
+  const level = $("log-level").value;
+  const words = $("log-filter").value.trim().toLowerCase();
+  const wanted = (e) => (level === "all" || (level === "alert" && e.level === "alert")
+    || (level === "warn" && e.level !== "info") || (level === "info" && e.level === "info"))
+    && (!words || e.text.toLowerCase().includes(words));
+  const line = (e) => {
+    const li = document.createElement("li");
+    li.textContent = `${clockTime(e.wall)} ${e.text}`;
+    li.className = e.level || "info";
+    return li;
+  };
+  const shown = page.logEntries.filter(wanted).slice(-100).reverse();
+  $("log").replaceChildren(...shown.map(line));
+  $("log").dataset.count = shown.length;
+  // The last alerts stand apart, above the routine lines.
+  const alerts = page.logEntries.filter((e) => e.level === "alert").slice(-3).reverse();
+  $("alerts").replaceChildren(...alerts.map(line));
 }
 
 function orderText(o) {
@@ -483,11 +603,121 @@ function renderImageProgress(im) {
   bar.max = im.total_bytes || 1;
   bar.value = im.received_bytes;
   $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
-  $("image-id").textContent = im.img === null ? "" : `#${im.img}${im.complete ? " complete" : ""}`;
+  $("image-id").textContent = im.img === null ? "" : `#${im.serial ?? ""} (IMG ${im.img})${im.complete ? " complete" : ""}` +
+    (im.capture ? `, captured ${captureText(im.capture)}` : "");
   card.dataset.img = im.img ?? "";
   card.dataset.receivedBytes = im.received_bytes;
   card.dataset.totalBytes = im.total_bytes ?? "";
   showImage(im);
+  const key = `${im.serial ?? ""}:${im.images_completed ?? ""}`;
+  if (key !== page.historyKey) {
+    page.historyKey = key;
+    loadHistory();
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Kept pictures: the last complete one large, a strip to look back, Save
+// ---------------------------------------------------------------------------
+
+// The capture is known only between two replies (console/operator.py): say so.
+function captureText(c) {
+  if (!c) return "at an unknown time";
+  const age = Math.max(0, Date.now() / 1000 - c.wall);
+  const window = c.not_before_wall === null ? " or earlier" : c.not_after_wall - c.not_before_wall > 1.5
+    ? ` to ${clockTime(c.not_after_wall)}` : "";
+  return `${clockTime(c.wall)}${window}, ${age < 90 ? `${age.toFixed(0)} s` : `${(age / 60).toFixed(0)} min`} ago`;
+}
+
+function poseShort(p) {
+  return p ? `x ${fmt(p.x_m, 1)} y ${fmt(p.y_m, 1)} z ${fmt(p.z_m, 1)} m, ${fmt((p.yaw_deg % 360 + 360) % 360, 0)}°` : "position not known";
+}
+
+async function loadHistory() {
+  try {
+    const resp = await fetch("/api/images", { cache: "no-store" });
+    if (!resp.ok) return;
+    page.history = await resp.json();
+  } catch (err) {
+    return;
+  }
+  renderStrip();
+  renderShownPicture();
+}
+
+function shownEntry() {
+  const h = page.history;
+  if (page.shownPast !== null) {
+    const e = h.find((x) => x.n === page.shownPast);
+    if (e) return e;
+    page.shownPast = null;  // no longer kept
+  }
+  for (let i = h.length - 1; i >= 0; i -= 1) if (!h[i].partial) return h[i];
+  return null;
+}
+
+function renderStrip() {
+  const shown = shownEntry();
+  const buttons = page.history.slice().reverse().map((e) => {
+    const b = document.createElement("button");
+    b.type = "button";
+    b.className = (e.partial ? "partial " : "") + (shown && e.n === shown.n ? "shown" : "");
+    b.title = `#${e.n}${e.partial ? " (abandoned, partial)" : ""}, captured ${captureText(e.capture)}, ${e.bytes} B`;
+    b.dataset.n = e.n;
+    const img = document.createElement("img");
+    img.src = `/api/images/${e.n}.png`;
+    img.alt = `picture ${e.n}`;
+    b.append(img);
+    b.onclick = () => {
+      const newest = page.history.filter((x) => !x.partial).pop();
+      page.shownPast = newest && newest.n === e.n ? null : e.n;
+      renderStrip();
+      renderShownPicture();
+    };
+    return b;
+  });
+  $("image-strip").replaceChildren(...buttons);
+}
+
+function renderShownPicture() {
+  const e = shownEntry();
+  const img = $("image-done");
+  $("image-save").disabled = !e;
+  $("image-latest").hidden = page.shownPast === null;
+  $("no-image-done").hidden = !!e;
+  if (!e) { img.removeAttribute("src"); $("image-done-meta").textContent = "—"; return; }
+  const src = `/api/images/${e.n}.png`;
+  if (img.dataset.n !== String(e.n)) {
+    img.src = src;
+    img.dataset.n = e.n;
+    img.onload = () => drawRoi();
+  }
+  $("image-done-id").textContent = `#${e.n}${page.shownPast !== null ? " (looking back)" : " latest complete"}`;
+  renderShownMeta();
+}
+
+function renderShownMeta() {
+  const e = shownEntry();
+  if (!e) return;
+  const s = e.settings;
+  const roi = s && s.roi ? `ROI ${s.roi.join(",")} shift ${s.shift}` : "no ROI";
+  const c = e.capture;
+  $("image-done-meta").textContent = `captured ${captureText(c)} at ${poseShort(c && c.pose)}; ` +
+    `${e.bytes}${e.total_bytes ? ` / ${e.total_bytes - 2}` : ""} B${e.partial ? " (abandoned)" : ""}` +
+    `${e.seconds !== null ? ` in ${fmt(e.seconds, 1)} s` : ""}, ${roi}`;
+}
+
+function savePicture() {
+  const e = shownEntry();
+  if (!e) return;
+  for (const ext of ["png", "json"]) {
+    const a = document.createElement("a");
+    a.href = `/api/images/${e.n}.${ext}?download=1`;
+    a.download = "";
+    document.body.append(a);
+    a.click();
+    a.remove();
+  }
 }
 
 function showImage(im) {
@@ -530,8 +760,9 @@ let lastImageState = null;
 // Region of interest: dragged on the picture, in the picture's own pixels
 // ---------------------------------------------------------------------------
 
-function picturePoint(ev) {
-  const img = $("image");
+const PICTURES = [["image", "roi-box"], ["image-done", "roi-box-done"]];
+
+function picturePoint(ev, img = page.dragImg || $("image")) {
   const r = img.getBoundingClientRect();
   const fx = Math.min(1, Math.max(0, (ev.clientX - r.left) / r.width));
   const fy = Math.min(1, Math.max(0, (ev.clientY - r.top) / r.height));
@@ -543,16 +774,18 @@ function roiFrom(a, b) {
 }
 
 function drawRoi(roi = page.roi) {
-  const box = $("roi-box");
-  const img = $("image");
-  if (!roi || !img.naturalWidth) { box.hidden = true; return; }
-  const sx = img.clientWidth / img.naturalWidth;
-  const sy = img.clientHeight / img.naturalHeight;
-  Object.assign(box.style, {
-    left: `${img.offsetLeft + roi[0] * sx}px`, top: `${img.offsetTop + roi[1] * sy}px`,
-    width: `${(roi[2] - roi[0]) * sx}px`, height: `${(roi[3] - roi[1]) * sy}px`,
-  });
-  box.hidden = false;
+  for (const [imgId, boxId] of PICTURES) {
+    const box = $(boxId);
+    const img = $(imgId);
+    if (!roi || !img.naturalWidth || !img.getAttribute("src")) { box.hidden = true; continue; }
+    const sx = img.clientWidth / img.naturalWidth;
+    const sy = img.clientHeight / img.naturalHeight;
+    Object.assign(box.style, {
+      left: `${img.offsetLeft + roi[0] * sx}px`, top: `${img.offsetTop + roi[1] * sy}px`,
+      width: `${(roi[2] - roi[0]) * sx}px`, height: `${(roi[3] - roi[1]) * sy}px`,
+    });
+    box.hidden = false;
+  }
 }
 
 function setRoi(roi) {
@@ -564,12 +797,15 @@ function setRoi(roi) {
 }
 
 function wireRoi() {
-  const img = $("image");
-  img.addEventListener("mousedown", (ev) => {
-    if (!page.holder || !img.naturalWidth) return;
-    ev.preventDefault();
-    page.drag = picturePoint(ev);
-  });
+  for (const [imgId] of PICTURES) {
+    const img = $(imgId);
+    img.addEventListener("mousedown", (ev) => {
+      if (!page.holder || !img.naturalWidth) return;
+      ev.preventDefault();
+      page.dragImg = img;
+      page.drag = picturePoint(ev, img);
+    });
+  }
   window.addEventListener("mousemove", (ev) => {
     if (page.drag) drawRoi(roiFrom(page.drag, picturePoint(ev)));
   });
@@ -577,6 +813,7 @@ function wireRoi() {
     if (!page.drag) return;
     const roi = roiFrom(page.drag, picturePoint(ev));
     page.drag = null;
+    page.dragImg = null;
     // A click, not a drag: keep what was chosen before.
     if (roi[2] - roi[0] < 4 || roi[3] - roi[1] < 4) drawRoi();
     else setRoi(roi);
@@ -669,6 +906,20 @@ function wire() {
   };
   wireRoi();
   $("next-image").onclick = () => api("/api/image/next");
+  $("image-save").onclick = savePicture;
+  $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
+  $("log-level").onchange = renderLog;
+  $("log-filter").oninput = renderLog;
+  fetch("/api/log").then((r) => r.json()).then(addLog).catch(() => {});
+  // The clock, and ages that grow while nothing new arrives.
+  const tick = () => {
+    $("clock").textContent = new Date().toLocaleTimeString([], { hour12: false });
+    renderShownMeta();
+    const im = page.lastState && page.lastState.image;
+    if (im && im.capture) $("image-id").textContent = `#${im.serial} (IMG ${im.img})${im.complete ? " complete" : ""}, captured ${captureText(im.capture)}`;
+  };
+  tick();
+  setInterval(tick, 1000);
   $("gain").oninput = () => { $("gain-value").textContent = `${Math.round($("gain").value * 100)} %`; };
 
   // A clicked button keeps no focus: Space is STOP, never "press the last button".

@@ -289,6 +289,7 @@
 
   function changed() {
     save();
+    renderMappingNote();
     renderCurve();
     renderGain();
     renderLive();
@@ -331,6 +332,7 @@
     ui.curve.setAttribute("height", "80");
     ui.curve.setAttribute("viewBox", "-1.05 -1.05 2.1 2.1");
     ui.curve.id = "gp-curve";
+    ui.mappingNote = el("div", { className: "gp-msg", id: "gp-mapping-note" });
     const shaping = el("div", { className: "row" },
                        el("label", {}, "deadzone ", dz), el("label", {}, "expo ", expo), ui.curve);
 
@@ -410,9 +412,10 @@
                     el("div", { className: "row" }, ui.liveAxes, ui.liveOut), ui.liveButtons);
 
     box.replaceChildren(summary,
-      el("fieldset", {}, el("legend", { textContent: "sticks" }), mapping, shaping),
+      el("fieldset", {}, el("legend", { textContent: "sticks" }), mapping, ui.mappingNote, shaping),
       gainBox, stopBox, ui.msg, reset, live);
     renderStop();
+    renderMappingNote();
     renderCurve();
     renderGain();
     renderLive();
@@ -444,10 +447,13 @@
     }
     message(`Press the pad button for ${captureWords[what]} (the sticks drive nothing meanwhile; ` +
             `the STOP buttons still stop). Escape cancels.`);
+    tell(`Gamepad: waiting for the ${captureWords[what]} button; the sticks drive nothing.`);
   }
 
   function endCapture(text) {
+    if (!capture) return;
     capture = null;
+    tell(statusText());
     delete document.body.dataset.gamepadCapture;
     if (box) {
       for (const b of box.querySelectorAll("button.gp-capture")) {
@@ -490,6 +496,18 @@
     else message(note.trim());
     changed();
     return true;
+  }
+
+  // Two vehicle axes on one stick axis is allowed, but said.
+  function renderMappingNote() {
+    if (!ui.mappingNote) return;
+    const by = {};
+    for (const [k, name] of VEHICLE) {
+      const a = settings.axes[k].axis;
+      if (a >= 0) (by[a] = by[a] || []).push(name);
+    }
+    const shared = Object.entries(by).filter(([, names]) => names.length > 1);
+    ui.mappingNote.textContent = shared.map(([a, names]) => `axis ${a} drives ${names.join(" and ")}.`).join(" ");
   }
 
   function renderStop() {
@@ -563,6 +581,8 @@
   if (box) {
     buildUI();
     box.addEventListener("toggle", () => {
+      // Closing the settings ends a capture: the sticks never stay dead unseen.
+      if (!box.open && capture) endCapture("Closed: nothing changed.");
       clearInterval(liveTimer);
       liveTimer = box.open ? setInterval(renderLive, LIVE_MS) : null;
       renderLive();
