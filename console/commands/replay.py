@@ -5,12 +5,30 @@ from __future__ import annotations
 from rovlink.command import positive
 from .serve import add_server_arguments
 
+# As console/replaycontrol.py (not imported here: the CLI must start without the console extra).
+MIN_SPEED, MAX_SPEED = 0.1, 64.0
+
+
+def replay_speed(text: str) -> float:
+    import argparse
+
+    value = positive(text)
+    if not MIN_SPEED <= value <= MAX_SPEED:
+        raise argparse.ArgumentTypeError(f"must be within {MIN_SPEED:g}..{MAX_SPEED:g}, got {text!r}")
+    return value
+
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("replay", help="play a recorded session back into the console",
-                              description="Serve the console and play FILE's frames into it with their timing.")
+    p = subparsers.add_parser("replay", help="play a recorded session back into the console, on a timeline",
+                              description="Serve the console and play FILE's frames into it with their timing. "
+                              "The page shows a timeline above its panel: pause and play, drag the slider to "
+                              "go to any moment (back or forward), change the speed; scripts use GET /api/replay "
+                              "and POST /api/replay/pause, /resume, /seek {t}, /speed {speed}. Nothing is sent "
+                              "to any vehicle.")
     p.add_argument("file", metavar="FILE", help="a session recording (runs/session-*.jsonl)")
-    p.add_argument("--speed", type=positive, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--speed", type=replay_speed, default=1.0,
+                   help=f"playback speed factor, {MIN_SPEED:g}..{MAX_SPEED:g} (default 1; changeable on the timeline)")
+    p.add_argument("--paused", action="store_true", help="start paused at the beginning (press play on the timeline)")
     add_server_arguments(p)
     p.set_defaults(func=run_replay)
 
@@ -31,19 +49,29 @@ def run_replay(args) -> int:
 
     from rovlink.command import CommandError
     from rovlink.console.operator import Operator
-    from rovlink.console.recording import RecordingError, read_records, replay
+    from rovlink.console.recording import RecordingError
+    from rovlink.console.replaycontrol import ReplayController
 
     from .serve import serve_operator
 
+    operator = Operator(None)
     try:
-        next(iter(read_records(args.file)))
+        controller = ReplayController(operator, args.file, speed=args.speed, paused=args.paused)
     except RecordingError as exc:
         raise CommandError(str(exc)) from None
 
+    async def play() -> None:
+        controller.start()
+        try:
+            await asyncio.Event().wait()  # until the server stops
+        finally:
+            controller.close()
+
     async def main() -> None:
-        operator = Operator(None)
-        await serve_operator(operator, args, banner=f"rovlink replay of {args.file} at x{args.speed:g}",
-                             background=[replay(operator, args.file, speed=args.speed)])
+        state = "paused" if args.paused else f"at x{args.speed:g}"
+        await serve_operator(operator, args, background=[play()],
+                             banner=f"rovlink replay of {args.file} ({controller.duration:.1f} s) {state}: "
+                                    "a timeline on the page to pause, seek and change speed")
 
     try:
         asyncio.run(main())
