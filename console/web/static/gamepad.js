@@ -34,6 +34,10 @@
 // - At least one pad button is always STOP (the page's STOP button and Space
 //   stay STOP whatever the pad does).
 // - The current gain step is saved with the settings and restored on load.
+// - The pad that connected last is the one that drives (a second pad that
+//   connects takes over, at its own stick positions).
+// - A page reads the stored settings when it loads; two pages open at once
+//   each keep their own until reloaded (the last one changed is saved).
 "use strict";
 
 (() => {
