@@ -111,12 +111,19 @@ def button(page, b: int, down: bool) -> None:
     page.evaluate("([b, d]) => { window.testPad.buttons[b] = { pressed: d, value: d ? 1 : 0 }; }", [b, down])
 
 
+PRESSED = "(b) => (document.getElementById('gp-live-buttons').dataset.pressed || '').split(',').includes(String(b))"
+
+
 def tap(page, b: int) -> None:
-    """Press and release: long enough for the page's 50 ms poll and console.js's 100 ms tick."""
+    """Press and release, each seen by the page's live state (drawn every 100 ms, as console.js's
+    tick, the 50 ms poll of gain buttons in between) and held a while longer: on a busy machine
+    the page's timers may run late, never skipped."""
     button(page, b, True)
-    page.wait_for_timeout(250)
+    page.wait_for_function(PRESSED, arg=b)
+    page.wait_for_timeout(200)
     button(page, b, False)
-    page.wait_for_timeout(250)
+    page.wait_for_function(f"(b) => !({PRESSED})(b)", arg=b)
+    page.wait_for_timeout(200)
 
 
 def set_number(page, selector: str, value: str) -> None:

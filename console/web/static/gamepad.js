@@ -568,6 +568,7 @@
       ui.liveAxes.replaceChildren();
       ui.liveOut.replaceChildren();
       ui.liveButtons.textContent = "";
+      ui.liveButtons.dataset.pressed = "";
       return;
     }
     ui.liveId.textContent = `${pad.id} (${pad.mapping === "standard" ? "standard mapping" : "mapping not standard: check the axes"})`;
