@@ -405,3 +405,49 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
     finally:
         controller.close()
     assert not errors, errors
+
+
+# ----------------------------------------------------------------------
+# The command
+# ----------------------------------------------------------------------
+
+
+def post(url: str, body: dict | None = None) -> dict:
+    import urllib.request
+
+    request = urllib.request.Request(url, data=json.dumps(body or {}).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def test_rovlink_replay_serves_the_timeline(recording):
+    import signal
+    import subprocess
+    import sys
+
+    from ..helpers import free_tcp_port, get_json, wait_until_up
+
+    rovlink = [sys.executable, "-m", "rovlink", "replay"]
+    out = subprocess.run(rovlink + [str(recording), "--speed", "100"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "0.1..64" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+    port = free_tcp_port()
+    proc = subprocess.Popen(rovlink + [str(recording), "--paused", "--port", str(port),
+                                       "--viser-port", str(free_tcp_port())],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    base = f"http://127.0.0.1:{port}/api/replay"
+    try:
+        state = wait_until_up(lambda: get_json(base), 60)
+        assert state, proc.stderr.read() if proc.poll() is not None else "no answer"
+        assert state["available"] and state["paused"] and state["t"] == 0.0
+        assert post(base + "/seek", {"t": 2.0})["t"] == 2.0
+        assert post(base + "/resume")["paused"] is False
+        assert wait_until_up(lambda: get_json(base)["t"] > 2.5, 10)
+        assert get_json(f"http://127.0.0.1:{port}/api/link")["state"] == "replay"
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0
+    assert "timeline" in stdout and "paused" in stdout
