@@ -249,7 +249,7 @@
 
   const STYLE = `
 #gamepad-settings { margin: 6px 0; }
-#gamepad-settings .gp-grid { display: grid; grid-template-columns: auto 1fr auto; gap: 3px 8px; align-items: center; }
+#gamepad-settings .gp-grid { display: grid; grid-template-columns: auto minmax(0, 1fr) auto; gap: 3px 8px; align-items: center; }
 #gamepad-settings fieldset { border: 1px solid #2b4357; border-radius: 4px; margin: 6px 0; padding: 4px 8px; }
 #gamepad-settings legend { color: var(--dim, #8aa2b4); font-size: 12px; }
 #gamepad-settings .gp-buttons { display: flex; flex-wrap: wrap; gap: 2px 8px; font-size: 12px; }
@@ -261,6 +261,7 @@
 #gamepad-settings .gp-out .gp-fill { background: #2e8b57; }
 #gamepad-settings .gp-live td { font-variant-numeric: tabular-nums; font-size: 12px; padding: 0 6px 0 0; }
 #gamepad-settings input[type=number] { width: 64px; }
+#gamepad-settings select { max-width: 100%; }
 #gamepad-settings svg { background: #0d1b24; border: 1px solid #2b4357; }
 #gamepad-settings button.gp-waiting { background: #d68910; }
 `;
