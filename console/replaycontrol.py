@@ -107,6 +107,7 @@ class ReplayController:
         self._feeding_t: float | None = None
         self._index = 0  # the next record to feed
         self._ended = False
+        self.seeks = 0  # seeks and restarts so far: a page reloads what a jump rewrote (its log)
         self._closed = False
         self._thread: threading.Thread | None = None
         self._replayer = ReplyReplayer()
@@ -161,7 +162,8 @@ class ReplayController:
     def state(self) -> dict:
         return {"available": True, "file": self.path.name, "t": round(self.clock(), 3),
                 "duration": round(self.duration, 3), "paused": self._paused, "ended": self._ended,
-                "speed": self._speed, "speeds": list(SPEEDS), "min_speed": MIN_SPEED, "max_speed": MAX_SPEED}
+                "speed": self._speed, "speeds": list(SPEEDS), "min_speed": MIN_SPEED, "max_speed": MAX_SPEED,
+                "seeks": self.seeks}
 
     # ------------------------------------------------------------------
     # Commands (any thread)
@@ -253,6 +255,7 @@ class ReplayController:
         self._ended = False
         self._fast_feed_until(t)
         self._set_timeline(t)
+        self.seeks += 1
         self.operator.note(f"replay: at {_clock_text(t)} of {_clock_text(self.duration)}")
 
     def _fast_feed_until(self, t: float) -> None:

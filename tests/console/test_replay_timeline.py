@@ -192,7 +192,9 @@ def test_the_end_pauses_and_play_starts_it_again(recording):
     op = Operator(None)
     done = []
     controller = ReplayController(op, recording, monotonic=clock, speed=8.0, on_done=done.append)
-    play_to(controller, clock, controller.duration, step_s=0.5)
+    play_to(controller, clock, controller.duration - 0.5, step_s=0.5)
+    assert not controller.ended
+    clock.now += 1.0  # past the end
     controller.advance()
     assert controller.ended and controller.paused and done and done[0]["replies"] > 50
     clock.now += 10
@@ -244,7 +246,7 @@ def test_the_api_pauses_seeks_and_changes_speed(replay_app, recording):
     assert r.status_code == 200 and r.json()["t"] == pytest.approx(second + 0.01, abs=1e-3)
     assert client.get("/api/state").json()["image"]["images_completed"] == 2
     r = client.post("/api/replay/seek", json={"t": 0.5})  # back
-    assert r.json()["t"] == pytest.approx(0.5) and client.get("/api/state").json()["image"]["images_completed"] == 0
+    assert r.json()["t"] == pytest.approx(0.5) and r.json()["seeks"] == state["seeks"] + 2 and client.get("/api/state").json()["image"]["images_completed"] == 0
 
     assert client.post("/api/replay/speed", json={"speed": 2}).json()["speed"] == 2.0
     r = client.post("/api/replay/resume").json()
@@ -360,6 +362,7 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
 
                 assert page.get_attribute("#replay-bar", "data-state") == "paused"
                 assert page.text_content("#replay-time").startswith("0:00.0 / 0:0")
+                page.evaluate("window.jumps = 0; addEventListener('rovlink:replay-jump', () => { window.jumps += 1; })")
 
                 # Playing: the time runs.
                 page.click("#replay-play")
@@ -392,6 +395,7 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
                 page.wait_for_function(f"Math.abs(+document.getElementById('replay-bar').dataset.t - "
                                        f"{controller.position}) < 0.05")
                 assert controller.paused and op.now() == pytest.approx(controller.position)
+                page.wait_for_function("window.jumps === 1")  # the page is told its past was rewritten
 
                 page.select_option("#replay-speed", "2")
                 assert wait_for(lambda: controller.speed == 2.0, 5)

@@ -34,6 +34,8 @@ class ReplayState(BaseModel):
     speeds: list[float] = Field(default_factory=list, description="the factors the page offers")
     min_speed: float = MIN_SPEED
     max_speed: float = MAX_SPEED
+    seeks: int = Field(0, description="seeks (and restarts from the end) so far: when it changes, what a page "
+                                      "keeps of the session's past (its log) was rewritten")
 
 
 class SeekRequest(Request):

@@ -11,6 +11,11 @@
 //
 // For tests and scripts the bar carries data-state ("playing" | "paused" |
 // "ended") and data-t (the session time shown, seconds).
+//
+// A jump (a seek or a restart, from this page or any other client) rewrites the
+// session's past: the page is told by a "rovlink:replay-jump" event on window
+// (detail: the replay state), so that what it keeps of the past (the log lines
+// it has seen) can be read again.
 "use strict";
 
 (() => {
@@ -119,7 +124,11 @@
   }
 
   function take(state) {
+    const before = replay.state;
     replay.state = state;
+    if (before && before.seeks !== state.seeks) {
+      window.dispatchEvent(new CustomEvent("rovlink:replay-jump", { detail: state }));
+    }
     replay.at = performance.now();
     draw();
   }
