@@ -23,6 +23,14 @@ Plan
 - The panel is built per viewer on `client.gui`; a viewer who may not order
   gets its order controls disabled (STOP stays open).
 - Frames are those of `console.scene.frames` (world ENU, z up; see there).
+- Each viewer chooses its view (`console.scene.chase`): its camera follows
+  the vehicle by default (follow, top) or is left to it (free); the loop sets
+  it a few times a second at most, when the vehicle moved.  The picture's
+  screen is carried ahead of and above the vehicle, where those views never
+  find it in front of the vehicle (the decision is written in chase.py).
+- A viewer opened by the operator page (its WebSocket path carries a scene
+  key) gets its control panel minimized: the page has its own controls, and
+  the 3-D view stays free; the pilot opens the panel with its "+" button.
 - viser callbacks are one-liners that delegate to plain methods, which the tests
   call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
   `move_target` (the gizmo), `send_target`, `stop_vehicle`, `reset_target`.
@@ -55,7 +63,8 @@ from rovlink.console import control
 from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
 from rovlink.console.operator import MAX_SPEED_MPS, Operator, OrderError, Pose
 
-from . import frames
+from . import chase, frames
+from .chase import SCREEN_WIDTH_M, ViewerView
 from .panel import ControlPanel
 from .roi import draw_roi, roi_from_world, roi_outline
 from .rov_model import load_rov_mesh
@@ -95,14 +104,11 @@ def viewer_path(server, client_id: int) -> str | None:
     except (AttributeError, KeyError, TypeError):
         return None
 
-# The initial view: from behind the start point (south-east, a little above),
-# looking down at the vehicle, 2 m deep, and the seabed beyond.
+# The initial view, until the follow camera takes over: from behind the start
+# point (south-east, a little above), looking down at the vehicle, 2 m deep.
 VIEW_POSITION = (2.6, -5.0, -0.2)
 VIEW_LOOK_AT = (-0.3, 1.2, -2.8)
-# The screen showing the latest picture: a board standing upright north-west of
-# the start point, turned towards the initial view.
-SCREEN_WIDTH_M = 4.0
-SCREEN_CENTRE = (-3.2, 3.4, -0.4)
+START_POSITION = (0.0, 0.0, -2.0)  # where the screen waits for the first odometry
 
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
@@ -110,6 +116,9 @@ FOOTPRINT_RANGE_M = 14.0
 ROV_RGB = (232, 96, 30)
 GHOST_RGB = (120, 200, 255)
 TARGET_RGB = (80, 230, 120)
+UNCERTAINTY_RGB = (255, 80, 80)
+FRUSTUM_RGB = (255, 230, 120)
+CAPTURE_RGB = (230, 120, 255)
 
 
 @dataclass(frozen=True)
@@ -143,19 +152,6 @@ def as_rgb(picture: np.ndarray) -> np.ndarray:
     if p.ndim == 2:
         p = np.repeat(p[:, :, None], 3, axis=2)
     return np.ascontiguousarray(p[:, :, :3])
-
-
-def facing_wxyz(centre, viewer) -> np.ndarray:
-    """Orientation of an upright image node at `centre` whose picture faces
-    `viewer` (its -z side towards it, image rows running down)."""
-    away = np.asarray(centre, float) - np.asarray(viewer, float)
-    away[2] = 0.0
-    z = away / np.linalg.norm(away)
-    y = np.array([0.0, 0.0, -1.0])
-    return tf.SO3.from_matrix(np.column_stack([np.cross(y, z), y, z])).wxyz
-
-
-SCREEN_WXYZ = facing_wxyz(SCREEN_CENTRE, VIEW_POSITION)
 
 
 def _show(handle) -> None:
@@ -198,6 +194,11 @@ class ConsoleScene:
         self._wish_dirty = threading.Event()
         self._settings_dirty = threading.Event()
         self._control_dirty = threading.Event()
+        self.views: dict[int, ViewerView] = {}  # each viewer's choice of view, by viser's client id
+        self._screen_at: tuple | None = None     # the vehicle pose the screen was last placed for
+        self._screen_next_at = 0.0
+        self._dragging = False                   # a ROI drag on the screen: neither it nor the views move
+        self._capture_shown = None
 
     # ------------------------------------------------------------------
     # Life cycle
@@ -220,6 +221,7 @@ class ConsoleScene:
         self._build_trail()
         self._build_target()
         self._build_uncertainty()
+        self._build_capture()
         if self.desk is None:
             # Alone: a desk nobody holds; the viewers watch, STOP excepted.
             self.desk, self._own_desk = ControlDesk(self.operator), True
@@ -318,17 +320,29 @@ class ConsoleScene:
         r_flu_cam = frames.camera_rotation_in_body(self.tilt_deg)
         self.frustum_node = self.server.scene.add_camera_frustum(
             "/rov/camera", fov=frames.vertical_fov_rad(self.hfov_deg, w, h), aspect=w / h, scale=0.45,
-            color=(255, 230, 120), thickness=0.012, position=CAMERA_IN_BODY_FLU,
+            color=FRUSTUM_RGB, thickness=0.012, position=CAMERA_IN_BODY_FLU,
             wxyz=tf.SO3.from_matrix(r_flu_cam).wxyz)
         self.footprint_node = self.server.scene.add_line_segments(
-            "/footprint", np.zeros((8, 2, 3), np.float32), (255, 230, 120), thickness=0.03, visible=False)
+            "/footprint", np.zeros((8, 2, 3), np.float32), FRUSTUM_RGB, thickness=0.03, visible=False)
+
+    def _build_capture(self) -> None:
+        """The vehicle's camera where the current picture was taken (the
+        operator's `image_state()["capture"]`): the same mount as the live
+        frustum, on a frame at the pose at capture, a little larger, in its own colour."""
+        w, h = self.image_px
+        self.capture_node = self.server.scene.add_frame("/capture", show_axes=False, visible=False)
+        self.capture_frustum_node = self.server.scene.add_camera_frustum(
+            "/capture/camera", fov=frames.vertical_fov_rad(self.hfov_deg, w, h), aspect=w / h, scale=0.55,
+            color=CAPTURE_RGB, thickness=0.015, position=CAMERA_IN_BODY_FLU,
+            wxyz=tf.SO3.from_matrix(frames.camera_rotation_in_body(self.tilt_deg)).wxyz)
 
     def _build_screen(self) -> None:
         w, h = self.image_px
         blank = np.full((h, w, 3), 30, np.uint8)
+        centre, wxyz = chase.screen_pose(START_POSITION, 0.0)
         self.screen_node = self.server.scene.add_image(
             "/screen", blank, SCREEN_WIDTH_M, SCREEN_WIDTH_M * h / w, format="jpeg", jpeg_quality=90,
-            position=SCREEN_CENTRE, wxyz=SCREEN_WXYZ, cast_shadow=False, receive_shadow=False)
+            position=centre, wxyz=wxyz, cast_shadow=False, receive_shadow=False)
         self.roi_node = self.server.scene.add_line_segments(
             "/screen/roi", np.zeros((4, 2, 3), np.float32), (255, 210, 0), thickness=0.05, visible=False)
 
@@ -344,8 +358,8 @@ class ConsoleScene:
         """A ring around the ghost, as wide as the vehicle may have strayed
         from the prediction: it grows while nothing is heard."""
         self.uncertainty_node = self.server.scene.add_line_segments(
-            "/ghost_uncertainty", np.zeros((UNCERTAINTY_SEGMENTS, 2, 3), np.float32), (255, 80, 80),
-            thickness=0.03, visible=False)
+            "/ghost_uncertainty", np.zeros((UNCERTAINTY_SEGMENTS, 2, 3), np.float32), UNCERTAINTY_RGB,
+            thickness=0.05, visible=False)
         self._uncertainty_shown = None
 
     def _update_uncertainty(self, predicted: Pose) -> None:
@@ -419,17 +433,34 @@ class ConsoleScene:
             except Exception:  # the viewer left meanwhile
                 log.debug("could not notify viewer %s", client.client_id, exc_info=True)
 
-        panel = ControlPanel(client.gui, self, lambda order: self.desk.submit(order, caller), notify)
+        with self._lock:
+            self.views[client.client_id] = ViewerView()
+        panel = ControlPanel(client.gui, self, lambda order: self.desk.submit(order, caller), notify,
+                             client_id=client.client_id)
         panel.set_permitted(self._may_order(caller))
+        if caller.scene_key is not None:
+            self._minimize_panel(client)
         if self.operator.picture() is not None:
             self._image_dirty.set()
         with self._lock:
             self.panels[client.client_id] = panel
 
+    @staticmethod
+    def _minimize_panel(client) -> None:
+        """Embedded in the operator page: the panel as a bar, the view free."""
+        main_panel = getattr(client.gui, "main_panel", None)  # viser >= 1.1
+        if main_panel is None:
+            return
+        try:
+            main_panel.minimize()
+        except Exception:  # the viewer left meanwhile
+            log.debug("could not minimize viewer %s's panel", client.client_id, exc_info=True)
+
     def _on_viewer_disconnect(self, client) -> None:
         with self._lock:
             self._refused_at.pop(client.client_id, None)
             self.panels.pop(client.client_id, None)
+            self.views.pop(client.client_id, None)
 
     def _may_order(self, caller: Caller) -> bool:
         return self.desk.refusal(control.ClearTarget(), caller) is None
@@ -461,6 +492,9 @@ class ConsoleScene:
         return False
 
     def _on_screen_drag(self, event) -> None:
+        # While the pilot drags, the screen stays where the drag began (it
+        # moves with the vehicle otherwise), and so do the views.
+        self._dragging = event.phase != "end"
         if not self.permit(event.client):
             self.show_roi(self.operator.requested_settings.roi)
             return
@@ -655,6 +689,7 @@ class ConsoleScene:
                 if self._own_desk:
                     self.desk.tick()
                 self.update_poses()
+                self.update_views()
                 if self._image_dirty.is_set():
                     self._image_dirty.clear()
                     self.update_image()
@@ -686,6 +721,7 @@ class ConsoleScene:
 
     def refresh_panels(self) -> None:
         pose, link, image = self.operator.pose_state(), self.operator.link_state(), self.operator.image_state()
+        self.show_capture(image.get("capture"))
         for panel in list(self.panels.values()):
             try:
                 panel.refresh(pose, link, image)
@@ -712,6 +748,8 @@ class ConsoleScene:
             self._last_predicted = predicted
             self.ghost_node.position, self.ghost_node.wxyz = frames.pose_to_world(predicted)
             _show(self.ghost_node)
+        # Where the views look too (throttled; also after the vehicle stopped).
+        self.place_screen(predicted)
         self.frames_pushed += 1
 
     def _update_footprint(self, pose: Pose) -> None:
@@ -756,5 +794,89 @@ class ConsoleScene:
         """A camera of another size: the screen and frustum follow its aspect."""
         self.image_px = (w, h)
         self.screen_node.render_height = SCREEN_WIDTH_M * h / w
-        self.frustum_node.fov = frames.vertical_fov_rad(self.hfov_deg, w, h)
-        self.frustum_node.aspect = w / h
+        self.frustum_node.fov = self.capture_frustum_node.fov = frames.vertical_fov_rad(self.hfov_deg, w, h)
+        self.frustum_node.aspect = self.capture_frustum_node.aspect = w / h
+
+    # ------------------------------------------------------------------
+    # Views, the screen, the picture's capture pose
+    # ------------------------------------------------------------------
+
+    def set_view(self, client_id: int | None, mode: str) -> None:
+        """A viewer chose follow, top or free (its panel's dropdown)."""
+        view = self.views.get(client_id) if client_id is not None else None
+        if view is not None:
+            view.set_mode(mode)
+
+    def centre_view(self, client_id: int | None) -> None:
+        """A viewer asked to see the vehicle in the middle (its panel's button):
+        done by the loop at its next turn."""
+        view = self.views.get(client_id) if client_id is not None else None
+        if view is not None:
+            view.centre = True
+
+    def update_views(self, now: float | None = None) -> None:
+        """Each following viewer's camera on the vehicle (the ghost: where it
+        probably is now), when it is due (`ViewerView.due`)."""
+        pose = self._last_predicted
+        if pose is None or self._dragging or not self.views:
+            return
+        now = time.monotonic() if now is None else now
+        position, yaw = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m), pose.yaw_deg
+        clients = self.server.get_clients()
+        for client_id, view in list(self.views.items()):
+            client = clients.get(client_id)
+            if client is None or not view.due(now, position, yaw):
+                continue
+            try:
+                self._aim(client, view, position, yaw)
+            except Exception:  # the viewer left meanwhile, or sent no camera yet
+                log.debug("could not move viewer %s's camera", client_id, exc_info=True)
+            view.done(now, position, yaw)
+
+    @staticmethod
+    def _aim(client, view: ViewerView, position: np.ndarray, yaw_deg: float) -> None:
+        camera = client.camera
+        if view.mode == chase.FREE:  # a centre request: same direction, on the vehicle
+            eye, look_at = chase.centred_view(camera.position, camera.look_at, position)
+            up = None
+        else:
+            # The pilot's zoom is kept while the view stays the same.
+            distance = (chase.clamp_distance(view.mode, float(np.linalg.norm(camera.position - camera.look_at)))
+                        if view.last is not None else None)
+            eye, look_at, up = chase.chase_view(position, yaw_deg, view.mode, distance)
+        with client.atomic():
+            if up is not None:
+                camera.up_direction = up
+            camera.position = eye  # (moves look_at along)
+            camera.look_at = look_at
+
+    def place_screen(self, pose: Pose) -> None:
+        """The screen ahead of and above the vehicle (`chase.screen_pose`),
+        a few times a second at most, not while it is dragged on."""
+        now = time.monotonic()
+        position = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
+        if self._dragging or now < self._screen_next_at:
+            return
+        last = None if self._screen_at is None else (frames.ned_to_world(*self._screen_at[:3]), self._screen_at[5])
+        if not chase.moved(last, position, pose.yaw_deg, chase.SCREEN_MIN_MOVE_M, chase.SCREEN_MIN_TURN_DEG):
+            return
+        self._screen_at = (pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg)
+        self._screen_next_at = now + chase.CHASE_PERIOD_S
+        centre, wxyz = chase.screen_pose(position, pose.yaw_deg)
+        self.screen_node.position, self.screen_node.wxyz = centre, wxyz
+        # The ROI drawn on it is the screen's child: it moves along.
+
+    def show_capture(self, capture: dict | None) -> None:
+        """The camera frustum at the vehicle's pose when the current picture
+        was taken; nothing while that is unknown."""
+        pose = None if not capture else capture.get("pose")
+        key = None if not pose else tuple(float(pose[k]) for k in
+                                          ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg"))
+        if key == self._capture_shown:
+            return
+        self._capture_shown = key
+        if key is None:
+            self.capture_node.visible = False
+            return
+        self.capture_node.position, self.capture_node.wxyz = frames.pose_to_world(Pose(*key))
+        _show(self.capture_node)

@@ -16,6 +16,8 @@ Goals
 - Built per viewer on its own `client.gui` (viser's camera-poses example): a
   viewer that may not order sees its order controls disabled (`set_permitted`),
   STOP excepted.
+- The view (follow, top, free; centre on the vehicle) is the viewer's own, not
+  an order: open to watchers too.  A legend says what each colour in the scene is.
 
 Keys follow the page's model: a held key drives (a press streams the key's
 velocity, which goes neutral after the dead man's time unless the press repeats),
@@ -33,6 +35,7 @@ import numpy as np
 from viser import uplot
 
 from rovlink.console import control
+from rovlink.console.scene import chase
 from rovlink.console.control import AXES, KEY_GAIN, KEYS, LIMITS, MODES, NotHolder
 from rovlink.console.operator import OrderError
 
@@ -83,13 +86,36 @@ def link_summary(s: dict) -> str:
     return "link up" if state == "up" else "link starting"
 
 
+def legend_html(scene) -> str:
+    """What each thing drawn in the scene is, in its colour."""
+    from rovlink.console.scene import app  # the colours live with the nodes
+
+    def swatch(rgb, text: str, opacity: float = 1.0) -> str:
+        r, g, b = rgb
+        return (f'<div style="display:flex;align-items:center;gap:0.5em;margin:0.15em 0">'
+                f'<span style="display:inline-block;width:1.6em;height:0.8em;border-radius:2px;'
+                f'background:rgba({r},{g},{b},{opacity})"></span><span>{text}</span></div>')
+
+    return ('<div style="font-size:0.8em;line-height:1.3">'
+            + swatch(app.ROV_RGB, "solid vehicle: last pose received")
+            + swatch(app.GHOST_RGB, "ghost: predicted pose now", 0.8)
+            + swatch(app.UNCERTAINTY_RGB, "ring: how far it may be (odometry old)")
+            + swatch(app.TARGET_RGB, "target and its path (sent only on Send)", 0.6)
+            + swatch(app.ROV_RGB, "thin line: its trail (poses received)")
+            + swatch(app.FRUSTUM_RGB, "camera now, and what it sees on the seabed")
+            + swatch(app.CAPTURE_RGB, "camera when the picture was taken")
+            + "</div>")
+
+
 class ControlPanel:
     """One viewer's panel.  `submit(order)` carries an order out for this
     viewer (raising NotHolder or OrderError); `notify(title, text)` tells
     the viewer why not."""
 
-    def __init__(self, gui, scene, submit: Callable, notify: Callable[[str, str], None] | None = None) -> None:
+    def __init__(self, gui, scene, submit: Callable, notify: Callable[[str, str], None] | None = None, *,
+                 client_id: int | None = None) -> None:
         self.gui = gui
+        self.client_id = client_id  # the viewer whose view this panel's View folder sets
         self.scene = scene
         self.operator = scene.operator
         self._submit_order = submit
@@ -100,6 +126,7 @@ class ControlPanel:
         self._rendering = threading.local()
         self.order_widgets: list = []
         self.permitted: bool | None = None
+        self._build_view()
         self._build_vehicle()
         self._build_velocity()
         self._build_keys()
@@ -155,6 +182,19 @@ class ControlPanel:
         self.control_md.content = ("You may order from this view." if permitted else
                                    "**Watching**: take control on the operator page to order from this view. "
                                    "STOP (Space) works for everyone.")
+
+    # ------------------------------------------------------------------
+    # View: this viewer's camera, and the legend
+    # ------------------------------------------------------------------
+
+    def _build_view(self) -> None:
+        with self.gui.add_folder("View"):
+            self.view = self.gui.add_dropdown("View", chase.VIEWS, initial_value=chase.FOLLOW,
+                                              hint="; ".join(chase.VIEW_LABELS[v] for v in chase.VIEWS))
+            self.centre_button = self.gui.add_button("Centre on vehicle")
+            self.legend = self.gui.add_html(legend_html(self.scene))
+        self.view.on_update(lambda _event: self.scene.set_view(self.client_id, self.view.value))
+        self.centre_button.on_click(lambda _event: self.scene.centre_view(self.client_id))
 
     # ------------------------------------------------------------------
     # Vehicle: arm, mode, state

@@ -28,13 +28,10 @@ import trimesh
 from viser import transforms as tf
 
 from rovlink import debt
-from rovlink.console.scene import frames
+from rovlink.console.scene import chase, frames
 from rovlink.console.scene.app import (
     CAMERA_HFOV_DEG,
     CAMERA_TILT_DEG,
-    SCREEN_CENTRE,
-    SCREEN_WXYZ,
-    VIEW_POSITION,
     ConsoleScene,
     SeabedAsset,
     as_rgb,
@@ -169,12 +166,18 @@ def test_seabed_texture_is_placed_where_the_camera_sees_it():
     assert (r @ np.array([0.0, 0.0, -1.0]))[2] == pytest.approx(1.0)
 
 
-def test_screen_stands_upright_facing_the_initial_view():
-    r = tf.SO3(np.asarray(SCREEN_WXYZ)).as_matrix()
-    to_view = np.subtract(VIEW_POSITION, SCREEN_CENTRE)
+@pytest.mark.parametrize("yaw", [0.0, 70.0, -150.0])
+def test_screen_faces_the_follow_camera_upright_ahead_of_the_vehicle(yaw):
+    vehicle = np.array([2.0, -3.0, -2.0])
+    centre, wxyz = chase.screen_pose(vehicle, yaw)
+    r = tf.SO3(np.asarray(wxyz)).as_matrix()
+    eye, _look_at, _up = chase.chase_view(vehicle, yaw, chase.FOLLOW)
+    to_view = eye - centre
     assert r[:, 2] @ to_view < 0  # the picture's side (-z) towards the viewer
-    assert np.allclose(r[:, 1], (0.0, 0.0, -1.0))  # rows run down
+    assert r[2, 1] < -0.8 and abs(r[2, 0]) < 1e-9  # rows run down the board, its rows level
     assert np.cross(-to_view, (0.0, 0.0, 1.0)) @ r[:, 0] > 0  # columns run to the viewer's right
+    heading = chase.heading_vector(yaw)
+    assert (centre - vehicle) @ heading > 3.0 and centre[2] - vehicle[2] > 1.5  # ahead, above
 
 
 def test_rov_asset_is_a_blue_rov_sized_coloured_mesh():
@@ -443,6 +446,13 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
             scene.desk.take(holder.id)
             page.goto(f"{scene.url}/?websocket=ws://{scene.url.split('//')[1]}/rovlink/{key}")
             canvas = page.wait_for_selector("canvas", timeout=30000)
+            # Embedded (its path carries a scene key): the panel is a bar, the 3-D view free...
+            assert wait_for(lambda: len(scene.panels) > 0, 30.0)
+            expand = page.get_by_role("button", name="Expand panel")
+            expand.wait_for(timeout=30000)
+            assert page.get_by_role("button", name="Centre on vehicle").count() == 0
+            # ...until the pilot opens it.
+            expand.click()
             page.wait_for_selector("text=Vehicle", timeout=30000)
             page.wait_for_selector("text=Link", timeout=30000)
             box = canvas.bounding_box()

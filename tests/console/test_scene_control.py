@@ -113,6 +113,8 @@ def test_a_watchers_scene_cannot_order_and_the_holders_can(live):
             keys = lambda: [scene.viewer_key(c) for c in scene.server.get_clients()]
             assert wait_for(lambda: sum(k is not None for k in keys()) >= 2, 10), keys()
             for page in pages:  # software WebGL on a shared machine: the panels take a while
+                # Embedded in the page, the panel starts minimized (the 3-D view free): open it.
+                page.frame_locator("#scene").get_by_role("button", name="Expand panel").click(timeout=90000)
                 apply_button(page).wait_for(timeout=90000)
 
             # Nobody holds control: neither scene may order; its order controls are disabled.
