@@ -230,9 +230,11 @@ def test_gamepad_sticks_drive_and_button_b_stops(open_page, live):
     take_control(page)
     page.evaluate(FAKE_GAMEPAD)
     assert page.text_content("#gamepad") == "Gamepad: test pad."
-    # Left stick pushed forward and right, right stick left: surge, sway, yaw.
+    # Left stick pushed forward and right, right stick left: surge, sway, yaw; the deadzone
+    # (0.12 by default) is cut out and the rest rescaled, so output grows from 0 at its edge:
+    # (0.8 - 0.12) / 0.88 = 0.773.  Heave's 0.05 lies inside it: exactly 0.
     page.evaluate("window.testPad.axes = [0.4, -0.8, -0.6, 0.05]")
-    assert wait_for(lambda: wish(live) == {"vx": 0.8, "vy": 0.4, "vz": 0.0, "vyaw": -0.6}, 3), wish(live)
+    assert wait_for(lambda: wish(live) == {"vx": 0.773, "vy": 0.318, "vz": 0.0, "vyaw": -0.545}, 3), wish(live)
     page.evaluate("window.testPad.axes = [0, 0, 0, 0]")
     assert wait_for(lambda: wish(live) == NEUTRAL, 3), "stick released but still moving"
     stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
