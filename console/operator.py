@@ -247,7 +247,8 @@ class Operator:
         self._decode_busy = False
         self._decoder.submit(_warm_up_decoder)  # DEBT compiles on first use
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
-                                          "started": time.strftime("%Y-%m-%dT%H:%M:%S")})
+                                          "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                                          "wall0": round(self.wall0, 3)})
         self._last_poll_at: float | None = None
         self._last_poll_velocity: tuple | None = None
         self.replaying = False
@@ -510,16 +511,20 @@ class Operator:
     # changed, too old, an image abandoned, the first image), when a poll asks for
     # the new IMG.  Either way the capture lies between the reply that ended the
     # previous image (or was the last before it was abandoned) and the reply that
-    # brings the new one's first trunk.  So an image is stamped with that interval,
+    # brings the new one's first trunk (from when the ROV took the poll that reply
+    # answers: the reply's transmission and the delay earlier).  So an image is stamped with that interval,
     # "not_before" to "not_after", and with the odometry of the "not_before" reply
     # (the prefetch's pose: the ROV sampled both while answering that poll).  If
     # the reply that ended the previous image was lost and sent again, the capture
     # is earlier than "not_before" by the retries (one poll cycle each).  Without an
     # earlier reply to bound it ("not_before" None) it may be of any age (§4).
     def _mark_capture_window(self, t: float, why: str) -> None:
+        # The ROV acted on the poll (and sampled the odometry) before this reply's
+        # transmission and the link's delay: from then on it may have captured.
         reply = self._reply
         pose = Pose.from_reply(reply) if reply is not None and reply.position_valid is not False else None
-        self._next_capture = (t, pose, why)
+        sampled = self._odometry_at if self._odometry_at is not None and self._odometry_at <= t else t
+        self._next_capture = (sampled, pose, why)
 
     def _capture_stamp(self, t_first: float) -> dict:
         mark = self._next_capture

@@ -76,6 +76,8 @@ def take_control(page) -> None:
 def scene_ready(page, live):
     """The page's embedded scene, connected, its panel built."""
     frame = page.frame_locator("#scene")
+    # Embedded in the page, the scene's panel starts minimized (the 3-D view free): open it.
+    frame.get_by_role("button", name="Expand panel").click(timeout=60000)
     frame.get_by_role("button", name="Apply image settings").wait_for(timeout=60000)
     return frame
 

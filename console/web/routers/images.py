@@ -31,18 +31,22 @@ class HistoryPngs:
         self._lock = threading.Lock()
         self._pngs: collections.OrderedDict[int, tuple[bytes, int, int]] = collections.OrderedDict()
 
-    def get(self, n: int, stream: bytes) -> tuple[bytes, int, int]:
+    def get(self, entry: dict) -> tuple[bytes, int, int]:
+        n = entry["n"]
         with self._lock:
             if n in self._pngs:
                 self._pngs.move_to_end(n)
                 return self._pngs[n]
-        from PIL import Image
+        from PIL import Image, PngImagePlugin
 
         from rovlink import debt
 
-        picture = debt.decode(stream)
+        picture = debt.decode(entry["stream"])
+        # The metadata rides in the PNG too (a tEXt chunk "rovlink"), should it travel alone.
+        info = PngImagePlugin.PngInfo()
+        info.add_text("rovlink", json.dumps(_public(entry)))
         buf = io.BytesIO()
-        Image.fromarray(picture).save(buf, format="PNG", compress_level=1)
+        Image.fromarray(picture).save(buf, format="PNG", compress_level=1, pnginfo=info)
         entry = (buf.getvalue(), picture.shape[1], picture.shape[0])
         with self._lock:
             self._pngs[n] = entry
@@ -89,7 +93,7 @@ def list_images(operator: OperatorDep) -> list[dict]:
 def image_png(n: int, request: Request, operator: OperatorDep,
               download: bool = Query(False, description="as an attachment (Save)")) -> Response:
     entry = _find(operator, n)
-    png, _, _ = _pngs(request).get(n, entry["stream"])
+    png, _, _ = _pngs(request).get(entry)
     headers = {"Cache-Control": "private, max-age=3600"}  # a kept picture never changes
     if download:
         headers["Content-Disposition"] = f'attachment; filename="{_filename(entry, "png")}"'
@@ -101,7 +105,7 @@ def image_png(n: int, request: Request, operator: OperatorDep,
 def image_json(n: int, request: Request, operator: OperatorDep,
                download: bool = Query(False, description="as an attachment (Save)")) -> Response:
     entry = _find(operator, n)
-    _, width, height = _pngs(request).get(n, entry["stream"])
+    _, width, height = _pngs(request).get(entry)
     meta = {"picture": _filename(entry, "png"), "width": width, "height": height,
             "protocol_version": operator.link_version, "replay": operator.replaying, **_public(entry)}
     headers = {"Cache-Control": "no-store"}

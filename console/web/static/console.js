@@ -633,14 +633,21 @@ function poseShort(p) {
   return p ? `x ${fmt(p.x_m, 1)} y ${fmt(p.y_m, 1)} z ${fmt(p.z_m, 1)} m, ${fmt((p.yaw_deg % 360 + 360) % 360, 0)}°` : "position not known";
 }
 
+let historyAsked = 0;
+let historyShown = 0;
 async function loadHistory() {
+  const ask = ++historyAsked;
+  let history;
   try {
     const resp = await fetch("/api/images", { cache: "no-store" });
     if (!resp.ok) return;
-    page.history = await resp.json();
+    history = await resp.json();
   } catch (err) {
     return;
   }
+  if (ask < historyShown) return;  // an older answer, overtaken
+  historyShown = ask;
+  page.history = history;
   renderStrip();
   renderShownPicture();
 }
@@ -909,6 +916,15 @@ function wire() {
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
   $("log-level").onchange = renderLog;
+  // A replay jumped (replay.js): what this page kept of the past is read again.
+  window.addEventListener("rovlink:replay-jump", () => {
+    page.logEntries = [];
+    page.logKeys.clear();
+    fetch("/api/log").then((r) => r.json()).then((entries) => { renderLog(); addLog(entries); }).catch(() => {});
+    page.shownPast = null;
+    page.historyKey = "";
+    loadHistory();
+  });
   $("log-filter").oninput = renderLog;
   fetch("/api/log").then((r) => r.json()).then(addLog).catch(() => {});
   // The clock, and ages that grow while nothing new arrives.

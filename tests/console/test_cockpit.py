@@ -1,0 +1,278 @@
+"""The pilot's cockpit in headless Chromium, against the whole system as
+`rovlink demo` wires it (Stack, viser scene, web app):
+
+- at 1366x768 and 1920x1080 what a pilot acts on (STOP, arm/mode, control, link
+  state, the instruments, the latest picture) is on screen without scrolling,
+  nothing of it overlapping; the screenshots go to docs/ when ROVLINK_DOCS_SHOTS=1;
+- the instruments follow the replies and go grey, marked old, on a cut link,
+  and the log keeps the loss as an alert, apart and filterable;
+- pictures: the last complete one stays up, with a capture window that holds
+  the ROV's real capture time; older ones can be looked back at and saved
+  (PNG + JSON sidecar);
+- the wish is shown in m/s from the vehicle model.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rovlink import debt
+from rovlink.rov.vehicle import BlueRovParams
+
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from .conftest import running_console, wait_for
+
+pytestmark = [pytest.mark.browser, needs_chromium]
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+SIZES = [(1366, 768), (1920, 1080)]
+# What a pilot must reach without scrolling, and must not find covered by another of them.
+MUST_SEE = ["#stop", "#arm", "#disarm", "#mode-select", "#set-mode", "#release", "#control-text", "#link-up", "#armed", "#mode",
+            "#attitude-indicator", "#heading-tape", "#depth-tape", "#speed-forward", "#speed-vertical", "#wish",
+            "#image-done", "#image-done-meta", "#image-save", "#scene"]
+
+
+@pytest.fixture(scope="module")
+def live():
+    debt.decode(debt.encode(np.zeros((16, 16, 3), np.uint8), 100))  # compile the codec here, not in a wait
+    with running_console(scene=True) as console:
+        # The ROV's real capture times, to check the console's stamps against.
+        node = console.stack.node
+        grab = node.grab
+        console.captures = []
+        lock = threading.Lock()
+
+        def recorded(snap):
+            with lock:
+                console.captures.append(time.time())
+            return grab(snap)
+
+        node.grab = recorded
+        yield console
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def open_page(browser, live):
+    contexts, errors = [], []
+
+    def open_(width=1366, height=768):
+        context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
+        contexts.append(context)
+        page = context.new_page()
+        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+        page.goto(live.url)
+        page.wait_for_function("document.body.dataset.clientId !== undefined")
+        return page
+
+    yield open_
+    for context in contexts:
+        context.close()
+    wait_for(lambda: not live.app.state.desk.status()["held"], 10)
+    assert not errors, errors
+
+
+def take_control(page) -> None:
+    page.click("#take")
+    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
+
+
+def complete_pictures(live, n: int, timeout_s: float = 60) -> list[dict]:
+    import httpx
+
+    def enough():
+        kept = [e for e in httpx.get(live.url + "/api/images").json() if not e["partial"]]
+        return kept if len(kept) >= n else None
+
+    kept = wait_for(enough, timeout_s, 0.3)
+    assert kept, "the pictures did not arrive"
+    return kept
+
+
+def boxes(page, selectors):
+    return page.evaluate("""(sels) => sels.map((s) => {
+        const el = document.querySelector(s);
+        if (!el) return [s, null];
+        const r = el.getBoundingClientRect();
+        const style = getComputedStyle(el);
+        const shown = style.display !== 'none' && style.visibility !== 'hidden' && !el.closest('[hidden]');
+        return [s, shown ? [r.left, r.top, r.right, r.bottom] : null];
+    })""", selectors)
+
+
+def overlap(a, b) -> bool:
+    return min(a[2], b[2]) - max(a[0], b[0]) > 0.5 and min(a[3], b[3]) - max(a[1], b[1]) > 0.5
+
+
+@pytest.mark.parametrize("size", SIZES, ids=lambda s: f"{s[0]}x{s[1]}")
+def test_everything_a_pilot_acts_on_is_on_screen_without_scrolling(open_page, live, size):
+    width, height = size
+    complete_pictures(live, 1)
+    page = open_page(width, height)
+    take_control(page)
+    page.wait_for_function("document.getElementById('image-done').naturalWidth > 0", timeout=30000)
+    page.wait_for_function("document.getElementById('inst-attitude').dataset.valid === '1'")
+    found = dict(boxes(page, MUST_SEE))
+    for sel, box in found.items():
+        assert box is not None, f"{sel} is not shown at {width}x{height}"
+        left, top, right, bottom = box
+        assert right - left >= 8 and bottom - top >= 8, f"{sel} is too small: {box}"
+        assert left >= 0 and top >= 0 and right <= width + 0.5 and bottom <= height + 0.5, \
+            f"{sel} at {box} is outside the {width}x{height} window"
+    # Nothing of it covers another (the scene holds none of them).
+    names = [s for s in MUST_SEE if s != "#scene"]
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert not overlap(found[a], found[b]), f"{a} {found[a]} overlaps {b} {found[b]}"
+        assert not overlap(found[a], found["#scene"]), f"{a} covers the 3D view"
+    # The page itself does not scroll; the 3D view keeps most of the width.
+    assert page.evaluate("document.scrollingElement.scrollHeight <= window.innerHeight + 1")
+    scene = found["#scene"]
+    assert scene[2] - scene[0] >= 0.6 * width and scene[3] - scene[1] >= 0.5 * height, scene
+    # STOP is where a hand finds it and works from this page at this size.
+    stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
+    page.click("#stop")
+    assert wait_for(lambda: sum(o["kind"] == "STOP" for o in live.operator.orders_state()) == stops + 1, 5)
+    page.wait_for_timeout(1500)  # let the scene draw before the picture is taken
+    shot = page.screenshot()
+    if os.environ.get("ROVLINK_DOCS_SHOTS"):
+        DOCS.mkdir(exist_ok=True)
+        (DOCS / f"cockpit-{width}x{height}.png").write_bytes(shot)
+
+
+def test_instruments_follow_the_replies_and_go_grey_on_a_cut_link(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.wait_for_function("document.getElementById('inst-depth').dataset.valid === '1'")
+    reply_z = live.operator.pose_state()["received"]["z_m"]
+    text = page.text_content("#depth-text")
+    assert text.startswith(f"depth {reply_z:.1f} m") or text.startswith("depth "), text
+    # Armed, turn right for a while: the heading shown follows the replies.
+    page.click("#arm")
+    page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=15000)
+    page.keyboard.down("KeyE")
+    page.wait_for_function("document.getElementById('speed-yaw').textContent !== '0 °/s'", timeout=10000)
+    page.keyboard.up("KeyE")
+    assert wait_for(lambda: live.operator.state()["velocity_wish"]["vyaw"] == 0, 3)
+    time.sleep(1.0)
+    yaw = live.operator.pose_state()["received"]["yaw_deg"] % 360
+    page.wait_for_function(
+        f"Math.abs(parseFloat(document.getElementById('heading-text').textContent.slice(8)) - {yaw:.1f}) <= 1.5"
+        f" || Math.abs(parseFloat(document.getElementById('heading-text').textContent.slice(8)) - {yaw:.1f}) >= 358.5",
+        timeout=5000)
+    try:
+        live.set_link_loss(1.0)
+        page.wait_for_function("document.body.dataset.link === 'lost'", timeout=15000)
+        for inst in ("inst-attitude", "inst-heading", "inst-depth"):
+            assert page.get_attribute(f"#{inst}", "data-valid") == "0"
+            assert "stale" in page.get_attribute(f"#{inst}", "class")
+        assert page.text_content("#speed-forward") == "—"
+        assert "stale" in page.get_attribute("#image-done-frame", "class")
+        # The loss is an alert in the log, shown apart, and the filter keeps only alerts.
+        page.wait_for_function("[...document.querySelectorAll('#alerts li')].some((li) => li.textContent.includes('LINK LOST'))")
+        page.select_option("#log-level", "alert")
+        classes = page.eval_on_selector_all("#log li", "lis => lis.map((li) => li.className)")
+        assert classes and set(classes) == {"alert"}, classes
+        # Clock times, not session seconds.
+        first = page.text_content("#log li")
+        assert first[2] == ":" and first[5] == ":", first
+    finally:
+        live.set_link_loss(0.0)
+    page.wait_for_function("document.body.dataset.link !== 'lost'", timeout=15000)
+    page.wait_for_function("document.getElementById('inst-attitude').dataset.valid === '1'", timeout=10000)
+    page.select_option("#log-level", "all")
+    page.fill("#log-filter", "link")
+    lines = page.eval_on_selector_all("#log li", "lis => lis.map((li) => li.textContent)")
+    assert lines and all("link" in line.lower() for line in lines), lines
+    assert any("link back" in line for line in lines), lines
+
+
+def test_pictures_keep_their_capture_and_can_be_looked_back_at_and_saved(open_page, live, tmp_path):
+    from PIL import Image
+
+    kept = complete_pictures(live, 3, 90)
+    # Each capture window holds one of the ROV's real capture times.
+    captures = list(live.captures)
+    for entry in kept[1:]:
+        c = entry["capture"]
+        assert c["not_before_wall"] is not None and c["how"] in ("prefetch", "request"), c
+        assert c["not_before_wall"] <= c["wall"] <= c["not_after_wall"]
+        assert any(c["not_before_wall"] - 0.05 <= t <= c["not_after_wall"] + 0.05 for t in captures), (c, captures)
+        assert c["pose"] is not None
+    page = open_page()
+    page.wait_for_function("document.querySelectorAll('#image-strip button').length >= 3", timeout=30000)
+    # The large picture is the newest complete one (they come every second or two here).
+    def shows_newest():
+        shown = page.get_attribute("#image-done", "data-n")
+        return shown is not None and int(shown) == complete_pictures(live, 3)[-1]["n"]
+
+    assert wait_for(shows_newest, 10, 0.1), (page.get_attribute("#image-done", "data-n"), complete_pictures(live, 3))
+    meta = page.text_content("#image-done-meta")
+    assert meta.startswith("captured ") and " ago at x " in meta and " B" in meta, meta
+    # Look back at an earlier picture (not the oldest: here pictures come so fast that
+    # the oldest kept is soon dropped).
+    oldest = page.get_attribute("#image-strip button:nth-child(3)", "data-n")
+    page.click(f'#image-strip button[data-n="{oldest}"]')
+    page.wait_for_function(f"document.getElementById('image-done').dataset.n === '{oldest}'")
+    assert page.is_visible("#image-latest")
+    assert "looking back" in page.text_content("#image-done-id")
+    # Save: a PNG and its JSON sidecar.
+    downloads = []
+    page.on("download", lambda dl: downloads.append(dl))
+    page.click("#image-save")
+    assert wait_for(lambda: page.wait_for_timeout(100) or len(downloads) >= 2, 10), downloads
+    files = {}
+    for dl in downloads:
+        path = tmp_path / dl.suggested_filename
+        dl.save_as(path)
+        files[path.suffix] = path
+    assert set(files) == {".png", ".json"}, files
+    meta = json.loads(files[".json"].read_text())
+    assert str(meta["n"]) == oldest and meta["picture"] == files[".png"].name
+    assert meta["bytes"] > 0 and "capture" in meta and "stream" not in meta
+    with Image.open(files[".png"]) as im:
+        assert im.size == (meta["width"], meta["height"]) == (320, 240)
+        # The PNG carries its metadata too, should it travel without the sidecar.
+        assert json.loads(im.text["rovlink"])["n"] == meta["n"]
+    page.click("#image-latest")
+    page.wait_for_function("document.getElementById('image-latest').hidden")
+
+
+def steady_speed(fraction: float) -> float:
+    p = BlueRovParams()
+    thrust = p.thrust_surge_n * fraction
+    return (-p.drag_lin_surge + math.sqrt(p.drag_lin_surge ** 2 + 4 * p.drag_quad_surge * thrust)) / (2 * p.drag_quad_surge)
+
+
+def test_the_wish_is_shown_in_metres_per_second(open_page, live):
+    page = open_page()
+    take_control(page)
+    gain = float(page.input_value("#gain"))
+    page.keyboard.down("KeyW")
+    try:
+        page.wait_for_function("document.getElementById('wish').textContent.includes('forward')", timeout=5000)
+        text = page.text_content("#wish")
+    finally:
+        page.keyboard.up("KeyW")
+    assert text == f"≈ forward {steady_speed(gain):.2f} m/s", text
+    page.wait_for_function("document.getElementById('wish').textContent === 'neutral'", timeout=5000)
