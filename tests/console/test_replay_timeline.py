@@ -404,6 +404,13 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
                 assert wait_for(lambda: controller.ended, 15)
                 page.wait_for_function("document.getElementById('replay-bar').dataset.state === 'ended'")
                 assert page.text_content("#link-banner-title") == "REPLAY"
+                assert "Again" in page.text_content("#replay-play")
+
+                # Played again from the start.
+                page.click("#replay-play")
+                page.wait_for_function("document.getElementById('replay-bar').dataset.state === 'playing'")
+                assert not controller.ended and controller.position < 0.5 * controller.duration
+                page.wait_for_function("window.jumps === 2")
             finally:
                 browser.close()
     finally:

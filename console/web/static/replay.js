@@ -30,6 +30,8 @@
     at: 0,              // performance.now() when it was read
     dragging: false,    // the slider is held: polls must not move it
     busy: false,        // a command is on its way
+    commands: 0,        // commands sent: a read started before the last one is stale
+    seeks: null,        // the server's seek count last seen
     pollFailed: false,  // the last read failed (its message is shown)
   };
 
@@ -124,11 +126,11 @@
   }
 
   function take(state) {
-    const before = replay.state;
     replay.state = state;
-    if (before && before.seeks !== state.seeks) {
+    if (replay.seeks !== null && state.seeks > replay.seeks) {
       window.dispatchEvent(new CustomEvent("rovlink:replay-jump", { detail: state }));
     }
+    replay.seeks = Math.max(replay.seeks ?? 0, state.seeks);
     replay.at = performance.now();
     draw();
   }
@@ -141,6 +143,7 @@
 
   async function command(what, body) {
     replay.busy = true;
+    replay.commands += 1;
     $("replay-error").textContent = "";
     try {
       const resp = await fetch(`/api/replay/${what}`, {
@@ -157,11 +160,13 @@
 
   async function poll() {
     if (replay.busy || replay.dragging) return;
+    const commands = replay.commands;
     try {
       const state = await read();
       if (replay.pollFailed) $("replay-error").textContent = "";
       replay.pollFailed = false;
-      if (!replay.busy && !replay.dragging) take(state);
+      // A command answered meanwhile is newer than what this read saw.
+      if (!replay.busy && !replay.dragging && commands === replay.commands) take(state);
     } catch (err) {
       // The console is gone or restarting: say so, keep the last state.
       replay.pollFailed = true;
