@@ -23,6 +23,11 @@ resulting state is published once at the end.
 One player thread feeds records when they fall due; the commands (`pause`,
 `resume`, `set_speed`, `seek`) may come from any thread and wake it.  Nothing
 here reaches a vehicle: a replay console refuses every order.
+
+Cost: a seek feeds every record up to its point again (from the start when
+going back): about 0.15 ms a reply on this project's 2-core test machine, so
+about 1 s for 7000 replies (some tens of minutes at 1.9 kbit/s).  The web app finds the
+controller of its Operator with `controller_of`.
 """
 
 from __future__ import annotations
@@ -49,12 +54,15 @@ SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)  # what the page offers
 _KEPT = frozenset({"endpoint", "_clock", "_t0", "wall0", "_lock", "_subscribers", "_loop", "_decoder",
                    "recorder", "replaying", "lost_after_s", "rov_failsafe_s", "bitrate_bps", "delay_s"})
 
+# operator -> weak reference to its controller (the operator's clock, a bound
+# method of the controller, keeps the controller alive as long as the operator).
 _controllers: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def controller_of(operator) -> "ReplayController | None":
     """The controller replaying into `operator`, if any."""
-    return _controllers.get(operator)
+    ref = _controllers.get(operator)
+    return ref() if ref is not None else None
 
 
 def _wall0(meta: dict) -> float | None:
@@ -113,7 +121,7 @@ class ReplayController:
         self._replayer = ReplyReplayer()
         self.counts = _zero_counts()
         self._take(operator)
-        _controllers[operator] = self
+        _controllers[operator] = weakref.ref(self)
 
     # ------------------------------------------------------------------
     # The clock
