@@ -177,16 +177,6 @@ class Recorder:
                 self._file = None
 
 
-def _warm_up_decoder() -> None:
-    from rovlink import debt
-
-    try:
-        for image in (np.zeros((16, 16), np.uint8), np.zeros((16, 16, 3), np.uint8)):
-            debt.decode(debt.encode(image, 200, roi=(0, 0, 8, 8), shift=4))
-    except Exception:  # a warm-up only
-        log.debug("codec warm-up failed", exc_info=True)
-
-
 def _protocol_to_sub_mode(mode: int):
     from rovlink.rov.autopilot import PROTOCOL_TO_SUB
     from rovlink.rov.vehicle import SubMode
@@ -245,7 +235,10 @@ class Operator:
         self._pending_decode: tuple[int, bytes] | None = None
         self._decoder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-decode")
         self._decode_busy = False
-        self._decoder.submit(_warm_up_decoder)  # DEBT compiles on first use
+        # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
+        from rovlink import debt
+
+        debt.warm_up_in_background("debt-warm-up (console)")
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                           "wall0": round(self.wall0, 3)})

@@ -129,6 +129,7 @@ class RovNode:
         self.prefetch = prefetch
         self.prefetch_max_age_s = prefetch_max_age_s
         self.stats = NodeStats()
+        warm_debt = encode is None
         if encode is None:
             from rovlink import debt
 
@@ -144,8 +145,15 @@ class RovNode:
         )
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-encoder")
         # DEBT's coder compiles on first use (tens of seconds when its cache
-        # is cold): do it now, while the link comes up, not at the first image.
-        self._worker.submit(_warm_up, self._encode)
+        # is cold): do it now, while the link comes up, not at the first image,
+        # in a daemon thread: a stopped node exits at once, never waiting for
+        # the compiler (the encoder's executor thread is joined at exit).
+        if warm_debt:
+            from rovlink import debt
+
+            debt.warm_up_in_background("debt-warm-up (rov)")
+        else:
+            self._worker.submit(_warm_up, self._encode)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._prefetched_image: tuple[int, ImageSettings, float, bytes] | None = None
         self._arm_ticket = None  # (ticket, wanted)
