@@ -80,6 +80,7 @@ CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electroni
 DEFAULT_IMAGE_PX = (320, 240)
 SCENE_KEY_PATH = "/rovlink/"  # the operator page opens the scene's WebSocket at SCENE_KEY_PATH + key
 REFUSAL_NOTICE_S = 3.0         # at most one "not sent" notification per viewer this often
+DRAG_HOLD_MAX_S = 20.0         # the screen and the views wait this long at most for a drag's end
 UNCERTAINTY_SEGMENTS = 48
 UNCERTAINTY_SHOWN_AFTER_S = 1.5  # odometry older than this: the ring around the ghost shows how far it may be
 
@@ -197,7 +198,7 @@ class ConsoleScene:
         self.views: dict[int, ViewerView] = {}  # each viewer's choice of view, by viser's client id
         self._screen_at: tuple | None = None     # the vehicle pose the screen was last placed for
         self._screen_next_at = 0.0
-        self._dragging = False                   # a ROI drag on the screen: neither it nor the views move
+        self._drag_since: float | None = None    # a ROI drag on the screen: neither it nor the views move
         self._capture_shown = None
 
     # ------------------------------------------------------------------
@@ -494,7 +495,7 @@ class ConsoleScene:
     def _on_screen_drag(self, event) -> None:
         # While the pilot drags, the screen stays where the drag began (it
         # moves with the vehicle otherwise), and so do the views.
-        self._dragging = event.phase != "end"
+        self._drag_since = None if event.phase == "end" else (self._drag_since or time.monotonic())
         if not self.permit(event.client):
             self.show_roi(self.operator.requested_settings.roi)
             return
@@ -801,6 +802,13 @@ class ConsoleScene:
     # Views, the screen, the picture's capture pose
     # ------------------------------------------------------------------
 
+    @property
+    def dragging(self) -> bool:
+        """A drag on the screen in progress (one whose end never came counts
+        no longer than DRAG_HOLD_MAX_S)."""
+        since = self._drag_since
+        return since is not None and time.monotonic() - since < DRAG_HOLD_MAX_S
+
     def set_view(self, client_id: int | None, mode: str) -> None:
         """A viewer chose follow, top or free (its panel's dropdown)."""
         view = self.views.get(client_id) if client_id is not None else None
@@ -818,7 +826,7 @@ class ConsoleScene:
         """Each following viewer's camera on the vehicle (the ghost: where it
         probably is now), when it is due (`ViewerView.due`)."""
         pose = self._last_predicted
-        if pose is None or self._dragging or not self.views:
+        if pose is None or self.dragging or not self.views:
             return
         now = time.monotonic() if now is None else now
         position, yaw = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m), pose.yaw_deg
@@ -827,35 +835,37 @@ class ConsoleScene:
             client = clients.get(client_id)
             if client is None or not view.due(now, position, yaw):
                 continue
+            aimed = (None, None)
             try:
-                self._aim(client, view, position, yaw)
+                aimed = self._aim(client, view, position, yaw)
             except Exception:  # the viewer left meanwhile, or sent no camera yet
                 log.debug("could not move viewer %s's camera", client_id, exc_info=True)
-            view.done(now, position, yaw)
+            view.done(now, position, yaw, *aimed)
 
     @staticmethod
-    def _aim(client, view: ViewerView, position: np.ndarray, yaw_deg: float) -> None:
+    def _aim(client, view: ViewerView, position: np.ndarray, yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """Set the viewer's camera; (eye, look_at) set."""
         camera = client.camera
         if view.mode == chase.FREE:  # a centre request: same direction, on the vehicle
             eye, look_at = chase.centred_view(camera.position, camera.look_at, position)
             up = None
         else:
             # The pilot's zoom is kept while the view stays the same.
-            distance = (chase.clamp_distance(view.mode, float(np.linalg.norm(camera.position - camera.look_at)))
-                        if view.last is not None else None)
+            distance = view.zoom(camera.look_at, float(np.linalg.norm(camera.position - camera.look_at)))
             eye, look_at, up = chase.chase_view(position, yaw_deg, view.mode, distance)
         with client.atomic():
             if up is not None:
                 camera.up_direction = up
             camera.position = eye  # (moves look_at along)
             camera.look_at = look_at
+        return eye, look_at
 
     def place_screen(self, pose: Pose) -> None:
         """The screen ahead of and above the vehicle (`chase.screen_pose`),
         a few times a second at most, not while it is dragged on."""
         now = time.monotonic()
         position = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
-        if self._dragging or now < self._screen_next_at:
+        if self.dragging or now < self._screen_next_at:
             return
         last = None if self._screen_at is None else (frames.ned_to_world(*self._screen_at[:3]), self._screen_at[5])
         if not chase.moved(last, position, pose.yaw_deg, chase.SCREEN_MIN_MOVE_M, chase.SCREEN_MIN_TURN_DEG):

@@ -143,6 +143,18 @@ class ViewerView:
     next_at: float = 0.0                          # not before this (monotonic s)
     updates: int = 0                              # cameras set; the tests watch it
     centre: bool = False                          # a centre request waiting for the next update
+    look_at: np.ndarray | None = None             # where the camera was last pointed, and...
+    distance_m: float | None = None               # ...from how far
+
+    def zoom(self, camera_look_at, camera_distance_m: float) -> float | None:
+        """The distance to keep in this view: the camera's, if it still looks
+        where we pointed it (the pilot's wheel moves the camera along that line;
+        a report from before our last move does not look there); else ours."""
+        if self.last is None or self.look_at is None:
+            return None  # a new view: its own distance
+        if float(np.linalg.norm(np.asarray(camera_look_at, float) - self.look_at)) < 0.05:
+            return clamp_distance(self.mode, camera_distance_m)
+        return self.distance_m
 
     def set_mode(self, mode: str) -> None:
         if mode not in VIEWS:
@@ -160,7 +172,10 @@ class ViewerView:
         turn = CHASE_MIN_TURN_DEG if self.mode == FOLLOW else None
         return moved(self.last, position, yaw_deg, CHASE_MIN_MOVE_M, turn)
 
-    def done(self, now: float, position, yaw_deg: float) -> None:
+    def done(self, now: float, position, yaw_deg: float, eye=None, look_at=None) -> None:
+        if look_at is not None:
+            self.look_at = np.asarray(look_at, float).copy()
+            self.distance_m = float(np.linalg.norm(np.asarray(eye, float) - self.look_at))
         self.last = pose_key(position, yaw_deg)
         self.next_at = now + CHASE_PERIOD_S
         self.centre = False

@@ -16,6 +16,7 @@ import math
 import os
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -30,7 +31,7 @@ from rovlink.console.scene.roi import roi_from_world
 from rovlink.console.stack import Stack, StackConfig
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS
-from .test_scene import LoopThread, free_port, wait_for
+from .test_scene import LoopThread, free_port, screen_point, wait_for
 
 # A box around the vehicle (the mesh is 0.46 x 0.58 x 0.25 m): all of it must be seen.
 MIN_SIZE = 0.02  # of the image's height: 16 pixels in an 800 pixel high view
@@ -135,6 +136,17 @@ def test_a_moved_screen_still_maps_a_drag_to_the_roi():
     roi = roi_from_world(on_screen(40.3, 30.2), on_screen(199.6, 149.9), position=centre, wxyz=wxyz,
                          size_m=size_m, size_px=size_px)
     assert roi == (40, 30, 200, 150)
+
+
+def test_a_view_keeps_the_pilots_zoom_not_an_old_reports():
+    view = chase.ViewerView()
+    eye, look_at, _up = chase.chase_view(np.zeros(3), 0.0, chase.FOLLOW)
+    assert view.zoom(look_at, 9.0) is None  # a new view: its own distance
+    view.done(0.0, np.zeros(3), 0.0, eye, look_at)
+    assert view.zoom(look_at, 9.0) == 9.0  # the wheel moves the camera along the line to where it looks
+    assert view.zoom(look_at, 100.0) == chase.DISTANCE_LIMITS_M[chase.FOLLOW][1]
+    # A report from before this view looks elsewhere: the view's own distance.
+    assert view.zoom(look_at + 2.0, 3.0) == pytest.approx(chase.FOLLOW_DISTANCE_M)
 
 
 def test_a_viewer_view_is_due_only_when_the_vehicle_moved_and_not_too_often():
@@ -312,7 +324,7 @@ def test_follow_camera_keeps_the_vehicle_in_view_while_it_drives_50_m(live, view
 
 
 @pytest.mark.browser
-def test_views_switch_between_free_top_and_follow_and_centre_on_the_vehicle(live, viewer):
+def test_top_and_follow_views_chosen_in_the_panel(live, viewer):
     op, scene, page, reports = live.operator, live.scene, viewer.page, viewer.reports
     view = scene.views[viewer.client_id]
     # The legend names every kind of thing drawn.
@@ -328,39 +340,15 @@ def test_views_switch_between_free_top_and_follow_and_centre_on_the_vehicle(live
         cam, p = reports.latest(), received_world(op)
         r = tf.SO3(cam.wxyz).as_matrix()
         return (cam.sees(vehicle_corners(p)) and r[2, 2] < -0.99 and cam.position[2] - p[2] > 5.0
-                and np.linalg.norm(cam.position[:2] - p[:2]) < 2.0 and -r[1, 1] > 0)
+                and np.linalg.norm(cam.position[:2] - p[:2]) < 2.0 and -r[1, 1] > 0
+                and abs(np.linalg.norm(cam.position - cam.look_at) - chase.TOP_HEIGHT_M) < 0.3)
 
     assert wait_for(from_above, 10.0), reports.latest()
+    # ...and stays so (a late report of the follow camera does not set its height).
+    time.sleep(1.5)
+    assert from_above(), reports.latest()
 
-    # Free: the camera stays while the vehicle drives away.
-    choose_view(page, "free")
-    assert wait_for(lambda: view.mode == chase.FREE, 10.0)
-    assert reports.quiet()  # (a top view's last move may still be on its way)
-    fixed, n = reports.latest(), reports.count()
-    start = received_world(op)
-    with driving(live) as caller:
-        scene.desk.submit(control.Drive(vx=1.0), caller)
-        assert wait_for(lambda: np.linalg.norm(received_world(op) - start) > 3.0, 15.0)
-        scene.desk.submit(control.Drive(), caller)
-        assert np.allclose(reports.latest().position, fixed.position) and reports.count() == n
-        time.sleep(1.5)  # let it come to rest
-
-        # Centre on vehicle: the same direction, looking at it.
-        page.get_by_role("button", name="Centre on vehicle").click()
-
-        def centred():
-            cam = reports.latest()
-            pose = op.predicted_pose()
-            p = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
-            return (reports.count() > n and np.linalg.norm(cam.look_at - p) < 0.5
-                    and cam.sees(vehicle_corners(p)))
-
-        assert wait_for(centred, 10.0), (reports.latest(), received_world(op))
-        before, after = fixed.position - fixed.look_at, reports.latest().position - reports.latest().look_at
-        assert before @ after / np.linalg.norm(before) / np.linalg.norm(after) > 0.99
-        assert view.mode == chase.FREE
-
-    # Follow again: behind the vehicle's heading, above it.
+    # Follow: behind the vehicle's heading, above it.
     choose_view(page, "follow")
 
     def behind():
@@ -371,6 +359,43 @@ def test_views_switch_between_free_top_and_follow_and_centre_on_the_vehicle(live
                 and cam.position[2] > p[2] + 1.0)
 
     assert wait_for(behind, 10.0), reports.latest()
+    assert view.mode == chase.FOLLOW
+
+
+@pytest.mark.browser
+def test_free_view_stays_put_and_centre_brings_the_vehicle_back(live, viewer):
+    op, scene, page, reports = live.operator, live.scene, viewer.page, viewer.reports
+    view = scene.views[viewer.client_id]
+    choose_view(page, "free")
+    assert wait_for(lambda: view.mode == chase.FREE, 10.0)
+    try:
+        assert reports.quiet()  # (the last move of the view before may still be on its way)
+        fixed, n = reports.latest(), reports.count()
+        start = received_world(op)
+        with driving(live) as caller:
+            # The vehicle drives away; the camera stays.
+            scene.desk.submit(control.Drive(vx=1.0), caller)
+            assert wait_for(lambda: np.linalg.norm(received_world(op) - start) > 3.0, 15.0)
+            scene.desk.submit(control.Drive(), caller)
+            assert np.allclose(reports.latest().position, fixed.position) and reports.count() == n
+            time.sleep(1.0)  # let it slow down
+
+            # Centre on vehicle: looking at it, from the same direction.
+            page.get_by_role("button", name="Centre on vehicle").click()
+
+            def centred():
+                cam = reports.latest()
+                pose = op.predicted_pose()
+                p = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
+                return (reports.count() > n and np.linalg.norm(cam.look_at - p) < 0.5
+                        and cam.sees(vehicle_corners(p)))
+
+            assert wait_for(centred, 10.0), (reports.latest(), received_world(op))
+            before, after = fixed.position - fixed.look_at, reports.latest().position - reports.latest().look_at
+            assert before @ after / np.linalg.norm(before) / np.linalg.norm(after) > 0.99
+            assert view.mode == chase.FREE
+    finally:
+        scene.set_view(viewer.client_id, chase.FOLLOW)
 
 
 def test_uncertainty_ring_grows_with_the_odometry_age(live, monkeypatch):
@@ -423,3 +448,29 @@ def test_frustum_is_drawn_at_the_pictures_capture_pose(live, monkeypatch):
     # No capture known: nothing drawn.
     monkeypatch.setattr(op, "image_state", lambda: {**real(), "capture": None})
     assert wait_for(lambda: not scene.capture_node.visible, 3.0)
+
+
+def test_the_screen_holds_still_while_the_pilot_drags_on_it(live):
+    scene = live.scene
+    held = np.array(scene.screen_node.position)
+    a = screen_point(scene, 40.0, 30.0)
+    # A watcher's drag (refused, put back) holds the screen as well as the pilot's.
+    drag = SimpleNamespace(phase="start", start_position=tuple(a), end_position=tuple(a),
+                           client=SimpleNamespace(client_id=-1))
+    scene._on_screen_drag(drag)
+    assert scene.dragging
+    # The vehicle "moves" far away: the screen would follow, but not under the pointer.
+    scene._screen_next_at = 0.0
+    scene.place_screen(Pose(30.0, 20.0, 3.0, 0.0, 0.0, 90.0))
+    time.sleep(0.6)  # the scene's loop holds it too
+    assert np.allclose(scene.screen_node.position, held)
+    drag.phase = "end"
+    scene._on_screen_drag(drag)
+    assert not scene.dragging
+    scene._screen_next_at = 0.0
+    far = Pose(30.0, 20.0, 3.0, 0.0, 0.0, 90.0)
+    scene.place_screen(far)
+    centre, _ = chase.screen_pose(frames.ned_to_world(30.0, 20.0, 3.0), 90.0)
+    moved_there = np.allclose(scene.screen_node.position, centre)
+    # (the loop puts it back on the vehicle at its next turn)
+    assert moved_there or wait_for(lambda: not np.allclose(scene.screen_node.position, held), 1.0)
