@@ -1050,6 +1050,8 @@ class Operator:
             "orders": self.orders_state(),
             "log": self.log_entries(20),
             "replaying": self.replaying,
+            # The session's clock time now: a replay's own (it stands still while paused).
+            "wall": round(self.wall(self.now()), 3),
         }
 
     def picture(self) -> np.ndarray | None:

@@ -283,6 +283,7 @@ class State(BaseModel):
     orders: list[OrderInfo]
     log: list[LogEntry]
     replaying: bool
+    wall: float | None = Field(None, description="the session's clock time now, Unix seconds (a replay's own)")
     control: ControlStatus
     target: Target | None = None
 

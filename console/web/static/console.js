@@ -435,6 +435,12 @@ function renderInstruments(s) {
 // The log: clock time, alerts apart, filterable
 // ---------------------------------------------------------------------------
 
+// The session's clock: this computer's, or in a replay the recording's (from telemetry).
+function nowWall() {
+  const s = page.lastState;
+  return s && s.replaying && s.wall ? s.wall : Date.now() / 1000;
+}
+
 const clockTime = (wall) => (wall ? new Date(wall * 1000).toLocaleTimeString([], { hour12: false }) : "");
 
 function addLog(entries) {
@@ -623,7 +629,7 @@ function renderImageProgress(im) {
 // The capture is known only between two replies (console/operator.py): say so.
 function captureText(c) {
   if (!c) return "at an unknown time";
-  const age = Math.max(0, Date.now() / 1000 - c.wall);
+  const age = Math.max(0, nowWall() - c.wall);
   const window = c.not_before_wall === null ? " or earlier" : c.not_after_wall - c.not_before_wall > 1.5
     ? ` to ${clockTime(c.not_after_wall)}` : "";
   return `${clockTime(c.wall)}${window}, ${age < 90 ? `${age.toFixed(0)} s` : `${(age / 60).toFixed(0)} min`} ago`;
@@ -929,7 +935,8 @@ function wire() {
   fetch("/api/log").then((r) => r.json()).then(addLog).catch(() => {});
   // The clock, and ages that grow while nothing new arrives.
   const tick = () => {
-    $("clock").textContent = new Date().toLocaleTimeString([], { hour12: false });
+    const replaying = page.lastState && page.lastState.replaying;
+    $("clock").textContent = (replaying ? "replay " : "") + clockTime(nowWall());
     renderShownMeta();
     const im = page.lastState && page.lastState.image;
     if (im && im.capture) $("image-id").textContent = `#${im.serial} (IMG ${im.img})${im.complete ? " complete" : ""}, captured ${captureText(im.capture)}`;
