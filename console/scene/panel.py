@@ -18,6 +18,9 @@ Goals
   STOP excepted.
 - The view (follow, top, free; centre on the vehicle) is the viewer's own, not
   an order: open to watchers too.  A legend says what each colour in the scene is.
+  Both sit in a small window of their own in the 3-D view's lower left corner
+  (viser's `add_panel`), so that they stay at hand when the main panel is
+  minimized, as it is in the operator page.
 
 Keys follow the page's model: a held key drives (a press streams the key's
 velocity, which goes neutral after the dead man's time unless the press repeats),
@@ -46,6 +49,7 @@ PLOT_SPAN_S = 30.0
 VELOCITY_STEP_S = 0.1
 LINK_BIN_S = 0.5
 REFUSAL_NOTICE_S = 3.0  # at most one "not sent" notification per viewer this often
+VIEW_PANEL_WIDTH_PX = 250
 
 
 def step_values(samples, t_grid: np.ndarray, column: int) -> np.ndarray:
@@ -102,7 +106,7 @@ def legend_html(scene) -> str:
             + swatch(app.UNCERTAINTY_RGB, "ring: how far it may be (odometry old)")
             + swatch(app.TARGET_RGB, "target and its path (sent only on Send)", 0.6)
             + swatch(app.ROV_RGB, "thin line: its trail (poses received)")
-            + swatch(app.FRUSTUM_RGB, "camera now, and what it sees on the seabed")
+            + swatch(app.FRUSTUM_RGB, "camera now and its footprint on the seabed")
             + swatch(app.CAPTURE_RGB, "camera when the picture was taken")
             + "</div>")
 
@@ -188,11 +192,20 @@ class ControlPanel:
     # ------------------------------------------------------------------
 
     def _build_view(self) -> None:
-        with self.gui.add_folder("View"):
+        add_panel = getattr(self.gui, "add_panel", None)  # viser >= 1.1
+        self.view_panel = None
+        if self.client_id is not None and add_panel is not None:
+            self.view_panel = add_panel()
+            container = self.view_panel.add_tab("View")
+        else:  # an older viser, or a panel for the whole server: a folder in the main panel
+            container = self.gui.add_folder("View")
+        with container:
             self.view = self.gui.add_dropdown("View", chase.VIEWS, initial_value=chase.FOLLOW,
                                               hint="; ".join(chase.VIEW_LABELS[v] for v in chase.VIEWS))
             self.centre_button = self.gui.add_button("Centre on vehicle")
             self.legend = self.gui.add_html(legend_html(self.scene))
+        if self.view_panel is not None:
+            self.view_panel.float(x=10, y=-10, width=VIEW_PANEL_WIDTH_PX)  # the lower left corner
         self.view.on_update(lambda _event: self.scene.set_view(self.client_id, self.view.value))
         self.centre_button.on_click(lambda _event: self.scene.centre_view(self.client_id))
 
