@@ -242,7 +242,7 @@ class ReplayController:
             while not self._closed:
                 try:
                     wait = self.advance()
-                except Exception:  # a bad record must not end the replay
+                except Exception:  # a failure of ours must not end the replay
                     log.exception("replay: feeding failed at record %d", self._index - 1)
                     continue
                 # Woken early by any command; never asleep long, whatever the clock did.
@@ -285,7 +285,11 @@ class ReplayController:
                 self._feeding_t = times[self._index]
                 record = records[self._index]
                 self._index += 1
-                self._feed(record)
+                try:
+                    self._feed(record)
+                except (KeyError, TypeError, ValueError) as exc:  # a damaged record: skipped, played on
+                    self.counts["damaged"] += 1
+                    log.debug("replay: record %d skipped: %r", self._index - 1, exc)
         finally:
             self._feeding_t = None
 
@@ -294,10 +298,11 @@ class ReplayController:
         kind = record.get("k")
         now = op.now()  # the record's own time
         if kind == "rx":
+            data = bytes.fromhex(record["hex"])
             counts["rx"] += 1
-            op.history.link_events.append((now, "rx", len(record["hex"]) // 2))
+            op.history.link_events.append((now, "rx", len(data)))
             if not self._authenticated:
-                op._on_events(self._replayer.feed(bytes.fromhex(record["hex"]), now), now)
+                op._on_events(self._replayer.feed(data, now), now)
         elif kind == "reply":
             counts["replies"] += 1
             events = self._replayer.feed_payload(bytes.fromhex(record["hex"]), now, sync=bool(record.get("sync")))
@@ -351,7 +356,7 @@ class ReplayController:
 
 
 def _zero_counts() -> dict:
-    return {"rx": 0, "tx": 0, "wish": 0, "orders": 0, "replies": 0}
+    return {"rx": 0, "tx": 0, "wish": 0, "orders": 0, "replies": 0, "damaged": 0}
 
 
 def _check_speed(speed) -> None:

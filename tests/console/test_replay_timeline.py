@@ -463,3 +463,23 @@ def test_rovlink_replay_serves_the_timeline(recording):
         stdout, _ = proc.communicate(timeout=30)
     assert proc.returncode == 0
     assert "timeline" in stdout and "paused" in stdout
+
+
+def test_damaged_records_are_skipped_and_counted(recording, tmp_path):
+    lines = recording.read_text(encoding="utf-8").splitlines()
+    middle = len(lines) // 2
+    damaged = [json.dumps({"k": "rx", "t": json.loads(lines[middle])["t"], "hex": "not hex"}),
+               json.dumps({"k": "wish", "t": json.loads(lines[middle])["t"]}),
+               json.dumps({"k": "reply", "t": json.loads(lines[middle])["t"], "hex": 42})]
+    path = tmp_path / "damaged.jsonl"
+    path.write_text("\n".join(lines[:middle] + damaged + lines[middle:]) + "\n", encoding="utf-8")
+
+    clean_op, damaged_op = Operator(None), Operator(None)
+    clean = ReplayController(clean_op, recording, monotonic=FakeClock(), paused=True)
+    controller = ReplayController(damaged_op, path, monotonic=FakeClock(), paused=True)
+    controller.seek(controller.duration)
+    clean.seek(clean.duration)
+    assert controller.counts["damaged"] == 3
+    assert shown(damaged_op) == shown(clean_op)
+    controller.seek(0.0)  # and back
+    assert controller.counts["damaged"] == 0
