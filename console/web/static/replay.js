@@ -60,12 +60,13 @@
     bar.setAttribute("role", "group");
     bar.setAttribute("aria-label", "replay timeline");
     bar.innerHTML = `
-      <span class="replay-title" title="${state.file ?? ""}">REPLAY</span>
+      <span class="replay-title">REPLAY</span>
       <button id="replay-play" type="button"></button>
       <span id="replay-time"></span>
       <label class="dim">speed <select id="replay-speed" aria-label="playback speed"></select></label>
       <input id="replay-slider" type="range" min="0" step="0.1" aria-label="session time">
       <div id="replay-error" role="status"></div>`;
+    bar.querySelector(".replay-title").title = `a recorded session: ${state.file ?? ""}`;
     const speed = $("replay-speed");
     const speeds = [...new Set([...(state.speeds || []), state.speed])].sort((a, b) => a - b);
     for (const s of speeds) speed.add(new Option(`${s}x`, String(s)));
