@@ -49,7 +49,7 @@ PLOT_SPAN_S = 30.0
 VELOCITY_STEP_S = 0.1
 LINK_BIN_S = 0.5
 REFUSAL_NOTICE_S = 3.0  # at most one "not sent" notification per viewer this often
-VIEW_PANEL_WIDTH_PX = 250
+VIEW_PANEL_WIDTH_PX = 230
 
 
 def step_values(samples, t_grid: np.ndarray, column: int) -> np.ndarray:
@@ -96,18 +96,18 @@ def legend_html(scene) -> str:
 
     def swatch(rgb, text: str, opacity: float = 1.0) -> str:
         r, g, b = rgb
-        return (f'<div style="display:flex;align-items:center;gap:0.5em;margin:0.15em 0">'
+        return (f'<div style="display:flex;align-items:center;gap:0.5em;margin:0.1em 0;white-space:nowrap">'
                 f'<span style="display:inline-block;width:1.6em;height:0.8em;border-radius:2px;'
                 f'background:rgba({r},{g},{b},{opacity})"></span><span>{text}</span></div>')
 
-    return ('<div style="font-size:0.8em;line-height:1.3">'
-            + swatch(app.ROV_RGB, "solid vehicle: last pose received")
-            + swatch(app.GHOST_RGB, "ghost: predicted pose now", 0.8)
-            + swatch(app.UNCERTAINTY_RGB, "ring: how far it may be (odometry old)")
-            + swatch(app.TARGET_RGB, "target and its path (sent only on Send)", 0.6)
-            + swatch(app.ROV_RGB, "thin line: its trail (poses received)")
-            + swatch(app.FRUSTUM_RGB, "camera now and its footprint on the seabed")
-            + swatch(app.CAPTURE_RGB, "camera when the picture was taken")
+    return ('<div style="font-size:0.75em;line-height:1.25">'
+            + swatch(app.ROV_RGB, "vehicle: last pose received")
+            + swatch(app.GHOST_RGB, "ghost: pose predicted now", 0.8)
+            + swatch(app.UNCERTAINTY_RGB, "ring: how far off it may be")
+            + swatch(app.TARGET_RGB, "target and path (sent on Send)", 0.6)
+            + swatch(app.ROV_RGB, "line: trail of poses received")
+            + swatch(app.FRUSTUM_RGB, "camera now, its seabed footprint")
+            + swatch(app.CAPTURE_RGB, "camera at the picture's capture")
             + "</div>")
 
 

@@ -329,7 +329,7 @@ def test_top_and_follow_views_chosen_in_the_panel(live, viewer):
     view = scene.views[viewer.client_id]
     # The legend names every kind of thing drawn.
     text = page.locator("body").inner_text()
-    for words in ("last pose received", "predicted", "target", "trail", "how far it may be", "picture was taken"):
+    for words in ("last pose received", "predicted", "target", "trail", "how far off", "picture's capture"):
         assert words in text, words
 
     # Top: straight above the vehicle, looking down, north up.
