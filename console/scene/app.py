@@ -30,7 +30,10 @@ Plan
   find it in front of the vehicle (the decision is written in chase.py).
 - A viewer opened by the operator page (its WebSocket path carries a scene
   key) gets its control panel minimized: the page has its own controls, and
-  the 3-D view stays free; the pilot opens the panel with its "+" button.
+  the 3-D view stays free; the pilot opens the panel with its "+" button.  The
+  view's own small window (view, centre, legend) stays open in a corner.
+- The picture's capture pose (the operator's `image_state()["capture"]`) is
+  drawn as a second camera frustum, in its own colour; none while unknown.
 - viser callbacks are one-liners that delegate to plain methods, which the tests
   call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
   `move_target` (the gizmo), `send_target`, `stop_vehicle`, `reset_target`.

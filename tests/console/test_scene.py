@@ -219,7 +219,8 @@ def test_scene_is_served_on_loopback_with_every_node(live):
     with urllib.request.urlopen(scene.url, timeout=10) as response:
         assert response.status == 200
     for name in ("/seabed", "/rov", "/rov/mesh", "/rov/camera", "/ghost", "/ghost/mesh", "/screen", "/screen/roi",
-                 "/trail", "/footprint", "/target", "/target_ghost", "/preview"):
+                 "/trail", "/footprint", "/target", "/target_ghost", "/preview", "/ghost_uncertainty", "/capture",
+                 "/capture/camera"):
         assert scene.server.scene.get_handle_by_name(name) is not None, name
     assert ConsoleScene.__init__.__kwdefaults__["host"] == "127.0.0.1"
 
