@@ -219,6 +219,7 @@ class Operator:
         self._reply: Reply | None = None
         self._reply_at: float | None = None  # monotonic time the reply arrived
         self._odometry_at: float | None = None  # estimated time it was sampled on the ROV
+        self._reply_poll_sent_at: float | None = None  # when the poll the last reply answers was sent
         self._velocity_est = (0.0, 0.0, 0.0, 0.0)  # NED m/s and yaw deg/s, from successive poses
         self._wish = (0.0, 0.0, 0.0, 0.0)  # fractions -1..1
         self._orders: dict[int, dict] = {}  # console order id -> its info (kind, state, times, details)
@@ -471,6 +472,8 @@ class Operator:
             previous, previous_at = self._reply, self._odometry_at
             entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.failsafe)
             self._reply, self._reply_at, self._odometry_at = reply, t, sampled
+            # The poll this reply answers left then: the ROV cannot have acted on it earlier.
+            self._reply_poll_sent_at = t - round_trip_s if round_trip_s is not None else None
             if previous is not None and previous_at is not None and sampled - previous_at > 0.05:
                 dt = sampled - previous_at
                 old = Pose.from_reply(previous)
@@ -504,20 +507,21 @@ class Operator:
     # changed, too old, an image abandoned, the first image), when a poll asks for
     # the new IMG.  Either way the capture lies between the reply that ended the
     # previous image (or was the last before it was abandoned) and the reply that
-    # brings the new one's first trunk (from when the ROV took the poll that reply
-    # answers: the reply's transmission and the delay earlier).  So an image is stamped with that interval,
+    # brings the new one's first trunk (from when the poll that reply answers was
+    # sent: the ROV took it later).  So an image is stamped with that interval,
     # "not_before" to "not_after", and with the odometry of the "not_before" reply
     # (the prefetch's pose: the ROV sampled both while answering that poll).  If
     # the reply that ended the previous image was lost and sent again, the capture
     # is earlier than "not_before" by the retries (one poll cycle each).  Without an
     # earlier reply to bound it ("not_before" None) it may be of any age (§4).
     def _mark_capture_window(self, t: float, why: str) -> None:
-        # The ROV acted on the poll (and sampled the odometry) before this reply's
-        # transmission and the link's delay: from then on it may have captured.
+        # The ROV may have captured from the moment it took the poll this reply
+        # answers: not before that poll left here (a sure bound, whatever the load
+        # on either end; the reply's arrival less its transmission could be later).
         reply = self._reply
         pose = Pose.from_reply(reply) if reply is not None and reply.position_valid is not False else None
-        sampled = self._odometry_at if self._odometry_at is not None and self._odometry_at <= t else t
-        self._next_capture = (sampled, pose, why)
+        sent = self._reply_poll_sent_at
+        self._next_capture = (sent if sent is not None and sent <= t else t, pose, why)
 
     def _capture_stamp(self, t_first: float) -> dict:
         mark = self._next_capture
