@@ -90,7 +90,7 @@ def link_summary(s: dict) -> str:
     return "link up" if state == "up" else "link starting"
 
 
-def legend_html(scene) -> str:
+def legend_html() -> str:
     """What each thing drawn in the scene is, in its colour."""
     from rovlink.console.scene import app  # the colours live with the nodes
 
@@ -119,7 +119,7 @@ class ControlPanel:
     def __init__(self, gui, scene, submit: Callable, notify: Callable[[str, str], None] | None = None, *,
                  client_id: int | None = None) -> None:
         self.gui = gui
-        self.client_id = client_id  # the viewer whose view this panel's View folder sets
+        self.client_id = client_id  # the viewer whose camera this panel's View window sets
         self.scene = scene
         self.operator = scene.operator
         self._submit_order = submit
@@ -203,7 +203,7 @@ class ControlPanel:
             self.view = self.gui.add_dropdown("View", chase.VIEWS, initial_value=chase.FOLLOW,
                                               hint="; ".join(chase.VIEW_LABELS[v] for v in chase.VIEWS))
             self.centre_button = self.gui.add_button("Centre on vehicle")
-            self.legend = self.gui.add_html(legend_html(self.scene))
+            self.legend = self.gui.add_html(legend_html())
         if self.view_panel is not None:
             self.view_panel.float(x=10, y=-10, width=VIEW_PANEL_WIDTH_PX)  # the lower left corner
         self.view.on_update(lambda _event: self.scene.set_view(self.client_id, self.view.value))
