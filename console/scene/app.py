@@ -33,7 +33,8 @@ Plan
   the 3-D view stays free; the pilot opens the panel with its "+" button.  The
   view's own small window (view, centre, legend) stays open in a corner.
 - The picture's capture pose (the operator's `image_state()["capture"]`) is
-  drawn as a second camera frustum, in its own colour; none while unknown.
+  drawn as a second camera frustum, in its own colour, showing the picture
+  where it was taken; while it is unknown the camera now shows the picture.
 - viser callbacks are one-liners that delegate to plain methods, which the tests
   call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
   `move_target` (the gizmo), `send_target`, `stop_vehicle`, `reset_target`.
@@ -787,7 +788,13 @@ class ConsoleScene:
         if (w, h) != self.image_px:
             self._resize_image(w, h)
         self.screen_node.image = rgb
-        self.frustum_node.image = rgb
+        # The picture where it was taken, when that is known; else on the camera now.
+        self.show_capture(self.operator.image_state().get("capture"))
+        on, off = ((self.capture_frustum_node, self.frustum_node) if self._capture_shown is not None
+                   else (self.frustum_node, self.capture_frustum_node))
+        on.image = rgb
+        if off.image is not None:
+            off.image = None
         roi = self.operator.requested_settings.roi
         shown = draw_roi(rgb, roi) if roi else rgb
         for panel in list(self.panels.values()):
@@ -887,6 +894,8 @@ class ConsoleScene:
                                           ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg"))
         if key == self._capture_shown:
             return
+        if (key is None) != (self._capture_shown is None):
+            self._image_dirty.set()  # the picture moves to the other frustum
         self._capture_shown = key
         if key is None:
             self.capture_node.visible = False

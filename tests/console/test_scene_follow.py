@@ -436,6 +436,9 @@ def test_frustum_is_drawn_at_the_pictures_capture_pose(live, monkeypatch):
                 atol=1e-6)
 
         assert wait_for(at_the_real_capture, 5.0)
+        # The picture is shown where it was taken, not on the camera now.
+        assert wait_for(lambda: scene.capture_frustum_node.image is not None and scene.frustum_node.image is None,
+                        5.0)
     # A capture pose unlike the vehicle's: the frustum goes there, on the camera's mount.
     pose = {"x_m": 4.0, "y_m": -3.0, "z_m": 5.5, "roll_deg": 0.0, "pitch_deg": 10.0, "yaw_deg": 135.0}
     capture = {"pose": pose, "wall": time.time() - 3.0, "t": op.now() - 3.0}
@@ -448,6 +451,8 @@ def test_frustum_is_drawn_at_the_pictures_capture_pose(live, monkeypatch):
     # No capture known: nothing drawn.
     monkeypatch.setattr(op, "image_state", lambda: {**real(), "capture": None})
     assert wait_for(lambda: not scene.capture_node.visible, 3.0)
+    # ...and the picture back on the camera now.
+    assert wait_for(lambda: scene.frustum_node.image is not None and scene.capture_frustum_node.image is None, 5.0)
 
 
 def test_the_screen_holds_still_while_the_pilot_drags_on_it(live):
