@@ -736,12 +736,14 @@ function savePicture() {
 function showImage(im) {
   if (!im || !im.decoded_bytes) return;
   lastImageState = im;
-  const key = `${im.img}:${im.decoded_bytes}`;
+  // Keyed on the serial (IMG wraps at 8, and a replay's jump may bring an IMG back).
+  const key = `${im.serial ?? im.img}:${im.decoded_bytes}`;
   if (key === page.shownImage) return;
   // A telemetry snapshot taken before the newest decode may arrive after
   // it: never swap in an older picture of the same image.
   const [wantedImg, wantedBytes] = (page.wantedImage || ":").split(":");
-  if (String(im.img) === wantedImg && im.decoded_bytes < +wantedBytes) return;
+  if (String(im.serial ?? im.img) === wantedImg && im.decoded_bytes < +wantedBytes) return;
+  const imgNo = im.img;
   page.wantedImage = key;
   if (page.loadingImage) return;   // the load in flight fetches again when done
   page.loadingImage = true;
@@ -757,8 +759,8 @@ function showImage(im) {
     img.dataset.key = key;
     page.shownImage = key;
     $("no-image").hidden = true;
-    const [id, bytes] = key.split(":");
-    img.dataset.img = id;
+    const bytes = key.split(":")[1];
+    img.dataset.img = imgNo;
     img.dataset.decodedBytes = bytes;
     $("image-decoded").textContent = `showing ${bytes} bytes`;
     drawRoi();
