@@ -48,9 +48,15 @@ CTX_SET = CTX_SIG + NCLS * 16    # + cls * 32 + min(k, 7) * 4 + set context (0..
 CTX_SIGN = CTX_SET + NCLS * 32   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
-REF_GROUP = 32
+# A decoder stopped inside a pass forgets the unfinished group of new
+# significance (SIG_GROUP coefficients) or refinements (REF_GROUP): one
+# decision alone can make the picture a hair worse, a group practically never.
+# The smallest groups that keep PSNR from dropping byte by byte on the tests'
+# small images (1 or 2 do not; 4 and 16 pay over 8 and 32: +0.015/+0.008/
+# +0.005/+0.002/+0.001/+0.001 dB mean on the photographs at 250-8000 B).
+REF_GROUP = 16
 FORCE_SPLIT_CTX = 2
-SIG_GROUP = 8
+SIG_GROUP = 4
 
 
 @_jit
