@@ -44,8 +44,8 @@ from .rangecoder import PROB_ONE, _code, _save
 # for sets and coefficients inside the region of interest.
 NCLS = 32
 CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
-CTX_SET = CTX_SIG + NCLS * 16    # + cls * 32 + min(k, 7) * 4 + set context (0..3)
-CTX_SIGN = CTX_SET + NCLS * 32   # + cls * 5 + sign context (0..4)
+CTX_SET = CTX_SIG + NCLS * 16    # + cls * 64 + min(k, 7) * 8 + set context (0..5)
+CTX_SIGN = CTX_SET + NCLS * 64   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 # A decoder stopped inside a pass forgets the unfinished group of new
@@ -146,6 +146,7 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
 @_jit
 def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     # Blocks next to blocks already found significant are likelier to be.
+    # Returns 0..5; 2 and 5 (two or more neighbours) force a split at k = 1.
     base = noff[b, k]
     wk = nw[b, k]
     hk = (binfo[b, 1] + (np.int64(1) << k) - 1) >> k
@@ -159,20 +160,27 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
         c += nsig[i - wk]
     if y + 1 < hk:
         c += nsig[i + wk]
-    if c == 0:
-        # None yet: the same block of the parent band (one level coarser,
-        # same orientation) tells whether this region holds any detail.
-        pb = binfo[b, 6]
-        if pb >= 0 and binfo[pb, 1] > 0 and binfo[pb, 2] > 0:
-            pk_ = k - 1
-            if pk_ == 0:
-                if y < binfo[pb, 1] and x < binfo[pb, 2]:
-                    if sig[binfo[pb, 0] + y * binfo[pb, 2] + x]:
-                        return 3
-            elif pk_ <= binfo[pb, 3]:
-                if y < ((binfo[pb, 1] + (np.int64(1) << pk_) - 1) >> pk_) and x < nw[pb, pk_]:
-                    if nsig[noff[pb, pk_] + y * nw[pb, pk_] + x]:
-                        return 3
+    # The same block of the parent band (one level coarser, same orientation)
+    # tells whether this region holds any detail, whatever the neighbours
+    # say: 0-2 significant neighbours (capped), plus 3 when the parent block
+    # is significant.  (Measured on the photographs: the parent beside the
+    # neighbours +0.015 to +0.076 dB mean at 250-8000 B over the parent only
+    # when no neighbour is significant; counts capped at 3 instead of 2 lost
+    # 0.001-0.004 dB.)
+    par = False
+    pb = binfo[b, 6]
+    if pb >= 0 and binfo[pb, 1] > 0 and binfo[pb, 2] > 0:
+        pk_ = k - 1
+        if pk_ == 0:
+            if y < binfo[pb, 1] and x < binfo[pb, 2]:
+                if sig[binfo[pb, 0] + y * binfo[pb, 2] + x]:
+                    par = True
+        elif pk_ <= binfo[pb, 3]:
+            if y < ((binfo[pb, 1] + (np.int64(1) << pk_) - 1) >> pk_) and x < nw[pb, pk_]:
+                if nsig[noff[pb, pk_] + y * nw[pb, pk_] + x]:
+                    par = True
+    if par:
+        return (c if c < 2 else 2) + 3
     return c if c < 2 else 2
 
 
@@ -334,11 +342,11 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 # A block of four among significant blocks is likely
                 # significant too: test its members one by one instead
                 # (no set decision, and no member implied).
-                forced = k == 1 and sctx == FORCE_SPLIT_CTX
+                forced = k == 1 and (sctx == FORCE_SPLIT_CTX or sctx == FORCE_SPLIT_CTX + 3)
                 if forced:
                     r = 1
                 else:
-                    ctx = CTX_SET + cls * 32 + kk * 4 + sctx
+                    ctx = CTX_SET + cls * 64 + kk * 8 + sctx
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
                                                   ctx, bit)
                 if r < 0:
@@ -408,7 +416,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                                                                h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
-                                ctx = CTX_SET + cls * 32 + kk * 4 + _set_context(
+                                ctx = CTX_SET + cls * 64 + kk * 8 + _set_context(
                                     nsig, sig, noff, nw, binfo, b, ck, yy, xx)
                             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                           counts, ctx, cbit)
