@@ -44,7 +44,7 @@ from .rangecoder import PROB_ONE, _code, _save
 # for sets and coefficients inside the region of interest.
 NCLS = 32
 CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
-CTX_SET = CTX_SIG + NCLS * 16    # + cls * 64 + min(k, 7) * 8 + set context (0..5)
+CTX_SET = CTX_SIG + NCLS * 16    # + cls * 64 + min(k, 7) * 8 + set context (0..7)
 CTX_SIGN = CTX_SET + NCLS * 64   # + cls * 5 + sign context (0..4)
 CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
@@ -146,7 +146,7 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
 @_jit
 def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     # Blocks next to blocks already found significant are likelier to be.
-    # Returns 0..5; 2 and 5 (two or more neighbours) force a split at k = 1.
+    # Returns 0..7; 2 and 5 (two or more neighbours) force a split at k = 1.
     base = noff[b, k]
     wk = nw[b, k]
     hk = (binfo[b, 1] + (np.int64(1) << k) - 1) >> k
@@ -181,6 +181,24 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
                     par = True
     if par:
         return (c if c < 2 else 2) + 3
+    if c <= 1:
+        # Nor the parent: the same block of the two other orientations of
+        # this level (+0.001 to +0.019 dB mean at 250-8000 B; also for two
+        # neighbours, or for sets with the parent significant, less).
+        o = binfo[b, 5]
+        if o >= 1:
+            for t in range(3):
+                sb = b - (o - 1) + t
+                if sb == b:
+                    continue
+                if k == 0:
+                    if y < binfo[sb, 1] and x < binfo[sb, 2]:
+                        if sig[binfo[sb, 0] + y * binfo[sb, 2] + x]:
+                            return 6 + c
+                elif k <= binfo[sb, 3]:
+                    if y < ((binfo[sb, 1] + (np.int64(1) << k) - 1) >> k) and x < nw[sb, k]:
+                        if nsig[noff[sb, k] + y * nw[sb, k] + x]:
+                            return 6 + c
     return c if c < 2 else 2
 
 
