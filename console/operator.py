@@ -177,6 +177,44 @@ class Recorder:
                 self._file = None
 
 
+class DaemonWorker:
+    """One daemon thread running submitted calls in order (a ThreadPoolExecutor's
+    submit/shutdown).  Daemon: a console that stops never waits for a decode,
+    even one held up by DEBT's first (cold) compilation; a ThreadPoolExecutor's
+    worker is joined at exit."""
+
+    def __init__(self, name: str) -> None:
+        import queue
+
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._closed = False
+        threading.Thread(target=self._run, name=name, daemon=True).start()
+
+    def submit(self, fn: Callable[[], Any]) -> concurrent.futures.Future:
+        if self._closed:
+            raise RuntimeError("worker shut down")
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        self._queue.put((fn, future))
+        return future
+
+    def shutdown(self, wait: bool = False, cancel_futures: bool = True) -> None:
+        self._closed = True
+        self._queue.put(None)
+
+    def _run(self) -> None:
+        while (item := self._queue.get()) is not None:
+            fn, future = item
+            if self._closed:
+                future.cancel()
+                continue
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(fn())
+            except BaseException as exc:  # noqa: BLE001 -- handed to whoever waits on the future
+                future.set_exception(exc)
+
+
 def _protocol_to_sub_mode(mode: int):
     from rovlink.rov.autopilot import PROTOCOL_TO_SUB
     from rovlink.rov.vehicle import SubMode
@@ -234,7 +272,7 @@ class Operator:
         self.lost_after_s = LOST_AFTER_S
         self.rov_failsafe_s = ROV_FAILSAFE_S
         self._pending_decode: tuple[int, bytes] | None = None
-        self._decoder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-decode")
+        self._decoder = DaemonWorker("debt-decode")
         self._decode_busy = False
         # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
         from rovlink import debt

@@ -669,18 +669,28 @@ function shownEntry() {
   return null;
 }
 
+// Thumbnails are made once per picture and kept while it is kept: only a new
+// picture is fetched (an old one may be dropped by the console at any moment).
+const thumbs = new Map();
+
 function renderStrip() {
   const shown = shownEntry();
+  const kept = new Set(page.history.map((e) => e.n));
+  for (const n of thumbs.keys()) if (!kept.has(n)) thumbs.delete(n);
   const buttons = page.history.slice().reverse().map((e) => {
-    const b = document.createElement("button");
-    b.type = "button";
+    let b = thumbs.get(e.n);
+    if (!b) {
+      b = document.createElement("button");
+      b.type = "button";
+      b.dataset.n = e.n;
+      const img = document.createElement("img");
+      img.alt = `picture ${e.n}`;
+      img.src = `/api/images/${e.n}.png`;
+      b.append(img);
+      thumbs.set(e.n, b);
+    }
     b.className = (e.partial ? "partial " : "") + (shown && e.n === shown.n ? "shown" : "");
     b.title = `#${e.n}${e.partial ? " (abandoned, partial)" : ""}, captured ${captureText(e.capture)}, ${e.bytes} B`;
-    b.dataset.n = e.n;
-    const img = document.createElement("img");
-    img.src = `/api/images/${e.n}.png`;
-    img.alt = `picture ${e.n}`;
-    b.append(img);
     b.onclick = () => {
       const newest = page.history.filter((x) => !x.partial).pop();
       page.shownPast = newest && newest.n === e.n ? null : e.n;
