@@ -15,3 +15,14 @@ def debt_compiled():
     from rovlink import debt
 
     debt.warm_up()
+
+
+def pytest_collection_modifyitems(items):
+    """With pytest-xdist (`-n 2 --dist loadgroup`, as .ci/run runs): every
+    browser test in one group, so that two software-rendered Chromiums never
+    compete for this 2-core machine, and every other module in a group of its
+    own (its module-scoped fixtures start once).  The groups share the two
+    workers; without xdist the marks do nothing."""
+    for item in items:
+        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
+        item.add_marker(pytest.mark.xdist_group(group))
