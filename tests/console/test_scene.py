@@ -466,9 +466,22 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
             time.sleep(4.0)  # software WebGL: let the textures arrive and a few frames render
             camera = next(iter(scene.server.get_clients().values())).camera
 
-            # Drag over the upper left of the picture on the screen, as a pilot would.
-            start = project(camera, screen_point(scene, 30.0, 25.0), box)
-            end = project(camera, screen_point(scene, 150.0, 110.0), box)
+            # Drag over the upper left of the picture on the screen, as a pilot would,
+            # once the picture stands still on the page (the screen rides with the
+            # vehicle and the camera follows it: a vehicle still settling from the
+            # tests before moves the picture under the mouse).
+            def corners():
+                return (project(camera, screen_point(scene, 30.0, 25.0), box),
+                        project(camera, screen_point(scene, 150.0, 110.0), box))
+
+            def still():
+                before = corners()
+                time.sleep(0.5)
+                after = corners()
+                return max(abs(a - b) for p, q in zip(before, after) for a, b in zip(p, q)) < 0.5
+
+            assert wait_for(still, 20.0, 0.0), "the picture on the screen never stood still"
+            start, end = corners()
             page.mouse.move(*start)
             page.mouse.down()
             for k in range(1, 13):
