@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import coder, kernels, rangecoder
-from .header import (MAX_SHIFT, MAX_SIDE, Header, header_size, pack_header,  # noqa: F401 (re-exported)
-                     unpack_header)
+from . import coder, kernels, rangecoder, twolevel
+from .header import (MAX_SHIFT, MAX_SIDE, TWO_LEVEL_TOP, Header, header_size,  # noqa: F401 (re-exported)
+                     pack_header, unpack_header)
 from .plan import ICT, ICT_INV, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
 
@@ -198,6 +198,14 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
     if budget < hsize:
         raise ValueError(f"budget of {budget} bytes is below the {hsize}-byte DEBT header")
     limit = budget - hsize
+    if roi is None:
+        # Exactly two colours: the two-level mode, when the whole picture fits
+        # (`twolevel` says why and when).
+        found = twolevel.two_colours(img, colour)
+        if found is not None:
+            payload = twolevel.encode_payload(found, colour, limit)
+            if payload is not None:
+                return pack_header(Header(width, height, colour, True, TWO_LEVEL_TOP)) + payload
     samples = img.size
     # Lossless (integer 5/3) only pays where the budget could hold it.
     if 8 * limit >= samples // 2:
@@ -221,6 +229,8 @@ def decode(data) -> np.ndarray:
         raise ValueError(f"data must be bytes, not {type(data).__name__}")
     data = bytes(data)
     h = unpack_header(data)
+    if h.two_level:
+        return twolevel.decode_payload(data[h.size:], h.height, h.width, h.colour)
     ncomp = 3 if h.colour else 1
     plan = plan_for(h.height, h.width, ncomp, h.reversible, h.roi, h.shift)
     lay = plan.lay
@@ -273,6 +283,7 @@ def warm_up() -> None:
         for roi, shift in ((None, 0), ((0, 0, 8, 8), 4)):
             decode(encode(image, 60, roi=roi, shift=shift))     # 9/7
             decode(encode(image, 4000, roi=roi, shift=shift))   # lossless 5/3
+        decode(encode(np.where(image >= 128, 255, 0).astype(np.uint8), 200))  # two-level
 
 
 def warm_up_in_background(name: str = "debt-warm-up"):

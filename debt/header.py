@@ -8,6 +8,9 @@
 # so 5 bytes without a region of interest and 10 with one.  The decomposition
 # depth follows from the size (`transform.levels_for`); TOP is the highest
 # bit plane coded.
+#
+# TOP = 63 with REVERSIBLE = 1 and no ROI marks a two-level stream (`twolevel`:
+# pictures of exactly two colours), a plane count the wavelet never reaches.
 
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ MAGIC = 0b1011
 MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
 MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
+TWO_LEVEL_TOP = 63       # see above
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,10 @@ class Header:
     top: int
     roi: tuple[int, int, int, int] | None = None
     shift: int = 0
+
+    @property
+    def two_level(self) -> bool:
+        return self.reversible and self.roi is None and self.top == TWO_LEVEL_TOP
 
     @property
     def size(self) -> int:
@@ -109,7 +117,7 @@ def unpack_header(data: bytes) -> Header:
         if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
             raise ValueError("corrupted DEBT header (region of interest outside the image)")
     h = Header(width, height, colour, reversible, top, roi, shift)
-    if top > _max_top(h):
+    if top > _max_top(h) and not h.two_level:
         raise ValueError("corrupted DEBT header (bit-plane count out of range)")
     return h
 
