@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from . import coder, kernels, rangecoder, twolevel
-from .header import (MAX_SHIFT, MAX_SIDE, TWO_LEVEL_TOP, Header, header_size,  # noqa: F401 (re-exported)
-                     pack_header, unpack_header)
+from .header import (MAX_SHIFT, MAX_SIDE, RESIDUAL_TOP, TWO_LEVEL_TOP, Header,  # noqa: F401 (re-exported)
+                     header_size, pack_header, unpack_header)
 from .plan import ICT, ICT_INV, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
 
@@ -198,6 +198,7 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
     if budget < hsize:
         raise ValueError(f"budget of {budget} bytes is below the {hsize}-byte DEBT header")
     limit = budget - hsize
+    near = None
     if roi is None:
         # Exactly two colours: the two-level mode, when the whole picture fits
         # (`twolevel` says why and when).
@@ -206,6 +207,22 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
             payload = twolevel.encode_payload(found, colour, limit)
             if payload is not None:
                 return pack_header(Header(width, height, colour, True, TWO_LEVEL_TOP)) + payload
+        near = twolevel.mostly_two_colours(img, colour)
+    stream = _wavelet_stream(img, colour, roi, shift, limit)
+    if near is not None:
+        # Mostly two colours: a mask and its residual, where that gives the
+        # better picture at this budget.
+        other = _mask_and_residual_stream(img, colour, near, limit)
+        if other is not None and _error(decode(other), img) < _error(decode(stream), img):
+            return other
+    return stream
+
+
+def _error(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+
+
+def _wavelet_stream(img: np.ndarray, colour: bool, roi, shift: int, limit: int) -> bytes:
     samples = img.size
     # Lossless (integer 5/3) only pays where the budget could hold it.
     if 8 * limit >= samples // 2:
@@ -221,6 +238,22 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
     return pack_header(header) + payload
 
 
+def _mask_and_residual_stream(img: np.ndarray, colour: bool, near, limit: int) -> bytes | None:
+    """The two-level mask of `near`, then the residual's wavelet stream (see
+    `twolevel`), or None when the mask leaves no room for the residual."""
+    height, width = img.shape[:2]
+    cb = twolevel.colour_bytes(colour)
+    mask = twolevel.encode_payload(near, colour, limit - 2)
+    if mask is None or len(mask) - cb > 0xFFFF:
+        return None
+    room = limit - 2 - len(mask) - header_size(False)
+    if room < 1:
+        return None
+    residual = _wavelet_stream(twolevel.split_residual(img, near), colour, None, 0, room)
+    return (pack_header(Header(width, height, colour, True, RESIDUAL_TOP)) + mask[:cb]
+            + (len(mask) - cb).to_bytes(2, "big") + mask[cb:] + residual)
+
+
 # ---------------------------------------------------------------- decode
 
 def decode(data) -> np.ndarray:
@@ -231,6 +264,8 @@ def decode(data) -> np.ndarray:
     h = unpack_header(data)
     if h.two_level:
         return twolevel.decode_payload(data[h.size:], h.height, h.width, h.colour)
+    if h.mask_and_residual:
+        return _decode_mask_and_residual(h, data[h.size:])
     ncomp = 3 if h.colour else 1
     plan = plan_for(h.height, h.width, ncomp, h.reversible, h.roi, h.shift)
     lay = plan.lay
@@ -269,6 +304,27 @@ def decode(data) -> np.ndarray:
     return _image(comps, h.colour, True)
 
 
+def _decode_mask_and_residual(h: Header, body: bytes) -> np.ndarray:
+    cb = twolevel.colour_bytes(h.colour)
+    if len(body) < cb + 2:
+        return twolevel.decode_payload(body[:cb], h.height, h.width, h.colour)  # flat grey
+    n = int.from_bytes(body[cb:cb + 2], "big")
+    mask_part = body[:cb] + body[cb + 2:cb + 2 + n]
+    if len(body) < cb + 2 + n:
+        return twolevel.decode_payload(mask_part, h.height, h.width, h.colour)  # the mask so far
+    c0, c1, mask = twolevel.decode_mask(mask_part, h.height, h.width, h.colour)
+    if mask is None:
+        raise ValueError("corrupted DEBT stream (its two-level mask is incomplete)")
+    rest = body[cb + 2 + n:]
+    if len(rest) < header_size(False):
+        return twolevel.mask_picture(c0, c1, mask).astype(np.uint8)
+    inner = unpack_header(rest)
+    if ((inner.width, inner.height, inner.colour) != (h.width, h.height, h.colour) or inner.roi is not None
+            or inner.two_level or inner.mask_and_residual):
+        raise ValueError("corrupted DEBT stream (its residual does not match the picture)")
+    return twolevel.join_residual(c0, c1, mask, decode(rest))
+
+
 # ---------------------------------------------------------------- warm-up
 
 def warm_up() -> None:
@@ -284,6 +340,9 @@ def warm_up() -> None:
             decode(encode(image, 60, roi=roi, shift=shift))     # 9/7
             decode(encode(image, 4000, roi=roi, shift=shift))   # lossless 5/3
         decode(encode(np.where(image >= 128, 255, 0).astype(np.uint8), 200))  # two-level
+        soft = np.where(rng.random((16, 16)) < 0.4, 250, 5).astype(np.uint8)
+        soft[3, :] = np.arange(16) * 16
+        decode(encode(soft, 120))                                                # mask + residual
 
 
 def warm_up_in_background(name: str = "debt-warm-up"):

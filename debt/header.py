@@ -10,7 +10,9 @@
 # bit plane coded.
 #
 # TOP = 63 with REVERSIBLE = 1 and no ROI marks a two-level stream (`twolevel`:
-# pictures of exactly two colours), a plane count the wavelet never reaches.
+# pictures of exactly two colours), TOP = 62 a two-level mask followed by a
+# residual stream (pictures of mostly two colours): plane counts the wavelet
+# never reaches.
 
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
 MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
 TWO_LEVEL_TOP = 63       # see above
+RESIDUAL_TOP = 62        # likewise: a two-level mask, then a residual stream
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,10 @@ class Header:
     @property
     def two_level(self) -> bool:
         return self.reversible and self.roi is None and self.top == TWO_LEVEL_TOP
+
+    @property
+    def mask_and_residual(self) -> bool:
+        return self.reversible and self.roi is None and self.top == RESIDUAL_TOP
 
     @property
     def size(self) -> int:
@@ -117,7 +124,7 @@ def unpack_header(data: bytes) -> Header:
         if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
             raise ValueError("corrupted DEBT header (region of interest outside the image)")
     h = Header(width, height, colour, reversible, top, roi, shift)
-    if top > _max_top(h) and not h.two_level:
+    if top > _max_top(h) and not (h.two_level or h.mask_and_residual):
         raise ValueError("corrupted DEBT header (bit-plane count out of range)")
     return h
 

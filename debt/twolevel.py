@@ -43,7 +43,6 @@ from . import rangecoder
 from .jit import _jit
 from .rangecoder import PROB_ONE, _code, _save
 
-TOP = 63                 # the header's TOP that marks a two-level stream
 NLEV_CTX = 8             # levels 1..7+ have contexts of their own
 CTX_MIX = 0                                   # + min(l, 7) * 256 + neighbours
 CTX_VAL = CTX_MIX + NLEV_CTX * 256            # + min(l, 3) * 256 + neighbours
@@ -272,3 +271,81 @@ def decode_payload(payload: bytes, height: int, width: int, colour: bool) -> np.
     out[state == 0] = c0
     out[state == 1] = c1
     return out if colour else out[..., 0]
+
+
+# ---------------------------------------------------------------- nearly two colours
+#
+# A picture that is mostly two colours with soft edges (a silhouette scaled
+# down, a scan) is still mostly a binary image: its mask (each pixel's nearer
+# colour) in this mode, then what the mask misses, `picture - mask + 128`, as
+# an ordinary DEBT stream.  Measured on scikit-image's horse scaled down to
+# 320x240 (212 grey levels, mask alone 27.6 dB in 419 B): 31.3/35.9/43.6/55.3
+# dB at 1000/2000/4000/8000 B against the wavelet's 26.1/31.2/38.7/51.2.
+#
+# Stream: the header with TOP = 62, the two colours, the mask's length (2
+# bytes, big-endian), the mask, then the residual's own DEBT stream.  The
+# encoder decides by the picture each stream gives at the budget.
+
+MOSTLY = 0.6          # the two commonest colours cover at least this share
+
+
+def mostly_two_colours(img: np.ndarray, colour: bool):
+    """(colour 0, colour 1, mask) when the two commonest colours cover MOSTLY of
+    the picture (mask: 1 where a pixel is nearer colour 1), else None."""
+    if colour:
+        flat = ((img[..., 0].astype(np.int64) << 16) | (img[..., 1].astype(np.int64) << 8)
+                | img[..., 2]).ravel()
+        # A photograph fails on every 13th pixel already (a whole count costs
+        # 6 ms on 320x240, a sixth of an encode).
+        _, few = np.unique(flat[::13], return_counts=True)
+        if few.shape[0] > 2 and np.sort(few)[-2:].sum() < (MOSTLY - 0.1) * flat[::13].shape[0]:
+            return None
+        values, counts = np.unique(flat, return_counts=True)
+    else:
+        counts = np.bincount(img.ravel(), minlength=256)
+        values = np.arange(256)
+    if values.shape[0] < 3:
+        return None
+    order = np.argsort(counts)[::-1]
+    if counts[order[0]] + counts[order[1]] < MOSTLY * img.shape[0] * img.shape[1]:
+        return None
+    v0, v1 = int(values[order[0]]), int(values[order[1]])
+    if colour:
+        c0 = np.array([(v0 >> 16) & 255, (v0 >> 8) & 255, v0 & 255], dtype=np.int64)
+        c1 = np.array([(v1 >> 16) & 255, (v1 >> 8) & 255, v1 & 255], dtype=np.int64)
+        x = img.astype(np.int64)
+        mask = ((x - c1) ** 2).sum(-1) < ((x - c0) ** 2).sum(-1)
+        return tuple(int(v) for v in c0), tuple(int(v) for v in c1), mask.astype(np.uint8)
+    x = img.astype(np.int64)
+    mask = np.abs(x - v1) < np.abs(x - v0)
+    return (v0,), (v1,), mask.astype(np.uint8)
+
+
+def mask_picture(c0, c1, mask: np.ndarray) -> np.ndarray:
+    nc = len(c0)
+    out = np.where(mask[..., None] == 1, np.array(c1, np.int64), np.array(c0, np.int64))
+    return out if nc == 3 else out[..., 0]
+
+
+def split_residual(img: np.ndarray, found) -> np.ndarray:
+    """What the mask misses, as a uint8 picture around 128."""
+    c0, c1, mask = found
+    return np.clip(img.astype(np.int64) - mask_picture(c0, c1, mask) + 128, 0, 255).astype(np.uint8)
+
+
+def join_residual(c0, c1, mask: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    return np.clip(mask_picture(c0, c1, mask) + residual.astype(np.int64) - 128, 0, 255).astype(np.uint8)
+
+
+def decode_mask(payload: bytes, height: int, width: int, colour: bool):
+    """(c0, c1, mask or None) of an exact mask payload (colours then its coded bits)."""
+    nc = 3 if colour else 1
+    c0 = tuple(payload[:nc])
+    c1 = tuple(payload[nc:2 * nc])
+    data = np.frombuffer(payload, dtype=np.uint8, offset=2 * nc).copy()
+    lh, lw, off, top, dec, probs, counts = _work(height, width)
+    st = rangecoder.decoder_state(data)
+    buf = data if data.size else np.zeros(1, dtype=np.uint8)
+    if not _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs, counts):
+        return c0, c1, None
+    return c0, c1, dec[:height * width].reshape(height, width).astype(np.uint8)

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rovlink import debt
-from rovlink.debt import twolevel
+from rovlink.debt import samples, twolevel
 from rovlink.debt.codec import TWO_LEVEL_TOP, unpack_header
 
 
@@ -142,3 +142,68 @@ def test_two_colours_finds_exactly_two():
     assert (c0, c1) == ((0, 0, 0), (0, 0, 1)) and bits.sum() == 1
     rgb[0, 1] = (0, 1, 0)
     assert twolevel.two_colours(rgb, True) is None
+
+
+# ---------------------------------------------------------------- mostly two colours
+
+def soft_silhouette(colour: bool = False) -> np.ndarray:
+    """The silhouette scaled down with smooth edges: two colours and every grey
+    between them along the edges, as a downscaled mask or a blurred scan."""
+    big = silhouette(480, 640).astype(np.float64)
+    small = (big[0::2, 0::2] + big[1::2, 0::2] + big[0::2, 1::2] + big[1::2, 1::2]) / 4
+    grey = np.rint(small).astype(np.uint8)
+    if not colour:
+        return grey
+    t = small[..., None] / 255.0
+    return np.rint((1 - t) * np.array([10, 40, 90]) + t * np.array([250, 200, 30])).astype(np.uint8)
+
+
+@pytest.mark.parametrize("colour", [False, True])
+def test_mostly_two_colours_codes_a_mask_and_its_residual_where_that_wins(colour):
+    img = soft_silhouette(colour)
+    assert len(np.unique(img.reshape(-1, 3) if colour else img.ravel(), axis=0)) > 3
+    for budget in (600, 1500, 3000):
+        data = debt.encode(img, budget)
+        assert len(data) <= budget
+        h = unpack_header(data)
+        assert h.mask_and_residual, budget
+        # Better than the wavelet alone would have been at this budget.
+        plain = debt.codec._wavelet_stream(img, colour, None, 0, budget - 5)
+        assert psnr(debt.decode(data), img) > psnr(debt.decode(plain), img) + 1.0, budget
+
+
+def test_mask_and_residual_prefixes_never_get_worse():
+    img = soft_silhouette()
+    data = debt.encode(img, 1500)
+    assert unpack_header(data).mask_and_residual
+    mask_end = 5 + 2 + 2 + int.from_bytes(data[7:9], "big")
+    curve = [psnr(debt.decode(data[:n]), img) for n in range(5, len(data) + 1)]
+    # Through the mask, byte by byte (a decision only ever makes a block exact)...
+    mask_curve = curve[:mask_end - 5 + 1]
+    assert all(b >= a for a, b in zip(mask_curve, mask_curve[1:]))
+    # ...then the residual's wavelet stream: never lower along 64-byte steps, and
+    # byte by byte by hundredths of a dB at most (as test_codec says of the wavelet).
+    steps = curve[mask_end - 5::64]
+    assert all(b >= a for a, b in zip(steps, steps[1:])), steps
+    assert max((a - b for a, b in zip(curve, curve[1:])), default=0.0) < 0.05
+    assert curve[-1] > mask_curve[-1] + 3
+
+
+@pytest.mark.parametrize("name", sorted(samples.SAMPLES))
+def test_a_photograph_keeps_the_wavelet(name):
+    img = samples.sample(name)
+    assert twolevel.mostly_two_colours(img, img.ndim == 3) is None
+    h = unpack_header(debt.encode(img, 2000))
+    assert not (h.two_level or h.mask_and_residual)
+
+
+def test_a_damaged_residual_part_is_a_clear_error():
+    img = soft_silhouette()
+    data = bytearray(debt.encode(img, 1500))
+    n = int.from_bytes(data[7:9], "big")
+    start = 5 + 2 + 2 + n          # header, colours, length, mask: the residual's header
+    good = debt.decode(bytes(data[:start + 5]))
+    assert good.shape == img.shape
+    data[start] ^= 0xFF
+    with pytest.raises(ValueError, match="DEBT"):
+        debt.decode(bytes(data))
