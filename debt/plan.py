@@ -240,10 +240,14 @@ class Plan:
 
 
 @lru_cache(maxsize=8)
-def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int) -> Plan:
+def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int,
+             levels: int | None = None) -> Plan:
     # Cached: the ROV sends image after image of one size, and the console
-    # decodes prefix after prefix of one stream.
-    levels = levels_for(height, width)
+    # decodes prefix after prefix of one stream.  `levels`: the decomposition
+    # depth, by default the one the size gives (a residual of the two-level
+    # mode is coded with fewer).
+    if levels is None:
+        levels = levels_for(height, width)
     probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
     lay = layout_for(height, width, levels, ncomp)
     if roi is None:

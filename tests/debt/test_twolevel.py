@@ -176,7 +176,7 @@ def test_mask_and_residual_prefixes_never_get_worse():
     img = soft_silhouette()
     data = debt.encode(img, 1500)
     assert unpack_header(data).mask_and_residual
-    mask_end = 5 + 2 + 2 + int.from_bytes(data[7:9], "big")
+    mask_end = 5 + 2 + 3 + int.from_bytes(data[7:9], "big")
     curve = [psnr(debt.decode(data[:n]), img) for n in range(5, len(data) + 1)]
     # Through the mask, byte by byte (a decision only ever makes a block exact)...
     mask_curve = curve[:mask_end - 5 + 1]
@@ -201,9 +201,13 @@ def test_a_damaged_residual_part_is_a_clear_error():
     img = soft_silhouette()
     data = bytearray(debt.encode(img, 1500))
     n = int.from_bytes(data[7:9], "big")
-    start = 5 + 2 + 2 + n          # header, colours, length, mask: the residual's header
+    start = 5 + 2 + 3 + n          # header, colours, length, levels, mask: the residual's header
     good = debt.decode(bytes(data[:start + 5]))
     assert good.shape == img.shape
+    bad_levels = bytearray(data)
+    bad_levels[9] = 7              # the residual's transform levels: 0 or 1
+    with pytest.raises(ValueError, match="levels"):
+        debt.decode(bytes(bad_levels))
     data[start] ^= 0xFF
     with pytest.raises(ValueError, match="DEBT"):
         debt.decode(bytes(data))
