@@ -188,7 +188,7 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
         o = binfo[b, 5]
         if o >= 1:
             for t in range(3):
-                sb = b - (o - 1) + t
+                sb = binfo[b, 7] + t * binfo[b, 8]
                 if sb == b:
                     continue
                 if k == 0:

@@ -11,8 +11,9 @@
 #
 # TOP = 63 with REVERSIBLE = 1 and no ROI marks a two-level stream (`twolevel`:
 # pictures of exactly two colours), TOP = 62 a two-level mask followed by a
-# residual stream (pictures of mostly two colours): plane counts the wavelet
-# never reaches.
+# residual stream (pictures of mostly two colours), TOP = 61 a 9/7 stream with
+# wavelet packets (its own top plane in the byte after the header): plane
+# counts the wavelet never reaches.
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
 TWO_LEVEL_TOP = 63       # see above
 RESIDUAL_TOP = 62        # likewise: a two-level mask, then a residual stream
+PACKET_TOP = 61          # likewise: a 9/7 stream with wavelet packets (codec._packet_stream)
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,10 @@ class Header:
     @property
     def mask_and_residual(self) -> bool:
         return self.reversible and self.roi is None and self.top == RESIDUAL_TOP
+
+    @property
+    def packets(self) -> bool:
+        return self.reversible and self.roi is None and self.top == PACKET_TOP
 
     @property
     def size(self) -> int:
@@ -124,7 +130,7 @@ def unpack_header(data: bytes) -> Header:
         if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
             raise ValueError("corrupted DEBT header (region of interest outside the image)")
     h = Header(width, height, colour, reversible, top, roi, shift)
-    if top > _max_top(h) and not (h.two_level or h.mask_and_residual):
+    if top > _max_top(h) and not (h.two_level or h.mask_and_residual or h.packets):
         raise ValueError("corrupted DEBT header (bit-plane count out of range)")
     return h
 

@@ -64,12 +64,45 @@ def context_group(level: int, orient: int) -> int:
     return COARSE_GROUP if level >= COARSE_LEVEL else orient
 
 
-def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
+def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple]:
+    """The bands of one component in coding order, as (Mallat band index, sub,
+    shape, origin in the Mallat array, resolution level, orientation).
+
+    sub is -1 for a band of the dyadic transform; a detail band whose level is
+    in `packets` is split once more (a wavelet packet) into its four sub-bands
+    0..3 (low, LH, HL, HH of that band), coded in its place."""
+    shapes = band_shapes(height, width, levels)
+    res = band_levels(levels)
+    hs, ws = [height], [width]
+    for _ in range(levels):
+        hs.append(-(-hs[-1] // 2))
+        ws.append(-(-ws[-1] // 2))
+    origins = [(0, 0)]
+    for j in range(levels, 0, -1):
+        origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
+    out = []
+    for i, (bh, bw) in enumerate(shapes):
+        orient = 0 if i == 0 else (i - 1) % 3 + 1
+        if i == 0 or res[i] not in packets:
+            out.append((i, -1, (bh, bw), origins[i], res[i], orient))
+            continue
+        hl, wl = -(-bh // 2), -(-bw // 2)
+        sub_origins = [(0, 0), (0, wl), (hl, 0), (hl, wl)]
+        for sub, shape in enumerate(band_shapes(bh, bw, 1)):
+            y0, x0 = origins[i]
+            out.append((i, sub, shape, (y0 + sub_origins[sub][0], x0 + sub_origins[sub][1]), res[i],
+                        orient if sub == 0 else sub))
+    return out
+
+
+def layout_for(height: int, width: int, levels: int, ncomp: int, packets=()) -> Layout:
+    if packets:
+        return _packet_layout(height, width, levels, ncomp, packets)
     shapes1 = band_shapes(height, width, levels)
     res = band_levels(levels)
     order = [(c, i) for i in range(len(shapes1)) for c in range(ncomp)]
     nb = len(order)
-    binfo = np.zeros((nb, 7), dtype=np.int64)
+    binfo = np.zeros((nb, 9), dtype=np.int64)
     noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
     nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
     count = np.zeros(KMAX + 2, dtype=np.int64)
@@ -80,7 +113,12 @@ def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
         k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
         parent = (i - 3) * ncomp + c if i > 3 else -1
         orient = 0 if i == 0 else (i - 1) % 3 + 1
-        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + context_group(res[i], orient), orient, parent)
+        # Columns 7, 8: where the coder finds the other orientations of this
+        # band's level (first, step).  b - (orient - 1), step 1, as the coder
+        # has always looked (for colour that reaches the other components'
+        # bands: the streams stay as they were).
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + context_group(res[i], orient), orient, parent,
+                    b - max(orient - 1, 0), 1)
         off += h * w
         if h and w:
             count[0] += h * w
@@ -94,6 +132,55 @@ def layout_for(height: int, width: int, levels: int, ncomp: int) -> Layout:
     seg[1:] = np.cumsum(count[:KMAX + 1])
     return Layout(
         [shapes1[i] for _, i in order], [c for c, _ in order], [i for _, i in order],
+        binfo, noff, nw, seg, off, noffset,
+    )
+
+
+PACKET_GROUP = 5          # context groups 5..7: the LH/HL/HH sub-bands of split bands
+
+
+def _packet_layout(height: int, width: int, levels: int, ncomp: int, packets) -> Layout:
+    bands = packet_bands(height, width, levels, packets)
+    index = {(i, sub): n for n, (i, sub, *_rest) in enumerate(bands)}
+    order = [(c, n) for n in range(len(bands)) for c in range(ncomp)]
+    nb = len(order)
+    binfo = np.zeros((nb, 9), dtype=np.int64)
+    noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
+    count = np.zeros(KMAX + 2, dtype=np.int64)
+    off = 0
+    noffset = 0
+    for b, (c, n) in enumerate(order):
+        i, sub, (h, w), _origin, level, orient = bands[n]
+        k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
+        # Parent: the same band one level coarser, or the same sub-band of it
+        # when both are split; none across a split.
+        parent = -1
+        if i > 3:
+            pn = index.get((i - 3, sub))
+            if pn is not None:
+                parent = pn * ncomp + c
+        if sub < 1:
+            group = context_group(level, orient)
+            first = index.get((i - (orient - 1), sub), n) if orient else n
+        else:
+            group = PACKET_GROUP + sub - 1
+            first = n - (sub - 1)
+        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + group, orient, parent,
+                    first * ncomp + c, ncomp)
+        off += h * w
+        if h and w:
+            count[0] += h * w
+            for k in range(1, k_root + 1):
+                hk, wk = -(-h // (1 << k)), -(-w // (1 << k))
+                noff[b, k] = noffset
+                nw[b, k] = wk
+                noffset += hk * wk
+                count[k] += hk * wk
+    seg = np.zeros(KMAX + 2, dtype=np.int64)
+    seg[1:] = np.cumsum(count[:KMAX + 1])
+    return Layout(
+        [bands[n][2] for _, n in order], [c for c, _ in order], [n for _, n in order],
         binfo, noff, nw, seg, off, noffset,
     )
 
@@ -237,19 +324,26 @@ class Plan:
     cdef: np.ndarray | None = None       # planes below the top it cannot reach
     cdef8: np.ndarray | None = None
     node_def: np.ndarray | None = None   # min of cdef over each quadtree node
+    packets: tuple = ()                  # detail levels split once more (wavelet packets)
 
 
 @lru_cache(maxsize=8)
 def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: int,
-             levels: int | None = None) -> Plan:
+             levels: int | None = None, packets: tuple = ()) -> Plan:
     # Cached: the ROV sends image after image of one size, and the console
     # decodes prefix after prefix of one stream.  `levels`: the decomposition
     # depth, by default the one the size gives (a residual of the two-level
-    # mode is coded with fewer).
+    # mode is coded with fewer).  `packets`: detail levels split once more
+    # (9/7 without an ROI only; see packet_bands).
     if levels is None:
         levels = levels_for(height, width)
+    packets = tuple(j for j in packets if 1 <= j <= levels)
+    if packets and (reversible or roi is not None):
+        raise ValueError("wavelet packets are for 9/7 streams without a region of interest")
     probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
-    lay = layout_for(height, width, levels, ncomp)
+    lay = layout_for(height, width, levels, ncomp, packets)
+    plan_bands = packet_bands(height, width, levels, packets)
+    sub_weights = band_weights(1, "97")
     if roi is None:
         masks = None
     else:
@@ -261,7 +355,7 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     if lay.ncoef:
         ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
     cfloor = np.zeros(n, dtype=np.int64)
-    plan = Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales)
+    plan = Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales, packets=packets)
     if reversible:
         for b in range(len(lay.shapes)):
             off, bh, bw = lay.binfo[b, :3]
@@ -273,13 +367,6 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
                 f[masks[i]] += shift
             cfloor[off:off + bh * bw] = f.ravel()
     else:
-        hs, ws = [height], [width]
-        for _ in range(levels):
-            hs.append(-(-hs[-1] // 2))
-            ws.append(-(-ws[-1] // 2))
-        origins = [(0, 0)]
-        for j in range(levels, 0, -1):
-            origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
         pos = np.zeros(n, dtype=np.int64)
         scale = np.ones(n, dtype=np.float64)
         for b in range(len(lay.shapes)):
@@ -287,10 +374,11 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
             if not bh or not bw:
                 continue
             c, i = lay.comp[b], lay.index[b]
-            y0, x0 = origins[i]
+            i, sub, _shape, (y0, x0), _level, _orient = plan_bands[i]
             yy, xx = np.mgrid[0:bh, 0:bw]
             pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
-            sc = np.full((bh, bw), scales[c][i])
+            # A sub-band of a split band: its basis is the band's, split once more.
+            sc = np.full((bh, bw), scales[c][i] * (sub_weights[sub] if sub >= 0 else 1.0))
             if masks is not None:
                 sc[masks[i]] *= 2.0 ** shift
             scale[off:off + bh * bw] = sc.ravel()

@@ -1,0 +1,91 @@
+"""DEBT's wavelet packets (codec._packet_stream): on a texture the finest
+detail bands are split once more when that decodes better at the budget."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rovlink import debt
+from rovlink.debt import codec, samples
+from rovlink.debt.codec import PACKET_TOP, unpack_header
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 99.0 if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+def brick_wall(h: int = 240, w: int = 320, seed: int = 4) -> np.ndarray:
+    """Courses of bricks 6 px high and 9 px long behind 1-px mortar, each a
+    little lighter or darker, with grain: a fine periodic texture."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w]
+    course = y // 6
+    shifted = x + (course % 2) * 4
+    brick = shifted // 9
+    shade = rng.normal(0, 10, size=(course.max() + 1, brick.max() + 1))[course, brick]
+    img = 150 + shade + rng.normal(0, 4, size=(h, w))
+    img[(y % 6 == 0) | (shifted % 9 == 0)] = 70
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def wall():
+    return brick_wall()
+
+
+def test_a_texture_is_seen_and_smooth_pictures_are_not(wall):
+    assert codec._textured(wall, False)
+    for name in samples.SAMPLES:
+        img = samples.sample(name)
+        assert not codec._textured(img, img.ndim == 3), name
+
+
+@pytest.mark.parametrize("budget", [2000, 4000])
+def test_packets_are_sent_where_they_decode_better(wall, budget):
+    data = debt.encode(wall, budget)
+    assert len(data) == budget
+    h = unpack_header(data)
+    assert h.packets and h.top == PACKET_TOP
+    dyadic = codec._wavelet_stream(wall, False, None, 0, budget - 5)
+    assert not unpack_header(dyadic).packets
+    assert psnr(debt.decode(data), wall) > psnr(debt.decode(dyadic), wall) + 0.1
+
+
+def test_colour_texture_round_trips_with_packets(wall):
+    rgb = np.stack([wall, np.clip(wall.astype(int) - 30, 0, 255), wall // 2], axis=-1).astype(np.uint8)
+    data = debt.encode(rgb, 3000)
+    assert unpack_header(data).packets and unpack_header(data).colour
+    out = debt.decode(data)
+    dyadic = debt.decode(codec._wavelet_stream(rgb, True, None, 0, 3000 - 5))
+    assert out.shape == rgb.shape and psnr(out, rgb) > psnr(dyadic, rgb) + 0.3
+
+
+def test_packet_prefixes_decode_and_improve(wall):
+    data = debt.encode(wall, 4000)
+    assert unpack_header(data).packets
+    # Header alone, and header and the packet byte: flat pictures.
+    assert (debt.decode(data[:5]) == 128).all()
+    assert debt.decode(data[:6]).std() < 1.0
+    curve = [psnr(debt.decode(data[:n]), wall) for n in range(64, len(data) + 1, 64)]
+    assert all(b >= a for a, b in zip(curve, curve[1:])), curve
+    assert curve[-1] > curve[0] + 5
+
+
+def test_a_damaged_packet_byte_is_a_clear_error(wall):
+    data = bytearray(debt.encode(wall, 2000))
+    assert unpack_header(bytes(data)).packets
+    data[5] = data[5] & 63          # split code 0: none such
+    with pytest.raises(ValueError, match="packet"):
+        debt.decode(bytes(data))
+    data[5] = (1 << 6) | 63         # a top plane no picture reaches
+    with pytest.raises(ValueError, match="bit-plane"):
+        debt.decode(bytes(data))
+
+
+def test_an_roi_or_a_lossless_budget_keeps_the_dyadic_stream(wall):
+    assert not unpack_header(debt.encode(wall, 3000, roi=(0, 0, 100, 80), shift=4)).packets
+    exact = debt.encode(wall, 200_000)
+    assert unpack_header(exact).reversible and not unpack_header(exact).packets
+    assert np.array_equal(debt.decode(exact), wall)
