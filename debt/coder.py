@@ -135,8 +135,8 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
     if ctx == 0:
         pb = binfo[b, 6]
         if pb >= 0:
-            py = y >> 1
-            px = x >> 1
+            py = y >> binfo[b, 9]
+            px = x >> binfo[b, 9]
             if py < binfo[pb, 1] and px < binfo[pb, 2]:
                 if sig[binfo[pb, 0] + py * binfo[pb, 2] + px]:
                     return 9
@@ -170,7 +170,7 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     par = False
     pb = binfo[b, 6]
     if pb >= 0 and binfo[pb, 1] > 0 and binfo[pb, 2] > 0:
-        pk_ = k - 1
+        pk_ = k - binfo[b, 9]
         if pk_ == 0:
             if y < binfo[pb, 1] and x < binfo[pb, 2]:
                 if sig[binfo[pb, 0] + y * binfo[pb, 2] + x]:
