@@ -126,24 +126,45 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarra
 
 def _packets(a: np.ndarray, plan, forward: bool) -> None:
     """Split (or merge back) the detail bands of the levels in plan.packets
-    with one more 9/7 level each, in place in the Mallat array `a`."""
+    with one more 9/7 level each, as often as the level is named, in place
+    in the Mallat array `a` (see plan.packet_bands)."""
     if not plan.packets:
         return
     none = np.zeros(4, dtype=np.int64)
-    for i, sub, shape, origin, _level, _orient in packet_bands(a.shape[0], a.shape[1], plan.levels,
-                                                                  plan.packets):
-        if sub != 0:
+    shapes = band_shapes(a.shape[0], a.shape[1], plan.levels)
+    nodes = {}                      # (band, path prefix) -> (origin, shape) of every split node
+    for i, path, shape, origin, _level, _orient in packet_bands(a.shape[0], a.shape[1], plan.levels,
+                                                                   plan.packets):
+        if not path:
             continue
-        bh, bw = band_shapes(a.shape[0], a.shape[1], plan.levels)[i]
         y0, x0 = origin
+        for depth in range(len(path)):
+            prefix = path[:depth]
+            if (i, prefix) in nodes:
+                continue
+            if depth == 0:
+                bh, bw = shapes[i]
+                oy, ox = y0, x0         # the first leaf of a band starts at its corner
+            else:
+                (py, px), (bh, bw) = nodes[(i, path[:depth - 1])]
+                hl, wl = -(-bh // 2), -(-bw // 2)
+                sub = path[depth - 1]
+                oy, ox = py + (hl if sub >= 2 else 0), px + (wl if sub in (1, 3) else 0)
+                bh, bw = band_shapes(bh, bw, 1)[sub]
+            nodes[(i, prefix)] = ((oy, ox), (bh, bw))
+    # Coarse splits first when analysing, last when synthesising.
+    order = sorted(nodes.items(), key=lambda kv: len(kv[0][1]), reverse=not forward)
+    for (_i, _prefix), ((y0, x0), (bh, bw)) in order:
         region = np.ascontiguousarray(a[y0:y0 + bh, x0:x0 + bw])
         (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
         a[y0:y0 + bh, x0:x0 + bw] = region
 
 
 def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift: int,
-                    limit: int, levels: int | None = None, packets: tuple = ()):
-    """Returns (header, payload bytes, complete?)."""
+                    limit: int, levels: int | None = None, packets: tuple = (), errors: list | None = None):
+    """Returns (header, payload bytes, complete?).  With `errors` (9/7): appends
+    the squared error the decoder's picture will have, summed, as the
+    coefficients tell it (`_coefficient_error`)."""
     height, width = img.shape[:2]
     ncomp = 3 if colour else 1
     plan = plan_for(height, width, ncomp, reversible, roi, shift, levels, packets)
@@ -188,6 +209,8 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     complete = coder.run(0, mag, neg, plan.cfloor8, plan.ccls, node_max, plan.node_floor,
                          lay.binfo, lay.noff, lay.nw, lay.seg, KMAX, top, buf, st, rec, pk, sgn,
                          plan.cdef8, plan.node_def)
+    if errors is not None and not reversible:
+        errors.append(_coefficient_error(flat, plan, rec, pk))
     if complete:
         n = rangecoder.flush(st, buf)
         n = min(n, buf.shape[0])
@@ -195,6 +218,22 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
         if len(payload) <= limit:
             return header, payload, True
     return header, bytes(buf[1:limit + 1]), False
+
+
+def _coefficient_error(flat: np.ndarray, plan, rec: np.ndarray, pk: np.ndarray) -> float:
+    """The decoder's squared error, summed, reckoned on the coefficients: each
+    is reconstructed as `kernels.reconstruct97` does it from what the encoder
+    sent, and its error weighted back to pixels.  The 9/7 basis is nearly
+    orthogonal, so this stands for the picture's error well enough to choose
+    between streams (it spares decoding each: on brick at 2000 B the choice
+    among four streams took 18 ms with decodes)."""
+    true = np.abs(flat[plan.pos]) * plan.scale
+    p = pk.astype(np.int64)
+    known = p >= 0
+    step = np.left_shift(np.int64(1), np.maximum(p, 0)).astype(np.float64)
+    delta = np.where(rec == step, kernels.DELTA_SIG, kernels.DELTA_REF)
+    shown = np.where(known, rec + delta * step, 0.0)
+    return float(np.sum(((true - shown) * plan.err_weight) ** 2))
 
 
 def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) -> bytes:
@@ -227,36 +266,58 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
             if payload is not None:
                 return pack_header(Header(width, height, colour, True, TWO_LEVEL_TOP)) + payload
         near = twolevel.mostly_two_colours(img, colour)
-    stream = _wavelet_stream(img, colour, roi, shift, limit)
+    textured = roi is None and _textured(img, colour)
+    errors: list = []
+    stream = _wavelet_stream(img, colour, roi, shift, limit, errors=errors if textured else None)
     if roi is not None or unpack_header(stream).reversible:
         return stream           # an ROI's own order, or exact: nothing better to try
-    # Where the picture asks for it, other transforms of the same coder; the
-    # one whose stream decodes best at this budget is sent.
-    best, best_error = stream, None
-    candidates = []
-    if _textured(img, colour):
-        candidates += [_packet_stream(img, colour, packets, limit) for packets in PACKET_CHOICES]
+    if textured:
+        # A texture: its packet stream for this rate (PACKETS_BY_RATE) or the
+        # dyadic one, told apart by their coefficients' error
+        # (`_coefficient_error`), off by a few per cent, so when within CLOSE
+        # of each other by decoding both.
+        packet_errors: list = []
+        other = _packet_stream(img, colour, _packets_for(8.0 * limit / img.size), limit, packet_errors)
+        if other is not None:
+            a, b = errors[-1], packet_errors[-1]
+            if max(a, b) <= min(a, b) * CLOSE:
+                if _error(decode(other), img) < _error(decode(stream), img):
+                    stream = other
+            elif b < a:
+                stream = other
     if near is not None:
-        candidates.append(_mask_and_residual_stream(img, colour, near, limit))
-    for other in candidates:
-        if other is None:
-            continue
-        if best_error is None:
-            best_error = _error(decode(stream), img)
-        error = _error(decode(other), img)
-        if error < best_error:
-            best, best_error = other, error
-    return best
+        # A mask and its residual are no wavelet: told apart by decoding.
+        other = _mask_and_residual_stream(img, colour, near, limit)
+        if other is not None and _error(decode(other), img) < _error(decode(stream), img):
+            stream = other
+    return stream
 
 
-# Wavelet packets: the finest detail bands split once more.  On textures
-# (bricks, fabric, gravel) their energy sits in narrow frequency ranges that
-# one more split gathers.  Measured on scikit-image's brick scaled down to
-# 320x240 at 1000/2000/4000/8000 B: dyadic 26.56/30.51/35.38/42.26 dB, level 1
-# split 26.56/31.08/36.24/42.47, levels 1 and 2 27.14/30.85/35.94/41.73; on
-# smooth photographs (camera, coffee, hubble) both lose 0.1-1.2 dB.  Hence a
-# choice per picture.
-PACKET_CHOICES = ((1,), (1, 2))
+CLOSE = 1.08
+
+# Wavelet packets: the finer detail bands split further.  On textures
+# (bricks, fabric, sand ripples) their energy sits in narrow frequency ranges
+# that more splits gather.  Measured on scikit-image's brick scaled down to
+# 320x240 (and cropped) at 1000/2000/4000/8000 B: dyadic 26.56/30.51/35.38/
+# 42.26 dB (31.14/35.69/40.49/45.73); level 1 split 26.53/31.12/36.48/42.58
+# (31.05/36.11/41.18/45.56); levels 1 and 2 27.33/30.99/36.11/41.84 (32.34/
+# 36.32/40.85/45.24); level 1 twice and 2 once 27.28/31.40/36.08/41.41
+# (32.31/36.54/40.78/44.79); deeper ones lost from 2000 B (the coder's
+# contexts learn less in small leaves).  On smooth photographs (camera,
+# coffee, hubble) every split loses 0.1-1.2 dB: packets only for textures
+# (`_textured`).  The stream names its split by its index here (2 bits).
+PACKET_CHOICES = ((1,), (1, 2), (1, 1, 2))
+# Which split by bits per sample (per pixel for grey, a third of it for
+# colour, whose luma takes most of the bits): the deep one at low rates,
+# level 1 alone above.  Trying them all and keeping the best took 24 ms on brick at 2000 B
+# (four encodes), 3.3x OpenJPEG; by rate, 0.05 dB at most is lost there.
+# The dyadic stream is always coded beside it: it stays the better on brick
+# cropped at 8000 B (by 0.17 dB) and on noisier textures at any rate.
+PACKETS_BY_RATE = ((0.3, (1, 1, 2)), (99.0, (1,)))
+
+
+def _packets_for(bpp: float) -> tuple:
+    return next(packets for below, packets in PACKETS_BY_RATE if bpp < below)
 
 
 # A finest detail band whose split gathers its energy this much (arithmetic
@@ -273,7 +334,7 @@ def _textured(img: np.ndarray, colour: bool) -> bool:
     height, width = img.shape[:2]
     if height < 16 or width < 16:
         return False
-    luma = np.ascontiguousarray(_components(img, colour, False)[0], dtype=np.float64)
+    luma = (img @ ICT[0] if colour else img).astype(np.float64)   # the offset changes no variance
     none = np.zeros(4, dtype=np.int64)
     kernels.forward97(luma, 1, none)
     hl, wl = -(-height // 2), -(-width // 2)
@@ -289,16 +350,17 @@ def _textured(img: np.ndarray, colour: bool) -> bool:
     return False
 
 
-def _packet_stream(img: np.ndarray, colour: bool, packets: tuple, limit: int) -> bytes | None:
+def _packet_stream(img: np.ndarray, colour: bool, packets: tuple, limit: int,
+                   errors: list | None = None) -> bytes | None:
     """A 9/7 stream with wavelet packets at `packets` (see PACKET_CHOICES):
-    header TOP=61, then a byte (bits 7-6: 1 for level 1 split, 2 for levels
-    1 and 2; bits 5-0: the stream's top plane), then the coder's bytes."""
+    header TOP=61, then a byte (bits 7-6: 1 + the index of the split in
+    PACKET_CHOICES; bits 5-0: the stream's top plane), then the coder's bytes."""
     height, width = img.shape[:2]
-    header, payload, _complete = _encode_payload(img, colour, False, None, 0, limit - 1, None, packets)
+    header, payload, _complete = _encode_payload(img, colour, False, None, 0, limit - 1, None, packets, errors)
     if header.top > 63:
         return None
     return (pack_header(Header(width, height, colour, True, PACKET_TOP))
-            + bytes([(len(packets) << 6) | header.top]) + payload)
+            + bytes([(PACKET_CHOICES.index(packets) + 1) << 6 | header.top]) + payload)
 
 
 def _error(a: np.ndarray, b: np.ndarray) -> float:
@@ -306,14 +368,14 @@ def _error(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _wavelet_stream(img: np.ndarray, colour: bool, roi, shift: int, limit: int,
-                    levels: int | None = None) -> bytes:
+                    levels: int | None = None, errors: list | None = None) -> bytes:
     samples = img.size
     # Lossless (integer 5/3) only pays where the budget could hold it.
     if 8 * limit >= samples // 2:
         header, payload, complete = _encode_payload(img, colour, True, roi, shift, limit, levels)
         if complete:
             return pack_header(header) + payload
-    header, payload, complete = _encode_payload(img, colour, False, roi, shift, limit, levels)
+    header, payload, complete = _encode_payload(img, colour, False, roi, shift, limit, levels, (), errors)
     if complete:
         # The 9/7 stream ran out of planes: a lossless one is smaller still.
         h2, p2, c2 = _encode_payload(img, colour, True, roi, shift, limit, levels)

@@ -69,12 +69,15 @@ def context_group(level: int, orient: int) -> int:
 
 
 def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple]:
-    """The bands of one component in coding order, as (Mallat band index, sub,
+    """The bands of one component in coding order, as (Mallat band index, path,
     shape, origin in the Mallat array, resolution level, orientation).
 
-    sub is -1 for a band of the dyadic transform; a detail band whose level is
-    in `packets` is split once more (a wavelet packet) into its four sub-bands
-    0..3 (low, LH, HL, HH of that band), coded in its place."""
+    A detail band of level j is split (a wavelet packet) as many times as j
+    appears in `packets`: once into its four sub-bands 0..3 (low, LH, HL, HH
+    of that band), twice into the four of each of those.  path is () for an
+    unsplit band, else the sub-band chosen at each split; the leaves are coded
+    in the band's place, depth first.  A leaf's orientation is its last
+    detail step's (the band's own when every step took the low half)."""
     shapes = band_shapes(height, width, levels)
     res = band_levels(levels)
     hs, ws = [height], [width]
@@ -85,17 +88,22 @@ def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple
     for j in range(levels, 0, -1):
         origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
     out = []
-    for i, (bh, bw) in enumerate(shapes):
-        orient = 0 if i == 0 else (i - 1) % 3 + 1
-        if i == 0 or res[i] not in packets:
-            out.append((i, -1, (bh, bw), origins[i], res[i], orient))
-            continue
+
+    def leaves(i, path, shape, origin, depth, orient):
+        if depth == 0:
+            out.append((i, path, shape, origin, res[i], orient))
+            return
+        bh, bw = shape
         hl, wl = -(-bh // 2), -(-bw // 2)
         sub_origins = [(0, 0), (0, wl), (hl, 0), (hl, wl)]
-        for sub, shape in enumerate(band_shapes(bh, bw, 1)):
-            y0, x0 = origins[i]
-            out.append((i, sub, shape, (y0 + sub_origins[sub][0], x0 + sub_origins[sub][1]), res[i],
-                        orient if sub == 0 else sub))
+        for sub, sub_shape in enumerate(band_shapes(bh, bw, 1)):
+            leaves(i, path + (sub,), sub_shape,
+                   (origin[0] + sub_origins[sub][0], origin[1] + sub_origins[sub][1]),
+                   depth - 1, orient if sub == 0 else sub)
+
+    for i, shape in enumerate(shapes):
+        orient = 0 if i == 0 else (i - 1) % 3 + 1
+        leaves(i, (), shape, origins[i], packets.count(res[i]) if i else 0, orient)
     return out
 
 
@@ -149,20 +157,20 @@ PACKET_GROUP = 5          # context groups 5..7: the LH/HL/HH sub-bands of split
 PACKET_PARENT = True
 
 
-def packet_group(level: int, orient: int, sub: int) -> int:
-    """Context group of a band in a packet layout: the low sub-band of a split
-    band as the band itself, its three detail sub-bands in groups 5-7 by their
-    own orientation.  (Measured on brick, crop and scaled down, 1000-8000 B:
-    grouping them by the split band's orientation, with the dyadic groups, or
-    all four with the split band: within +-0.04 dB.)"""
-    if sub < 1:
+def packet_group(level: int, orient: int, path: tuple) -> int:
+    """Context group of a band in a packet layout: a leaf whose steps all took
+    the low half as the band itself, any other in groups 5-7 by its own
+    orientation.  (Measured on brick, crop and scaled down, 1000-8000 B, one
+    split: grouping them by the split band's orientation, with the dyadic
+    groups, or all four with the split band: within +-0.04 dB.)"""
+    if not any(path):
         return context_group(level, orient)
-    return PACKET_GROUP + sub - 1
+    return PACKET_GROUP + orient - 1
 
 
 def _packet_layout(height: int, width: int, levels: int, ncomp: int, packets) -> Layout:
     bands = packet_bands(height, width, levels, packets)
-    index = {(i, sub): n for n, (i, sub, *_rest) in enumerate(bands)}
+    index = {(i, path): n for n, (i, path, *_rest) in enumerate(bands)}
     order = [(c, n) for n in range(len(bands)) for c in range(ncomp)]
     nb = len(order)
     binfo = np.zeros((nb, 10), dtype=np.int64)
@@ -172,26 +180,26 @@ def _packet_layout(height: int, width: int, levels: int, ncomp: int, packets) ->
     off = 0
     noffset = 0
     for b, (c, n) in enumerate(order):
-        i, sub, (h, w), _origin, level, orient = bands[n]
+        i, path, (h, w), _origin, level, orient = bands[n]
         k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
-        # Parent: the same band one level coarser, or the same sub-band of it
-        # when both are split; none across a split.
+        # Parent: the same leaf of the band one level coarser (half its size),
+        # or, that band split once less, the leaf one step up (its size and
+        # place); none otherwise.
         parent = -1
         step = 1
         if i > 3:
-            pn = index.get((i - 3, sub))
+            pn = index.get((i - 3, path))
             if pn is not None:
                 parent = pn * ncomp + c
-            elif PACKET_PARENT and sub >= 0 and (i - 3, -1) in index:
-                # A sub-band of a split band below an unsplit one: the coarser
-                # band is its size and covers the same place.
-                parent = index[(i - 3, -1)] * ncomp + c
+            elif PACKET_PARENT and path and (i - 3, path[:-1]) in index:
+                parent = index[(i - 3, path[:-1])] * ncomp + c
                 step = 0
-        group = packet_group(level, orient, sub)
-        if sub < 1:
-            first = index.get((i - (orient - 1), sub), n) if orient else n
+        group = packet_group(level, orient, path)
+        if path and path[-1] >= 1:
+            first = n - (path[-1] - 1)          # the other detail leaves of this split
         else:
-            first = n - (sub - 1)
+            band_orient = 0 if i == 0 else (i - 1) % 3 + 1
+            first = index.get((i - (band_orient - 1), path), n) if band_orient else n
         binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + group, orient, parent,
                     first * ncomp + c, ncomp, step)
         off += h * w
@@ -351,6 +359,7 @@ class Plan:
     cdef8: np.ndarray | None = None
     node_def: np.ndarray | None = None   # min of cdef over each quadtree node
     packets: tuple = ()                  # detail levels split once more (wavelet packets)
+    err_weight: np.ndarray | None = None  # 9/7: scaled coefficient error -> RGB-weighted pixel error
 
 
 @lru_cache(maxsize=8)
@@ -394,21 +403,24 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     else:
         pos = np.zeros(n, dtype=np.int64)
         scale = np.ones(n, dtype=np.float64)
+        err_weight = np.ones(n, dtype=np.float64)
         for b in range(len(lay.shapes)):
             off, bh, bw = lay.binfo[b, :3]
             if not bh or not bw:
                 continue
             c, i = lay.comp[b], lay.index[b]
-            i, sub, _shape, (y0, x0), level, _orient = plan_bands[i]
+            i, path, _shape, (y0, x0), level, _orient = plan_bands[i]
             yy, xx = np.mgrid[0:bh, 0:bw]
             pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
-            # A sub-band of a split band: its basis is the band's, split once more.
-            sc = np.full((bh, bw), scales[c][i] * (packet_weight(levels, level, (i - 1) % 3 + 1, sub)
-                                                   if sub >= 0 else 1.0))
+            # A leaf of a split band: its basis is the band's, split further.
+            sc = np.full((bh, bw), scales[c][i] * (packet_weight(levels, level, (i - 1) % 3 + 1, path)
+                                                   if path else 1.0))
+            err_weight[off:off + bh * bw] = 1.0 / (2.0 ** FRACTION_BITS * FINE_BAND_FACTOR.get(level, 1.0))
             if masks is not None:
                 sc[masks[i]] *= 2.0 ** shift
             scale[off:off + bh * bw] = sc.ravel()
         plan.pos, plan.scale, plan.inv_scale = pos, scale, 1.0 / scale
+        plan.err_weight = err_weight
         plan.roi = np.array(roi if masks is not None else (0, 0, 0, 0), dtype=np.int64)
     # The coder's floor bytes: lowest coded plane, plus 128 inside the ROI.
     croi = np.zeros(n, dtype=np.int64)

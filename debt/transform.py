@@ -222,49 +222,48 @@ def _norms_1d(levels: int, kind: str) -> tuple[tuple[float, ...], tuple[float, .
 
 
 @lru_cache(maxsize=None)
-def _split_high_norms(levels: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    # 1-D 9/7 synthesis norms of the two halves of the level-j details split
-    # once more (a wavelet packet): (low half, high half) per level j >= 1.
-    n = 64 << levels
+def _leaf_norm_1d(level: int, high: bool, steps: tuple) -> float:
+    # 1-D 9/7 synthesis norm of a coefficient of the level-`level` low (or
+    # high) part split further along `steps` (False: low half, True: high),
+    # measured on an impulse far from the edges.
     synthesise = _FILTERS["97"][1]
-    out = ([0.0], [0.0])
-    for j in range(1, levels + 1):
-        lengths = []
-        m = n
-        for _ in range(j):
-            lengths.append((-(-m // 2), m // 2))
-            m = -(-m // 2)
-        nd = lengths[-1][1]
-        for half in (0, 1):
-            parts = [np.zeros((-(-nd // 2), 1)), np.zeros((nd // 2, 1))]
-            parts[half][(nd // 2) // 2, 0] = 1.0
-            d = synthesise(parts[0], parts[1])
-            x = synthesise(np.zeros((lengths[-1][0], 1)), d)
-            for k in range(j - 2, -1, -1):
-                x = synthesise(x, np.zeros((lengths[k][1], 1)))
-            out[half].append(float(np.sqrt(np.sum(x * x))))
-    return tuple(out[0]), tuple(out[1])
+    n = 64 << (level + len(steps) + 2)
+    lens = [n]
+    for _ in range(level):
+        lens.append(-(-lens[-1] // 2))
+    chain = [lens[level] if not high else lens[level - 1] // 2]
+    for st in steps:
+        chain.append(chain[-1] // 2 if st else -(-chain[-1] // 2))
+    x = np.zeros((chain[-1], 1))
+    x[chain[-1] // 2, 0] = 1.0
+    for st, length in reversed(list(zip(steps, chain[:-1]))):
+        lo, hi = np.zeros((-(-length // 2), 1)), np.zeros((length // 2, 1))
+        if st:
+            hi = x
+        else:
+            lo = x
+        x = synthesise(lo, hi)
+    if high:
+        x = synthesise(np.zeros((lens[level], 1)), x)
+    else:
+        x = synthesise(x, np.zeros((lens[level - 1] // 2, 1)))
+    for k in range(level - 1, 0, -1):
+        x = synthesise(x, np.zeros((lens[k - 1] // 2, 1)))
+    return float(np.sqrt(np.sum(x * x)))
 
 
-def packet_weight(levels: int, level: int, orient: int, sub: int) -> float:
-    """Synthesis-basis norm of sub-band `sub` (0 low, 1 LH, 2 HL, 3 HH) of the
-    level-`level` detail band of orientation `orient` (1 LH, 2 HL, 3 HH) split
-    once more, over the band's own norm.  A low direction split once more is
-    the next level's low and high; a high one, `_split_high_norms`."""
-    low, high = _norms_1d(levels + 1, "97")
-    split_low, split_high = _split_high_norms(levels)
+def packet_weight(levels: int, level: int, orient: int, path: tuple) -> float:
+    """Synthesis-basis norm of the leaf `path` (sub-bands 0 low, 1 LH, 2 HL,
+    3 HH at each split) of the level-`level` detail band of orientation
+    `orient` (1 LH, 2 HL, 3 HH), over the band's own norm.  Separable: the
+    product of the vertical and horizontal 1-D norms."""
     v_high = orient in (2, 3)       # HL, HH: high-pass down the columns
     h_high = orient in (1, 3)       # LH, HH: high-pass along the rows
-    sub_v_high = sub in (2, 3)
-    sub_h_high = sub in (1, 3)
-
-    def factor(is_high: bool, sub_high: bool) -> float:
-        if is_high:
-            return (split_high if sub_high else split_low)[level]
-        return (high if sub_high else low)[level + 1]
-
-    band = (high[level] if v_high else low[level]) * (high[level] if h_high else low[level])
-    return factor(v_high, sub_v_high) * factor(h_high, sub_h_high) / band
+    v_steps = tuple(s in (2, 3) for s in path)
+    h_steps = tuple(s in (1, 3) for s in path)
+    leaf = _leaf_norm_1d(level, v_high, v_steps) * _leaf_norm_1d(level, h_high, h_steps)
+    band = _leaf_norm_1d(level, v_high, ()) * _leaf_norm_1d(level, h_high, ())
+    return leaf / band
 
 
 def band_weights(levels: int, kind: str = "97") -> list[float]:
