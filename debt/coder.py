@@ -189,7 +189,7 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
         if o >= 1:
             for t in range(3):
                 sb = binfo[b, 7] + t * binfo[b, 8]
-                if sb == b:
+                if sb == b or sb >= binfo.shape[0]:
                     continue
                 if k == 0:
                     if y < binfo[sb, 1] and x < binfo[sb, 2]:
