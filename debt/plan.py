@@ -108,46 +108,16 @@ def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple
 
 
 def layout_for(height: int, width: int, levels: int, ncomp: int, packets=()) -> Layout:
-    if packets:
-        return _packet_layout(height, width, levels, ncomp, packets)
-    shapes1 = band_shapes(height, width, levels)
-    res = band_levels(levels)
-    order = [(c, i) for i in range(len(shapes1)) for c in range(ncomp)]
-    nb = len(order)
-    binfo = np.zeros((nb, 10), dtype=np.int64)
-    noff = np.zeros((nb, KMAX + 1), dtype=np.int64)
-    nw = np.zeros((nb, KMAX + 1), dtype=np.int64)
-    count = np.zeros(KMAX + 2, dtype=np.int64)
-    off = 0
-    noffset = 0
-    for b, (c, i) in enumerate(order):
-        h, w = shapes1[i]
-        k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
-        parent = (i - 3) * ncomp + c if i > 3 else -1
-        orient = 0 if i == 0 else (i - 1) % 3 + 1
-        # Columns 7, 8: where the coder finds the other orientations of this
-        # band's level, same component (first, step; the coder once looked at
-        # b - (orient - 1) + 0..2, for colour other components' bands: the
-        # right ones gain +0.001 to +0.004 dB mean on the colour photographs).
-        # Column 9: 1 when the parent band is half this one's size (0: the
-        # same size, under wavelet packets).
-        binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + context_group(res[i], orient), orient, parent,
-                    b - max(orient - 1, 0) * ncomp, ncomp, 1)
-        off += h * w
-        if h and w:
-            count[0] += h * w
-            for k in range(1, k_root + 1):
-                hk, wk = -(-h // (1 << k)), -(-w // (1 << k))
-                noff[b, k] = noffset
-                nw[b, k] = wk
-                noffset += hk * wk
-                count[k] += hk * wk
-    seg = np.zeros(KMAX + 2, dtype=np.int64)
-    seg[1:] = np.cumsum(count[:KMAX + 1])
-    return Layout(
-        [shapes1[i] for _, i in order], [c for c, _ in order], [i for _, i in order],
-        binfo, noff, nw, seg, off, noffset,
-    )
+    """The coder's bands, in coding order (band by band, the components of
+    each in turn), with their block trees.  binfo per band: offset, height,
+    width, quadtree depth, context class, orientation, parent band (-1 for
+    none), then where the other orientations of its level lie (first band,
+    step: the same component's), and 1 when the parent is half its size (0:
+    the same size, under wavelet packets).  (The coder once looked at
+    b - (orient - 1) + 0..2 for the other orientations, for colour the other
+    components' bands: the right ones gain +0.001 to +0.004 dB mean on the
+    colour photographs.)"""
+    return _packet_layout(height, width, levels, ncomp, packets)
 
 
 PACKET_GROUP = 5          # context groups 5..7: the LH/HL/HH sub-bands of split bands
