@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from rovlink import debt
 from rovlink.debt import codec, samples
@@ -89,3 +91,31 @@ def test_an_roi_or_a_lossless_budget_keeps_the_dyadic_stream(wall):
     exact = debt.encode(wall, 200_000)
     assert unpack_header(exact).reversible and not unpack_header(exact).packets
     assert np.array_equal(debt.decode(exact), wall)
+
+
+def test_the_coefficients_tell_the_pictures_error(wall):
+    # The encoder chooses between streams by `_coefficient_error` instead of
+    # decoding each: it must stand for the real error within a few per cent.
+    for packets in ((), (1,), (1, 1, 2)):
+        for budget in (1000, 4000):
+            errors: list = []
+            if packets:
+                data = codec._packet_stream(wall, False, packets, budget - 5, errors)
+            else:
+                data = codec._wavelet_stream(wall, False, None, 0, budget - 5, errors=errors)
+            real = float(np.sum((debt.decode(data).astype(np.float64) - wall) ** 2))
+            assert 0.85 < errors[-1] / real < 1.15, (packets, budget, errors[-1] / real)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(junk=st.binary(min_size=0, max_size=400), top=st.integers(0, 63), split=st.integers(0, 3))
+def test_any_bytes_after_a_packet_header_decode_or_raise_clearly(wall, junk, top, split):
+    header = debt.encode(wall, 2000)[:5]
+    assert unpack_header(header).packets
+    data = header + bytes([split << 6 | top]) + junk
+    try:
+        out = debt.decode(data)
+    except ValueError as exc:
+        assert "DEBT" in str(exc)
+    else:
+        assert out.shape == wall.shape and out.dtype == np.uint8

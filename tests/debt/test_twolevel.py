@@ -211,3 +211,17 @@ def test_a_damaged_residual_part_is_a_clear_error():
     data[start] ^= 0xFF
     with pytest.raises(ValueError, match="DEBT"):
         debt.decode(bytes(data))
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(junk=st.binary(min_size=0, max_size=400))
+def test_any_bytes_after_a_mask_and_residual_header_decode_or_raise_clearly(junk):
+    img = soft_silhouette()
+    header = debt.encode(img, 1500)[:5]
+    assert unpack_header(header).mask_and_residual
+    try:
+        out = debt.decode(header + junk)
+    except ValueError as exc:
+        assert "DEBT" in str(exc)
+    else:
+        assert out.shape == img.shape and out.dtype == np.uint8
