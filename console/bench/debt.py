@@ -306,12 +306,26 @@ def centre_ninth(img) -> tuple[int, int, int, int]:
     return (w // 3, h // 3, w // 3 + w // 3, h // 3 + h // 3)
 
 
+def debt_mode(data: bytes) -> str:
+    """Which of DEBT's streams the encoder chose."""
+    from rovlink.debt import codec
+
+    h = codec.unpack_header(data)
+    if h.two_level:
+        return "two-level"
+    if h.mask_and_residual:
+        return "mask+residual"
+    if h.packets:
+        return "packets " + ",".join(map(str, codec.PACKET_CHOICES[(data[h.size] >> 6) - 1]))
+    return "lossless" if h.reversible else "wavelet"
+
+
 def debt_quality(img, budget: int) -> dict:
     from rovlink import debt
 
     data = debt.encode(img, budget)
     dec = debt.decode(data)
-    return dict(bytes=len(data), psnr=psnr(img, dec), ssim=ssim(img, dec))
+    return dict(bytes=len(data), psnr=psnr(img, dec), ssim=ssim(img, dec), mode=debt_mode(data))
 
 
 def quality_rows(images: dict, budgets, progress=None) -> list[dict]:
@@ -486,14 +500,14 @@ def render(result: dict) -> str:
     parts = []
     rows = []
     for r in result["quality"]:
-        rows.append([r["image"], r["budget"], r["debt"]["bytes"], r["jpeg2000"]["bytes"],
+        rows.append([r["image"], r["budget"], r["debt"].get("mode", "-"), r["debt"]["bytes"], r["jpeg2000"]["bytes"],
                      _r(r["debt"]["psnr"]), _r(r["jpeg2000"]["psnr"]), _r(r["webp"]["psnr"]),
                      _r(r["avif"]["psnr"]), _r(_diff(r, "jpeg2000")),
                      _r(r["debt"]["ssim"], 3), _r(r["jpeg2000"]["ssim"], 3), _r(r["webp"]["ssim"], 3),
                      _r(r["avif"]["ssim"], 3)])
     parts.append("Whole-image quality, each codec at its largest setting within the budget "
-                 "(PSNR dB, SSIM; - = nothing fits)")
-    parts.append(format_table(["image", "budget", "debt B", "j2k B", "debt", "j2k", "webp", "avif",
+                 "(PSNR dB, SSIM; - = nothing fits; mode: the stream DEBT chose)")
+    parts.append(format_table(["image", "budget", "mode", "debt B", "j2k B", "debt", "j2k", "webp", "avif",
                                "debt-j2k", "debt ssim", "j2k ssim", "webp ssim", "avif ssim"], rows))
 
     rows = []
@@ -572,6 +586,31 @@ def render(result: dict) -> str:
     return "\n".join(parts)
 
 
+def _at_least_one(text: str) -> int:
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, not {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def _budgets(text: str) -> list[int]:
+    # A wrong argument: argparse's one line and status 2, as every command.
+    import argparse
+
+    try:
+        budgets = [int(b) for b in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be integers separated by commas, not {text!r}") from None
+    if min(budgets) < 16:
+        raise argparse.ArgumentTypeError(f"must be at least 16 bytes each, not {min(budgets)}")
+    return budgets
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "debt",
@@ -579,13 +618,14 @@ def add_parser(subparsers) -> None:
         description=__doc__.split("\n\n")[0] if __doc__ else None,
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--runs", type=int, default=7, metavar="N", help="timing runs per figure (default 7)")
+    p.add_argument("--runs", type=_at_least_one, default=7, metavar="N", help="timing runs per figure (default 7)")
     p.add_argument("--no-curve", action="store_true", help="skip the progressive curve")
     p.add_argument("--images", choices=("photos", "samples"), default="photos",
                    help="scikit-image's bundled photographs (default) or the project's three samples")
     p.add_argument("--only", metavar="NAMES", help="comma-separated parts of image names to keep "
                    "(e.g. camera,brick/crop)")
-    p.add_argument("--budgets", metavar="B,B,...", help=f"budgets in bytes (default {','.join(map(str, BUDGETS))})")
+    p.add_argument("--budgets", type=_budgets, metavar="B,B,...",
+                   help=f"budgets in bytes, each at least 16 (default {','.join(map(str, BUDGETS))})")
     p.add_argument("--no-grey", action="store_true", help="skip the grey versions of colour photographs")
     p.set_defaults(func=run)
 
@@ -597,16 +637,7 @@ def run(args) -> int:
 
     if not features.check("jpg_2000"):
         raise CommandError("this Pillow has no JPEG 2000 (OpenJPEG) support; the benchmark needs it")
-    if args.runs < 1:
-        raise CommandError("--runs must be at least 1")
-    budgets = None
-    if args.budgets:
-        try:
-            budgets = [int(b) for b in args.budgets.split(",")]
-        except ValueError:
-            raise CommandError(f"--budgets must be integers separated by commas, not {args.budgets!r}") from None
-        if min(budgets) < 16:
-            raise CommandError("--budgets must be at least 16 bytes each")
+    budgets = args.budgets      # checked by argparse (_budgets)
     if args.images == "photos":
         import importlib.util
 
