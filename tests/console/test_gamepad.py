@@ -207,6 +207,43 @@ def test_a_remapped_inverted_axis_drives_the_vehicle_axis_it_was_given(pilot, li
     drives(page, live, NEUTRAL)
 
 
+def trigger(page, b: int, value: float) -> None:
+    page.evaluate("([b, v]) => { window.testPad.buttons[b] = { pressed: v > 0.5, value: v }; }", [b, value])
+
+
+def test_the_triggers_drive_an_axis_as_one(pilot, live):
+    page = pilot
+    # Heave from the triggers: RT (button 7) down, LT (button 6) up.
+    page.select_option("#gp-axis-vz", "b7-6")
+    assert page.text_content("#gp-mapping-note") == ""
+    trigger(page, 7, 0.8)
+    # (0.8 - 0.12) / 0.88 = 0.773
+    drives(page, live, {"vx": 0.0, "vy": 0.0, "vz": 0.773, "vyaw": 0.0})
+    trigger(page, 6, 0.8)                      # both pulled: they cancel
+    drives(page, live, NEUTRAL)
+    trigger(page, 7, 0.0)
+    drives(page, live, {"vx": 0.0, "vy": 0.0, "vz": -0.773, "vyaw": 0.0})
+    page.check("#gp-invert-vz")
+    drives(page, live, {"vx": 0.0, "vy": 0.0, "vz": 0.773, "vyaw": 0.0})
+    trigger(page, 6, 0.05)                     # resting triggers stay inside the deadzone
+    drives(page, live, NEUTRAL)
+    # Kept across a reload, and the right stick's Y drives nothing now.
+    ready(page, live, reload=True)
+    assert page.input_value("#gp-axis-vz") == "b7-6" and page.is_checked("#gp-invert-vz")
+    sticks(page, [0.0, 0.0, 0.0, 0.9])
+    trigger(page, 7, 1.0)
+    drives(page, live, {"vx": 0.0, "vy": 0.0, "vz": -1.0, "vyaw": 0.0})
+    # A button of a pair that is also STOP is said.
+    page.select_option("#gp-axis-vyaw", "b5-4")
+    assert page.text_content("#gp-mapping-note") == ""
+    page.check('#gp-stop-buttons input[data-button="5"]')
+    assert page.text_content("#gp-mapping-note") == "5 (RB) drives yaw and is also STOP."
+    trigger(page, 7, 0.0)
+    trigger(page, 6, 0.0)
+    sticks(page, [0, 0, 0, 0])
+    drives(page, live, NEUTRAL)
+
+
 def test_gain_buttons_step_the_gain_once_per_press(pilot, live):
     page = pilot
     assert page.text_content("#gp-gain") == "100 %"

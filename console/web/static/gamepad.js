@@ -12,7 +12,9 @@
 // and in localStorage under STORE_KEY; a stored value that is not valid is
 // ignored, field by field, and the default used instead.
 //
-// Shaping, per vehicle axis: the chosen stick axis (inverted if asked) ->
+// Shaping, per vehicle axis: the chosen stick axis, or a pair of buttons read
+// as one axis (the triggers RT - LT, or the bumpers RB - LB: each button's
+// analog value 0..1, the first one positive), inverted if asked ->
 // deadzone: |x| <= deadzone gives exactly 0, past it the rest of the travel is
 // rescaled to 0..1, so the output starts from 0 at the edge, never jumps ->
 // expo: out = (1 - e) * r + e * r^3 (same sign as the stick) -> times the
@@ -51,6 +53,8 @@
   const AXIS_NAMES = ["left stick X", "left stick Y", "right stick X", "right stick Y"];
   const BUTTON_NAMES = ["A", "B", "X", "Y", "LB", "RB", "LT", "RT", "Back", "Start", "L3", "R3",
                         "D-pad up", "D-pad down", "D-pad left", "D-pad right", "Home"];
+  // Button pairs that may drive a vehicle axis: [plus, minus, name].
+  const PAIRS = [[7, 6, "RT \u2212 LT"], [5, 4, "RB \u2212 LB"]];
   const VEHICLE = [["vx", "surge", "forward +"], ["vy", "sway", "right +"],
                    ["vz", "heave", "down +"], ["vyaw", "yaw", "clockwise +"]];
   const DEFAULTS = Object.freeze({
@@ -90,6 +94,9 @@
       if (m && typeof m === "object") {
         if (isInt(m.axis, -1, MAX_AXES - 1)) s.axes[k].axis = m.axis;
         if (typeof m.invert === "boolean") s.axes[k].invert = m.invert;
+        if (Array.isArray(m.buttons) && PAIRS.some(([p, n]) => m.buttons[0] === p && m.buttons[1] === n)) {
+          s.axes[k].buttons = [m.buttons[0], m.buttons[1]];
+        }
       }
     }
     if (isNum(raw.deadzone, 0, 0.5)) s.deadzone = raw.deadzone;
@@ -154,11 +161,24 @@
 
   function gain() { return settings.gainSteps[settings.gainStep] / 100; }
 
+  // A button's travel 0..1 (a digital one: 0 or 1).
+  function buttonValue(pad, b) {
+    const button = pad.buttons && pad.buttons[b];
+    if (!button) return 0;
+    if (typeof button.value === "number" && button.value > 0) return Math.min(1, button.value);
+    return button.pressed ? 1 : 0;
+  }
+
+  function rawOf(pad, m) {
+    if (m.buttons) return buttonValue(pad, m.buttons[0]) - buttonValue(pad, m.buttons[1]);
+    return m.axis >= 0 && pad.axes ? pad.axes[m.axis] || 0 : 0;
+  }
+
   function wishOf(pad) {
     const out = {};
     for (const [k] of VEHICLE) {
       const m = settings.axes[k];
-      const raw = m.axis >= 0 && pad.axes ? pad.axes[m.axis] : 0;
+      const raw = rawOf(pad, m);
       const v = shape(m.invert ? -raw : raw, settings.deadzone, settings.expo) * gain();
       out[k] = clamp1(v) || 0;   // no -0
     }
@@ -278,7 +298,7 @@
     const s = el("select", { ariaLabel: label });
     for (const [v, text] of options) s.append(el("option", { value: String(v), textContent: text }));
     s.value = String(value);
-    s.onchange = () => onchange(parseInt(s.value, 10));
+    s.onchange = () => onchange(typeof value === "number" ? parseInt(s.value, 10) : s.value);
     return s;
   }
 
@@ -311,14 +331,25 @@
     ui.summaryGain = el("span", { id: "gp-summary-gain", className: "dim" });
     summary.replaceChildren("Gamepad settings ", ui.summaryGain);
 
-    // Mapping: which stick axis drives each vehicle axis, inverted or not.
-    const axisOptions = [[-1, "none"], ...Array.from({ length: MAX_AXES }, (_, a) => [a, axisName(a)])];
+    // Mapping: which stick axis (or button pair) drives each vehicle axis, inverted or not.
+    const axisOptions = [[-1, "none"], ...Array.from({ length: MAX_AXES }, (_, a) => [a, axisName(a)]),
+                         ...PAIRS.map(([p, n, label]) => [`b${p}-${n}`, `buttons ${label}`])];
     const mapping = el("div", { className: "gp-grid" });
     for (const [k, name, sense] of VEHICLE) {
       const m = settings.axes[k];
       const inv = el("input", { type: "checkbox", id: `gp-invert-${k}`, checked: m.invert });
       inv.onchange = () => { settings.axes[k].invert = inv.checked; changed(); };
-      const which = select(axisOptions, m.axis, (a) => { settings.axes[k].axis = a; changed(); }, `${name} axis`);
+      const current = m.buttons ? `b${m.buttons[0]}-${m.buttons[1]}` : m.axis;
+      const which = select(axisOptions, String(current), (v) => {
+        const pair = /^b(\d+)-(\d+)$/.exec(v);
+        if (pair) {
+          settings.axes[k].buttons = [parseInt(pair[1], 10), parseInt(pair[2], 10)];
+        } else {
+          delete settings.axes[k].buttons;
+          settings.axes[k].axis = parseInt(v, 10);
+        }
+        changed();
+      }, `${name} axis`);
       which.id = `gp-axis-${k}`;
       mapping.append(el("span", { textContent: `${name} (${sense})` }), which, el("label", {}, inv, " invert"));
     }
@@ -503,16 +534,25 @@
     return true;
   }
 
-  // Two vehicle axes on one stick axis is allowed, but said.
+  // Two vehicle axes on one stick axis (or button pair) is allowed, but said;
+  // so is a button that drives an axis and is also STOP or a gain button.
   function renderMappingNote() {
     if (!ui.mappingNote) return;
     const by = {};
+    const notes = [];
     for (const [k, name] of VEHICLE) {
-      const a = settings.axes[k].axis;
-      if (a >= 0) (by[a] = by[a] || []).push(name);
+      const m = settings.axes[k];
+      const key = m.buttons ? `buttons ${m.buttons.map(buttonName).join(" and ")}` : m.axis >= 0 ? `axis ${m.axis}` : null;
+      if (key) (by[key] = by[key] || []).push(name);
+      for (const b of m.buttons || []) {
+        const also = [settings.stopButtons.includes(b) && "STOP", settings.gainUp === b && "gain up",
+                      settings.gainDown === b && "gain down"].filter(Boolean);
+        if (also.length) notes.push(`${buttonName(b)} drives ${name} and is also ${also.join(" and ")}.`);
+      }
     }
     const shared = Object.entries(by).filter(([, names]) => names.length > 1);
-    ui.mappingNote.textContent = shared.map(([a, names]) => `axis ${a} drives ${names.join(" and ")}.`).join(" ");
+    ui.mappingNote.textContent = [...shared.map(([key, names]) => `${key} drive${key.startsWith("axis") ? "s" : ""} ${names.join(" and ")}.`),
+                                  ...notes].join(" ");
   }
 
   function renderStop() {
