@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 from .header import FRACTION_BITS, Header
-from .transform import band_levels, band_shapes, band_weights, levels_for, packet_weight
+from .transform import band_levels, band_shapes, band_weights, levels_for, mallat_origins, packet_weight
 
 # Empirical: plane alignment between bands, tuned on the samples.  (On the
 # 52 photograph variants of `rovlink bench debt` the finest details at 1.0
@@ -80,13 +80,7 @@ def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple
     detail step's (the band's own when every step took the low half)."""
     shapes = band_shapes(height, width, levels)
     res = band_levels(levels)
-    hs, ws = [height], [width]
-    for _ in range(levels):
-        hs.append(-(-hs[-1] // 2))
-        ws.append(-(-ws[-1] // 2))
-    origins = [(0, 0)]
-    for j in range(levels, 0, -1):
-        origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
+    origins = mallat_origins(height, width, levels)
     out = []
 
     def leaves(i, path, shape, origin, depth, orient):

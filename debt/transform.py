@@ -188,6 +188,20 @@ def band_shapes(height: int, width: int, levels: int) -> list[tuple[int, int]]:
     return shapes
 
 
+def mallat_origins(height: int, width: int, levels: int) -> list[tuple[int, int]]:
+    """Where each band of `band_shapes` (coarsest first, LH/HL/HH per level)
+    sits in the kernels' in-place array: low rows and columns first at every
+    level."""
+    hs, ws = [height], [width]
+    for _ in range(levels):
+        hs.append(-(-hs[-1] // 2))
+        ws.append(-(-ws[-1] // 2))
+    origins = [(0, 0)]
+    for j in range(levels, 0, -1):
+        origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
+    return origins
+
+
 def band_levels(levels: int) -> list[int]:
     """Resolution level of each band: 0 for the low band, j for level-j details."""
     out = [0]

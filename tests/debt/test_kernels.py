@@ -9,20 +9,7 @@ from hypothesis import strategies as st
 
 from rovlink import debt
 from rovlink.debt import kernels
-from rovlink.debt.transform import band_shapes, forward, inverse, levels_for
-
-
-def mallat_origins(height: int, width: int, levels: int) -> list[tuple[int, int]]:
-    # Where each band (coarsest first, LH/HL/HH per level) sits in the
-    # kernels' in-place array: low rows and columns first at every level.
-    hs, ws = [height], [width]
-    for _ in range(levels):
-        hs.append(-(-hs[-1] // 2))
-        ws.append(-(-ws[-1] // 2))
-    origins = [(0, 0)]
-    for j in range(levels, 0, -1):
-        origins += [(0, ws[j]), (hs[j], 0), (hs[j], ws[j])]
-    return origins
+from rovlink.debt.transform import band_shapes, forward, inverse, levels_for, mallat_origins
 
 
 NO_ROI = np.zeros(4, dtype=np.int64)
