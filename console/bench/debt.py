@@ -329,14 +329,16 @@ def debt_quality(img, budget: int) -> dict:
 
 
 def quality_rows(images: dict, budgets, progress=None) -> list[dict]:
+    """progress(done, total, row) after each image and budget."""
     rows = []
+    total = len(images) * len(budgets)
     for name, img in images.items():
         for budget in budgets:
             row = dict(image=name, budget=budget, debt=debt_quality(img, budget))
             row.update(reference_codecs(img, budget))
             rows.append(row)
             if progress:
-                progress(row)
+                progress(len(rows), total, row)
     return rows
 
 
@@ -644,7 +646,15 @@ def run(args) -> int:
         if importlib.util.find_spec("skimage") is None:
             raise CommandError("the photographs come from scikit-image: pip install scikit-image "
                                "(or run with --images samples)")
+    import sys
+
+    def progress(done: int, total: int, row: dict) -> None:
+        # On stderr (the table or JSON is stdout's), a line per image.
+        if row["budget"] == (budgets or (BUDGETS if args.images == "photos" else SAMPLE_BUDGETS))[-1]:
+            print(f"bench debt: {done}/{total} measured ({row['image']})", file=sys.stderr, flush=True)
+
     result = measure(runs=args.runs, curve_on=not args.no_curve, which=args.images, budgets=budgets,
-                     only=args.only, grey_of_colour=not args.no_grey)
+                     only=args.only, grey_of_colour=not args.no_grey, progress=progress)
+    print("bench debt: done", file=sys.stderr, flush=True)
     emit(result, render(result), args.json)
     return 0

@@ -21,6 +21,8 @@ def bench(*args, timeout=300):
 def test_bench_debt_prints_its_figures_as_json():
     out = bench("--images", "samples", "--budgets", "1000,2000", "--runs", "1", "--no-curve", "--json")
     assert out.returncode == 0, out.stderr
+    # Progress on stderr, a line per image; stdout holds the JSON alone.
+    assert "bench debt: 6/6 measured (seabed)" in out.stderr and "bench debt: 2/6" in out.stderr
     result = json.loads(out.stdout)
     rows = result["quality"]
     assert {r["image"] for r in rows} == {"grey-scene", "colour-still-life", "seabed"}
