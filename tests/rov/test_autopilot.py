@@ -22,6 +22,9 @@ def arm_in(bridge: AutopilotBridge, mode: str) -> None:
 
 
 def test_snapshot_reports_heartbeat_state_and_odometry(sim, bridge):
+    # The battery comes in SYS_STATUS, on its own schedule: on a loaded machine after the
+    # position the fixture waited for.
+    assert wait_for(lambda: bridge.snapshot().battery_v is not None, 5.0), "no SYS_STATUS"
     snap = bridge.snapshot()
     assert snap.autopilot_alive and snap.connected
     assert snap.custom_mode == SubMode.MANUAL and snap.mode == 1
