@@ -23,9 +23,8 @@ import numpy as np
 
 from . import coder, kernels, rangecoder, twolevel
 from .header import (MAX_SHIFT, MAX_SIDE, PACKET_TOP, RESIDUAL_TOP, TWO_LEVEL_TOP,  # noqa: F401 (re-exported)
-                     Header, header_size, pack_header, unpack_header)
-from .header import _max_top as header_max_top
-from .plan import ICT, ICT_INV, KMAX, packet_bands, plan_for
+                     Header, header_size, max_top, pack_header, unpack_header)
+from .plan import ICT, ICT_INV, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
 
 _plan = plan_for  # the name older callers use
@@ -125,36 +124,13 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarra
 # ---------------------------------------------------------------- encode
 
 def _packets(a: np.ndarray, plan, forward: bool) -> None:
-    """Split (or merge back) the detail bands of the levels in plan.packets
-    with one more 9/7 level each, as often as the level is named, in place
-    in the Mallat array `a` (see plan.packet_bands)."""
-    if not plan.packets:
+    """Split (or merge back) the regions of plan.splits with one more 9/7
+    level each, in place in the Mallat array `a` (see plan.packet_tree):
+    coarse splits first when analysing, last when synthesising."""
+    if not plan.splits:
         return
     none = np.zeros(4, dtype=np.int64)
-    shapes = band_shapes(a.shape[0], a.shape[1], plan.levels)
-    nodes = {}                      # (band, path prefix) -> (origin, shape) of every split node
-    for i, path, shape, origin, _level, _orient in packet_bands(a.shape[0], a.shape[1], plan.levels,
-                                                                   plan.packets):
-        if not path:
-            continue
-        y0, x0 = origin
-        for depth in range(len(path)):
-            prefix = path[:depth]
-            if (i, prefix) in nodes:
-                continue
-            if depth == 0:
-                bh, bw = shapes[i]
-                oy, ox = y0, x0         # the first leaf of a band starts at its corner
-            else:
-                (py, px), (bh, bw) = nodes[(i, path[:depth - 1])]
-                hl, wl = -(-bh // 2), -(-bw // 2)
-                sub = path[depth - 1]
-                oy, ox = py + (hl if sub >= 2 else 0), px + (wl if sub in (1, 3) else 0)
-                bh, bw = band_shapes(bh, bw, 1)[sub]
-            nodes[(i, prefix)] = ((oy, ox), (bh, bw))
-    # Coarse splits first when analysing, last when synthesising.
-    order = sorted(nodes.items(), key=lambda kv: len(kv[0][1]), reverse=not forward)
-    for (_i, _prefix), ((y0, x0), (bh, bw)) in order:
+    for (y0, x0), (bh, bw), _depth in (plan.splits if forward else reversed(plan.splits)):
         region = np.ascontiguousarray(a[y0:y0 + bh, x0:x0 + bw])
         (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
         a[y0:y0 + bh, x0:x0 + bw] = region
@@ -278,13 +254,12 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
         # of each other by decoding both.
         packet_errors: list = []
         other = _packet_stream(img, colour, _packets_for(8.0 * limit / img.size), limit, packet_errors)
-        if other is not None:
-            a, b = errors[-1], packet_errors[-1]
-            if max(a, b) <= min(a, b) * CLOSE:
-                if _error(decode(other), img) < _error(decode(stream), img):
-                    stream = other
-            elif b < a:
+        a, b = errors[-1], packet_errors[-1]
+        if max(a, b) <= min(a, b) * CLOSE:
+            if _error(decode(other), img) < _error(decode(stream), img):
                 stream = other
+        elif b < a:
+            stream = other
     if near is not None:
         # A mask and its residual are no wavelet: told apart by decoding.
         other = _mask_and_residual_stream(img, colour, near, limit)
@@ -351,14 +326,13 @@ def _textured(img: np.ndarray, colour: bool) -> bool:
 
 
 def _packet_stream(img: np.ndarray, colour: bool, packets: tuple, limit: int,
-                   errors: list | None = None) -> bytes | None:
+                   errors: list | None = None) -> bytes:
     """A 9/7 stream with wavelet packets at `packets` (see PACKET_CHOICES):
     header TOP=61, then a byte (bits 7-6: 1 + the index of the split in
-    PACKET_CHOICES; bits 5-0: the stream's top plane), then the coder's bytes."""
+    PACKET_CHOICES; bits 5-0: the stream's top plane, below max_top), then
+    the coder's bytes."""
     height, width = img.shape[:2]
     header, payload, _complete = _encode_payload(img, colour, False, None, 0, limit - 1, None, packets, errors)
-    if header.top > 63:
-        return None
     return (pack_header(Header(width, height, colour, True, PACKET_TOP))
             + bytes([(PACKET_CHOICES.index(packets) + 1) << 6 | header.top]) + payload)
 
@@ -441,7 +415,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
             raise ValueError("corrupted DEBT stream (unknown wavelet packet split)")
         packets = PACKET_CHOICES[(byte >> 6) - 1]
         h = Header(h.width, h.height, h.colour, False, byte & 63)
-        if h.top > header_max_top(h):
+        if h.top > max_top(h):
             raise ValueError("corrupted DEBT stream (bit-plane count out of range)")
         start += 1
     ncomp = 3 if h.colour else 1
@@ -486,7 +460,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
 def _decode_mask_and_residual(h: Header, body: bytes) -> np.ndarray:
     cb = twolevel.colour_bytes(h.colour)
     if len(body) < cb + 3:
-        return twolevel.decode_payload(body[:cb], h.height, h.width, h.colour)  # flat grey
+        return twolevel.decode_payload(body[:cb], h.height, h.width, h.colour)  # no mask yet
     n = int.from_bytes(body[cb:cb + 2], "big")
     levels = body[cb + 2]
     if levels not in RESIDUAL_LEVELS:

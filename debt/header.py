@@ -130,11 +130,11 @@ def unpack_header(data: bytes) -> Header:
         if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
             raise ValueError("corrupted DEBT header (region of interest outside the image)")
     h = Header(width, height, colour, reversible, top, roi, shift)
-    if top > _max_top(h) and not (h.two_level or h.mask_and_residual or h.packets):
+    if top > max_top(h) and not (h.two_level or h.mask_and_residual or h.packets):
         raise ValueError("corrupted DEBT header (bit-plane count out of range)")
     return h
 
 
-def _max_top(h: Header) -> int:
+def max_top(h: Header) -> int:
     # Generous bound on the top plane a real image can produce.
     return 20 + FRACTION_BITS + h.shift + (3 if h.reversible else 0)

@@ -68,57 +68,55 @@ def context_group(level: int, orient: int) -> int:
     return COARSE_GROUP if level >= COARSE_LEVEL else orient
 
 
-def packet_bands(height: int, width: int, levels: int, packets=()) -> list[tuple]:
-    """The bands of one component in coding order, as (Mallat band index, path,
-    shape, origin in the Mallat array, resolution level, orientation).
+def band_orient(i: int) -> int:
+    """Orientation of Mallat band i: 0 the low band, then 1 LH, 2 HL, 3 HH."""
+    return 0 if i == 0 else (i - 1) % 3 + 1
 
-    A detail band of level j is split (a wavelet packet) as many times as j
-    appears in `packets`: once into its four sub-bands 0..3 (low, LH, HL, HH
-    of that band), twice into the four of each of those.  path is () for an
-    unsplit band, else the sub-band chosen at each split; the leaves are coded
-    in the band's place, depth first.  A leaf's orientation is its last
-    detail step's (the band's own when every step took the low half)."""
+
+@lru_cache(maxsize=16)
+def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple, tuple]:
+    """The bands of one component in coding order, and the splits that make them.
+
+    Bands: (Mallat band index, path, shape, origin in the Mallat array,
+    resolution level, orientation).  A detail band of level j is split (a
+    wavelet packet) as many times as j appears in `packets`: once into its
+    four sub-bands 0..3 (low, LH, HL, HH of that band), twice into the four of
+    each of those.  path is () for an unsplit band, else the sub-band chosen
+    at each split; the leaves are coded in the band's place, depth first.  A
+    leaf's orientation is its last detail step's (the band's own when every
+    step took the low half).
+
+    Splits: (origin, shape, depth) of every region split once more, coarse
+    ones (depth 0) before the regions they hold."""
     shapes = band_shapes(height, width, levels)
     res = band_levels(levels)
     origins = mallat_origins(height, width, levels)
-    out = []
+    bands, splits = [], []
 
-    def leaves(i, path, shape, origin, depth, orient):
+    def walk(i, path, shape, origin, depth, orient):
         if depth == 0:
-            out.append((i, path, shape, origin, res[i], orient))
+            bands.append((i, path, shape, origin, res[i], orient))
             return
+        splits.append((origin, shape, len(path)))
         bh, bw = shape
         hl, wl = -(-bh // 2), -(-bw // 2)
         sub_origins = [(0, 0), (0, wl), (hl, 0), (hl, wl)]
         for sub, sub_shape in enumerate(band_shapes(bh, bw, 1)):
-            leaves(i, path + (sub,), sub_shape,
-                   (origin[0] + sub_origins[sub][0], origin[1] + sub_origins[sub][1]),
-                   depth - 1, orient if sub == 0 else sub)
+            walk(i, path + (sub,), sub_shape,
+                 (origin[0] + sub_origins[sub][0], origin[1] + sub_origins[sub][1]),
+                 depth - 1, orient if sub == 0 else sub)
 
     for i, shape in enumerate(shapes):
-        orient = 0 if i == 0 else (i - 1) % 3 + 1
-        leaves(i, (), shape, origins[i], packets.count(res[i]) if i else 0, orient)
-    return out
+        walk(i, (), shape, origins[i], packets.count(res[i]) if i else 0, band_orient(i))
+    return tuple(bands), tuple(sorted(splits, key=lambda s: s[2]))
 
 
-def layout_for(height: int, width: int, levels: int, ncomp: int, packets=()) -> Layout:
-    """The coder's bands, in coding order (band by band, the components of
-    each in turn), with their block trees.  binfo per band: offset, height,
-    width, quadtree depth, context class, orientation, parent band (-1 for
-    none), then where the other orientations of its level lie (first band,
-    step: the same component's), and 1 when the parent is half its size (0:
-    the same size, under wavelet packets).  (The coder once looked at
-    b - (orient - 1) + 0..2 for the other orientations, for colour the other
-    components' bands: the right ones gain +0.001 to +0.004 dB mean on the
-    colour photographs.)"""
-    return _packet_layout(height, width, levels, ncomp, packets)
+def packet_bands(height: int, width: int, levels: int, packets=()) -> tuple:
+    """The bands of `packet_tree`."""
+    return packet_tree(height, width, levels, tuple(packets))[0]
 
 
 PACKET_GROUP = 5          # context groups 5..7: the LH/HL/HH sub-bands of split bands
-# Sub-bands of a split band below an unsplit coarser band take it as their
-# parent (the same size, the same place): +0.07 to +0.23 dB on brick at
-# 1000-8000 B over no parent.
-PACKET_PARENT = True
 
 
 def packet_group(level: int, orient: int, path: tuple) -> int:
@@ -132,7 +130,16 @@ def packet_group(level: int, orient: int, path: tuple) -> int:
     return PACKET_GROUP + orient - 1
 
 
-def _packet_layout(height: int, width: int, levels: int, ncomp: int, packets) -> Layout:
+def layout_for(height: int, width: int, levels: int, ncomp: int, packets=()) -> Layout:
+    """The coder's bands, in coding order (band by band, the components of
+    each in turn), with their block trees.  binfo per band: offset, height,
+    width, quadtree depth, context class, orientation, parent band (-1 for
+    none), then where the other orientations of its level lie (first band,
+    step: the same component's), and 1 when the parent is half its size (0:
+    the same size, under wavelet packets).  (The coder once looked at
+    b - (orient - 1) + 0..2 for the other orientations, for colour the other
+    components' bands: the right ones gain +0.001 to +0.004 dB mean on the
+    colour photographs.)"""
     bands = packet_bands(height, width, levels, packets)
     index = {(i, path): n for n, (i, path, *_rest) in enumerate(bands)}
     order = [(c, n) for n in range(len(bands)) for c in range(ncomp)]
@@ -148,22 +155,23 @@ def _packet_layout(height: int, width: int, levels: int, ncomp: int, packets) ->
         k_root = max(0, math.ceil(math.log2(max(h, w)))) if h and w else 0
         # Parent: the same leaf of the band one level coarser (half its size),
         # or, that band split once less, the leaf one step up (its size and
-        # place); none otherwise.
+        # place: +0.07 to +0.23 dB on brick at 1000-8000 B over none); none
+        # otherwise.
         parent = -1
         step = 1
         if i > 3:
             pn = index.get((i - 3, path))
             if pn is not None:
                 parent = pn * ncomp + c
-            elif PACKET_PARENT and path and (i - 3, path[:-1]) in index:
+            elif path and (i - 3, path[:-1]) in index:
                 parent = index[(i - 3, path[:-1])] * ncomp + c
                 step = 0
         group = packet_group(level, orient, path)
         if path and path[-1] >= 1:
             first = n - (path[-1] - 1)          # the other detail leaves of this split
         else:
-            band_orient = 0 if i == 0 else (i - 1) % 3 + 1
-            first = index.get((i - (band_orient - 1), path), n) if band_orient else n
+            o = band_orient(i)
+            first = index.get((i - (o - 1), path), n) if o else n
         binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + group, orient, parent,
                     first * ncomp + c, ncomp, step)
         off += h * w
@@ -323,6 +331,7 @@ class Plan:
     cdef8: np.ndarray | None = None
     node_def: np.ndarray | None = None   # min of cdef over each quadtree node
     packets: tuple = ()                  # detail levels split once more (wavelet packets)
+    splits: tuple = ()                   # 9/7: the regions split for them (packet_tree), coarse first
     err_weight: np.ndarray | None = None  # 9/7: scaled coefficient error -> RGB-weighted pixel error
 
 
@@ -333,7 +342,7 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     # decodes prefix after prefix of one stream.  `levels`: the decomposition
     # depth, by default the one the size gives (a residual of the two-level
     # mode is coded with fewer).  `packets`: detail levels split once more
-    # (9/7 without an ROI only; see packet_bands).
+    # (9/7 without an ROI only; see packet_tree).
     if levels is None:
         levels = levels_for(height, width)
     packets = tuple(j for j in packets if 1 <= j <= levels)
@@ -341,7 +350,7 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
         raise ValueError("wavelet packets are for 9/7 streams without a region of interest")
     probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
     lay = layout_for(height, width, levels, ncomp, packets)
-    plan_bands = packet_bands(height, width, levels, packets)
+    plan_bands, splits = packet_tree(height, width, levels, packets)
     if roi is None:
         masks = None
     else:
@@ -353,7 +362,8 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     if lay.ncoef:
         ccls[:] = np.repeat(lay.binfo[:, 4], sizes)
     cfloor = np.zeros(n, dtype=np.int64)
-    plan = Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales, packets=packets)
+    plan = Plan(levels, lay, ccls, cfloor, np.zeros(1, dtype=np.int64), masks, scales, packets=packets,
+                splits=splits)
     if reversible:
         for b in range(len(lay.shapes)):
             off, bh, bw = lay.binfo[b, :3]
@@ -377,8 +387,8 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
             yy, xx = np.mgrid[0:bh, 0:bw]
             pos[off:off + bh * bw] = (c * height * width + (y0 + yy) * width + x0 + xx).ravel()
             # A leaf of a split band: its basis is the band's, split further.
-            sc = np.full((bh, bw), scales[c][i] * (packet_weight(levels, level, (i - 1) % 3 + 1, path)
-                                                   if path else 1.0))
+            weight = packet_weight(level, band_orient(i), path) if path else 1.0
+            sc = np.full((bh, bw), scales[c][i] * weight)
             err_weight[off:off + bh * bw] = 1.0 / (2.0 ** FRACTION_BITS * FINE_BAND_FACTOR.get(level, 1.0))
             if masks is not None:
                 sc[masks[i]] *= 2.0 ** shift

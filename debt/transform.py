@@ -266,7 +266,7 @@ def _leaf_norm_1d(level: int, high: bool, steps: tuple) -> float:
     return float(np.sqrt(np.sum(x * x)))
 
 
-def packet_weight(levels: int, level: int, orient: int, path: tuple) -> float:
+def packet_weight(level: int, orient: int, path: tuple) -> float:
     """Synthesis-basis norm of the leaf `path` (sub-bands 0 low, 1 LH, 2 HL,
     3 HH at each split) of the level-`level` detail band of orientation
     `orient` (1 LH, 2 HL, 3 HH), over the band's own norm.  Separable: the

@@ -242,20 +242,31 @@ def encode_payload(found, colour: bool, limit: int) -> bytes | None:
     return head + payload
 
 
-def decode_payload(payload: bytes, height: int, width: int, colour: bool) -> np.ndarray:
-    """The picture a (possibly truncated) two-level payload holds."""
+def _decode_blocks(payload: bytes, height: int, width: int, colour: bool):
+    """(colour 0, colour 1, every block's state as far as the bytes tell, all
+    of them?, level layout) of a two-level payload (colours, then coded bits),
+    or None before its colours."""
     nc = 3 if colour else 1
-    shape = (height, width, 3) if colour else (height, width)
-    head = colour_bytes(colour)
-    if len(payload) < head:
-        return np.full(shape, 128, dtype=np.uint8)    # not even the colours yet
-    c0 = np.array(list(payload[:nc]), dtype=np.int64)
-    c1 = np.array(list(payload[nc:2 * nc]), dtype=np.int64)
-    data = np.frombuffer(payload, dtype=np.uint8, offset=head).copy()
+    if len(payload) < 2 * nc:
+        return None
+    data = np.frombuffer(payload, dtype=np.uint8, offset=2 * nc).copy()
     lh, lw, off, top, dec, probs, counts = _work(height, width)
     st = rangecoder.decoder_state(data)
     buf = data if data.size else np.zeros(1, dtype=np.uint8)
-    _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs, counts)
+    complete = _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs, counts)
+    return tuple(payload[:nc]), tuple(payload[nc:2 * nc]), dec, complete, (lh, lw, off, top)
+
+
+def decode_payload(payload: bytes, height: int, width: int, colour: bool) -> np.ndarray:
+    """The picture a (possibly truncated) two-level payload holds."""
+    nc = 3 if colour else 1
+    found = _decode_blocks(payload, height, width, colour)
+    if found is None:
+        shape = (height, width, 3) if colour else (height, width)
+        return np.full(shape, 128, dtype=np.uint8)    # not even the colours yet
+    c0, c1, dec, _complete, (lh, lw, off, top) = found
+    c0 = np.array(c0, dtype=np.int64)
+    c1 = np.array(c1, dtype=np.int64)
     # Unresolved blocks in the mean of the two colours; every level that is
     # known uniform paints its colour, coarse to fine.
     state = np.full((height, width), 2, dtype=np.int8)
@@ -354,13 +365,7 @@ def join_residual(c0, c1, mask: np.ndarray, residual: np.ndarray) -> np.ndarray:
 
 def decode_mask(payload: bytes, height: int, width: int, colour: bool):
     """(c0, c1, mask or None) of an exact mask payload (colours then its coded bits)."""
-    nc = 3 if colour else 1
-    c0 = tuple(payload[:nc])
-    c1 = tuple(payload[nc:2 * nc])
-    data = np.frombuffer(payload, dtype=np.uint8, offset=2 * nc).copy()
-    lh, lw, off, top, dec, probs, counts = _work(height, width)
-    st = rangecoder.decoder_state(data)
-    buf = data if data.size else np.zeros(1, dtype=np.uint8)
-    if not _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs, counts):
+    c0, c1, dec, complete, _layout = _decode_blocks(payload, height, width, colour)
+    if not complete:
         return c0, c1, None
     return c0, c1, dec[:height * width].reshape(height, width).astype(np.uint8)
