@@ -329,7 +329,7 @@ def debt_quality(img, budget: int) -> dict:
 
 
 def quality_rows(images: dict, budgets, progress=None) -> list[dict]:
-    """progress(done, total, row) after each image and budget."""
+    """progress(rows done, rows in all, image) after each image's budgets."""
     rows = []
     total = len(images) * len(budgets)
     for name, img in images.items():
@@ -337,8 +337,8 @@ def quality_rows(images: dict, budgets, progress=None) -> list[dict]:
             row = dict(image=name, budget=budget, debt=debt_quality(img, budget))
             row.update(reference_codecs(img, budget))
             rows.append(row)
-            if progress:
-                progress(len(rows), total, row)
+        if progress:
+            progress(len(rows), total, name)
     return rows
 
 
@@ -648,10 +648,9 @@ def run(args) -> int:
                                "(or run with --images samples)")
     import sys
 
-    def progress(done: int, total: int, row: dict) -> None:
+    def progress(done: int, total: int, image: str) -> None:
         # On stderr (the table or JSON is stdout's), a line per image.
-        if row["budget"] == (budgets or (BUDGETS if args.images == "photos" else SAMPLE_BUDGETS))[-1]:
-            print(f"bench debt: {done}/{total} measured ({row['image']})", file=sys.stderr, flush=True)
+        print(f"bench debt: {done}/{total} measured ({image})", file=sys.stderr, flush=True)
 
     result = measure(runs=args.runs, curve_on=not args.no_curve, which=args.images, budgets=budgets,
                      only=args.only, grey_of_colour=not args.no_grey, progress=progress)
