@@ -2,7 +2,8 @@
 # `decode(data) -> image`, plus the stream header.
 #
 # Plan for encode: validate everything at the edge (one ValueError each), turn
-# the image into components (grey, or YCbCr), transform each (CDF 9/7, or the
+# the image into components (grey; colour: the picture's own rotation of RGB
+# for the 9/7, `colour_rotation`, or the reversible RCT for 5/3), transform each (CDF 9/7, or the
 # integer 5/3 when a lossless stream might fit the budget), scale every band by
 # the norm of its synthesis basis so that coefficient error stands for pixel
 # error, raise the region of interest SHIFT planes (general scaling; the 9/7
@@ -24,7 +25,7 @@ import numpy as np
 from . import coder, kernels, rangecoder, twolevel
 from .header import (MAX_SHIFT, MAX_SIDE, PACKET_TOP, RESIDUAL_TOP, TWO_LEVEL_TOP,  # noqa: F401 (re-exported)
                      Header, header_size, max_top, pack_header, unpack_header)
-from .plan import ICT, ICT_INV, KMAX, plan_for
+from .plan import ICT, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
 
 _plan = plan_for  # the name older callers use
@@ -88,7 +89,69 @@ def _as_roi(roi, shift, width, height):
 
 # ---------------------------------------------------------------- components
 
-def _components(img: np.ndarray, colour: bool, reversible: bool) -> list[np.ndarray]:
+# 9/7 colour pictures are coded in an orthonormal rotation of RGB of their
+# own: the principal axes of their horizontal and vertical differences (a
+# Karhunen-Loeve transform of the detail the wavelet codes) with a little of
+# the pixels' own covariance (PIXEL_SHARE, each normalised by its trace: the
+# low band matters at low rates), so that the second and third components
+# carry as little as the picture allows.  Sent as three angles (Z-Y-X), a
+# byte each, at the start of the payload.  Measured on the 16 colour
+# photograph variants of `rovlink bench debt` against BT.601 YCbCr (the
+# ICT, weighted to RGB error): the differences' axes alone +0.05/+0.06/+0.07/
+# +0.10/+0.12/+0.16 dB mean at 250/500/1000/2000/4000/8000 B over all 52
+# variants (+0.4 dB mean at 4000 B over the colour ones, up to +1.4 dB on
+# rocket), the pixels' axes alone less above 1000 B; with PIXEL_SHARE 0.3 the
+# colour ones +0.048/+0.038/+0.027/+0.009/+0.003/+0.005 dB more than with
+# the differences' axes alone (1 and 3: more at 250-500 B, less above 2000).
+PIXEL_SHARE = 0.3
+ROTATION_BYTES = 3
+
+
+def colour_rotation(img: np.ndarray) -> bytes:
+    """The rotation for an RGB picture, as its three angle bytes."""
+    x = img.astype(np.float64)
+    d = np.concatenate(((x[1:] - x[:-1]).reshape(-1, 3), (x[:, 1:] - x[:, :-1]).reshape(-1, 3)))
+    p = x.reshape(-1, 3)
+    p = p - p.mean(axis=0)
+    detail, pixels = d.T @ d, p.T @ p
+    cov = detail / max(np.trace(detail), 1e-9) + PIXEL_SHARE * pixels / max(np.trace(pixels), 1e-9)
+    _values, vectors = np.linalg.eigh(cov)
+    return rotation_bytes(vectors[:, ::-1].T)   # rows: the axes, most energy first
+
+
+def rotation_bytes(axes: np.ndarray) -> bytes:
+    """Three angle bytes for orthonormal `axes` (rows), signs made free."""
+    r = np.array(axes, dtype=np.float64)
+    for i in range(2):
+        if r[i].sum() < 0:
+            r[i] = -r[i]
+    if np.linalg.det(r) < 0:
+        r[2] = -r[2]
+    # r = Rz(a) Ry(b) Rx(c)
+    a = np.arctan2(r[1, 0], r[0, 0])
+    b = -np.arcsin(np.clip(r[2, 0], -1.0, 1.0))
+    c = np.arctan2(r[2, 1], r[2, 2])
+    return bytes([int(round(a / (2 * np.pi) * 256)) % 256,
+                  int(round((b + np.pi / 2) / np.pi * 255)),
+                  int(round(c / (2 * np.pi) * 256)) % 256])
+
+
+def rotation_matrix(angles: bytes) -> np.ndarray:
+    """The orthonormal 3x3 matrix (rows: component axes in RGB) of three angle bytes."""
+    a = angles[0] * 2 * np.pi / 256
+    b = angles[1] * np.pi / 255 - np.pi / 2
+    c = angles[2] * 2 * np.pi / 256
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    rz = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cc, -sc], [0.0, sc, cc]])
+    return rz @ ry @ rx
+
+
+SQRT3 = float(np.sqrt(3.0))
+
+
+def _components(img: np.ndarray, colour: bool, reversible: bool, rotation: np.ndarray | None = None) -> list[np.ndarray]:
     if reversible:
         x = img.astype(np.int64)
         if not colour:
@@ -98,11 +161,13 @@ def _components(img: np.ndarray, colour: bool, reversible: bool) -> list[np.ndar
     x = img.astype(np.float64)
     if not colour:
         return [x - 128.0]
-    ycc = x @ ICT.T
-    return [ycc[..., 0] - 128.0, ycc[..., 1].copy(), ycc[..., 2].copy()]
+    # Divided by sqrt(3): the first axis of a grey-ish picture, (1, 1, 1)/sqrt(3),
+    # then gives the luma's range (what the band scales are made for).
+    y = (x - 128.0) @ (rotation.T / SQRT3)
+    return [np.ascontiguousarray(y[..., i]) for i in range(3)]
 
 
-def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarray:
+def _image(comps: list[np.ndarray], colour: bool, reversible: bool, rotation: np.ndarray | None = None) -> np.ndarray:
     if reversible:
         if not colour:
             out = comps[0] + 128
@@ -115,9 +180,7 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool) -> np.ndarra
         out = np.empty(comps[0].shape, dtype=np.uint8)
         kernels.to_uint8(np.ascontiguousarray(comps[0]), 128.0, out)
         return out
-    else:
-        ycc = np.stack([comps[0] + 128.0, comps[1], comps[2]], axis=-1)
-        out = ycc @ ICT_INV.T
+    out = np.stack(comps, axis=-1) @ (rotation * SQRT3) + 128.0
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
@@ -148,7 +211,12 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     n = max(lay.ncoef, 1)
     mag = np.zeros(n, dtype=np.int64)
     neg = np.zeros(n, dtype=np.uint8)
-    comps = _components(img, colour, reversible)
+    rotation = b""
+    room = limit
+    if colour and not reversible:
+        rotation = colour_rotation(img)
+        limit = max(limit - ROTATION_BYTES, 0)
+    comps = _components(img, colour, reversible, rotation_matrix(rotation) if rotation else None)
     if reversible:
         comp_bands = [forward(c, plan.levels, "53") for c in comps]
         for b in range(len(lay.shapes)):
@@ -190,10 +258,10 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     if complete:
         n = rangecoder.flush(st, buf)
         n = min(n, buf.shape[0])
-        payload = bytes(buf[1:n])
-        if len(payload) <= limit:
+        payload = rotation + bytes(buf[1:n])
+        if len(payload) <= room:
             return header, payload, True
-    return header, bytes(buf[1:limit + 1]), False
+    return header, (rotation + bytes(buf[1:limit + 1]))[:room], False
 
 
 def _coefficient_error(flat: np.ndarray, plan, rec: np.ndarray, pk: np.ndarray) -> float:
@@ -418,6 +486,12 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
         if h.top > max_top(h):
             raise ValueError("corrupted DEBT stream (bit-plane count out of range)")
         start += 1
+    rotation = None
+    if h.colour and not h.reversible:
+        if len(data) < start + ROTATION_BYTES:      # not even the colour axes: a flat picture
+            return np.full((h.height, h.width, 3), 128, dtype=np.uint8)
+        rotation = rotation_matrix(data[start:start + ROTATION_BYTES])
+        start += ROTATION_BYTES
     ncomp = 3 if h.colour else 1
     plan = plan_for(h.height, h.width, ncomp, h.reversible, h.roi, h.shift, levels, packets)
     lay = plan.lay
@@ -442,7 +516,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
             _packets(a, plan, forward=False)
             kernels.inverse97(a, plan.levels, plan.roi)
             comps.append(a)
-        return _image(comps, h.colour, False)
+        return _image(comps, h.colour, False, rotation)
     cfloor = plan.cfloor
     pk = pk.astype(np.int64)
     known = pk >= 0

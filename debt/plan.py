@@ -27,16 +27,14 @@ COARSE_LEVEL = 4          # details this coarse or coarser share one context gro
 COARSE_GROUP = 4
 KMAX = 11                # quadtree depth bound: 2**10 >= MAX_SIDE
 
-# Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT).
+# Irreversible colour transform (ITU-R BT.601 YCbCr, as JPEG 2000's ICT): its
+# luma row is what a grey picture of a colour image shows (`mono`) and what the
+# texture test looks at.  9/7 colour streams are coded in a rotation of RGB of
+# their own (`codec.colour_rotation`), orthonormal, so each component's error
+# counts as it does in RGB squared error: they need no per-component weight.
 ICT = np.array([[0.299, 0.587, 0.114],
                  [-0.168736, -0.331264, 0.5],
                  [0.5, -0.418688, -0.081312]])
-ICT_INV = np.linalg.inv(ICT)
-CHROMA = 1.0  # chroma weight beyond the RGB-error weighting (1.0 measured best)
-# Weight of each component so that its error counts as it does in RGB squared
-# error (norm of its column of the inverse over sqrt(3)); chroma then gets
-# fewer bits simply because it holds less energy.
-COLOUR_WEIGHTS = np.sqrt((ICT_INV ** 2).sum(axis=0) / 3.0) * np.array([1.0, CHROMA, CHROMA])
 
 
 # ---------------------------------------------------------------- layout
@@ -307,8 +305,7 @@ def scales_for(h: Header, levels: int, ncomp: int) -> list[float] | list[int]:
     w = band_weights(levels, "97")
     res = band_levels(levels)
     w = [v * FINE_BAND_FACTOR.get(r, 1.0) for v, r in zip(w, res)]
-    comp_w = COLOUR_WEIGHTS if ncomp == 3 else [1.0]
-    return [[v * comp_w[c] * 2.0 ** FRACTION_BITS for v in w] for c in range(ncomp)]
+    return [[v * 2.0 ** FRACTION_BITS for v in w] for _ in range(ncomp)]
 
 
 @dataclass

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rovlink import debt
-from rovlink.debt import samples
+from rovlink.debt import codec, samples
 from rovlink.debt.codec import Header, header_size, pack_header, unpack_header
 
 
@@ -140,15 +140,18 @@ def test_psnr_never_drops_along_64_byte_prefixes(name):
 def test_psnr_byte_by_byte_on_small_images(name, size, budget):
     # Every decision the decoder takes brings the coefficients nearer the
     # truth, and new significance and refinements are shown in groups; but
-    # the 9/7 basis and the colour transform are not orthogonal and pixels
-    # are rounded to 8 bits, so from one byte to the next PSNR can wobble by
-    # a few hundredths of a dB on tiny images (never on 64-byte steps above).
+    # the 9/7 basis is not orthogonal and pixels are rounded to 8 bits and
+    # clipped, so from one byte to the next PSNR can step back by a few
+    # thousandths, rarely hundredths, of a dB on tiny images (never on 64-byte
+    # steps above).  Measured: 11 steps back on the seabed, together 0.02 dB;
+    # 2 on the still life (0.013 dB), 1 on the grey scene.
     img = samples.sample(name, *size)
     data = debt.encode(img, budget)
     curve = [psnr(img, debt.decode(data[:n])) for n in range(5, len(data) + 1)]
     drops = [a - b for a, b in zip(curve, curve[1:]) if b < a]
-    assert len(drops) <= 6
-    assert max(drops, default=0.0) < 0.1
+    assert len(drops) <= 15
+    assert max(drops, default=0.0) < 0.05
+    assert sum(drops) < 0.1
     assert curve[-1] > curve[0] + 10
 
 
@@ -157,6 +160,35 @@ def test_header_only_prefix_is_a_flat_picture(grey):
     out = debt.decode(data[:unpack_header(data).size])
     assert out.shape == grey.shape
     assert out.min() == out.max()
+
+
+def test_colour_prefix_without_its_axes_is_a_flat_picture():
+    img = samples.sample("colour-still-life")
+    data = debt.encode(img, 800)
+    size = unpack_header(data).size
+    for n in range(size, size + codec.ROTATION_BYTES):
+        out = debt.decode(data[:n])
+        assert out.shape == img.shape and out.min() == out.max() == 128
+    assert debt.decode(data[:size + codec.ROTATION_BYTES + 40]).std() > 0
+
+
+def test_colour_axes_follow_the_pictures_detail(monkeypatch):
+    # A red-green texture over a steady blue: the first axis is the
+    # red-green direction (to the angle bytes' precision), the rotation is
+    # orthonormal, and the picture codes better in it than in YCbCr's axes.
+    rng = np.random.default_rng(3)
+    t = rng.normal(0, 40, (96, 128))
+    img = np.clip(np.stack([128 + t, 128 - t, np.full_like(t, 90.0)], -1), 0, 255).astype(np.uint8)
+    r = codec.rotation_matrix(codec.colour_rotation(img))
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert abs(r[0] @ np.array([1.0, -1.0, 0.0]) / np.sqrt(2)) > 0.999
+    own = psnr(img, debt.decode(debt.encode(img, 3000)))
+    # YCbCr's axes made orthonormal (Gram-Schmidt from the luma), sent the same way
+    ycc = np.linalg.qr(np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5],
+                                 [0.5, -0.418688, -0.081312]]).T)[0].T
+    monkeypatch.setattr(codec, "colour_rotation", lambda _img: codec.rotation_bytes(ycc))
+    fixed = psnr(img, debt.decode(debt.encode(img, 3000)))
+    assert own > fixed + 1.0
 
 
 def test_prefix_equals_stream_encoded_at_that_budget_closely(grey):
