@@ -109,11 +109,12 @@ ROTATION_BYTES = 3
 
 def colour_rotation(img: np.ndarray) -> bytes:
     """The rotation for an RGB picture, as its three angle bytes."""
-    x = img.astype(np.float64)
-    d = np.concatenate(((x[1:] - x[:-1]).reshape(-1, 3), (x[:, 1:] - x[:, :-1]).reshape(-1, 3)))
-    p = x.reshape(-1, 3)
-    p = p - p.mean(axis=0)
-    detail, pixels = d.T @ d, p.T @ p
+    detail = np.zeros((3, 3))
+    pixels = np.zeros((3, 3))
+    total = np.zeros(3)
+    kernels.colour_moments(np.ascontiguousarray(img), detail, pixels, total)
+    n = max(img.shape[0] * img.shape[1], 1)
+    pixels -= np.outer(total, total) / n          # about the mean
     cov = detail / max(np.trace(detail), 1e-9) + PIXEL_SHARE * pixels / max(np.trace(pixels), 1e-9)
     _values, vectors = np.linalg.eigh(cov)
     return rotation_bytes(vectors[:, ::-1].T)   # rows: the axes, most energy first

@@ -271,3 +271,40 @@ def to_uint8(a, offset, out):
         for x in range(w):
             v = np.rint(a[r, x] + offset)
             out[r, x] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+
+
+@_jit
+def colour_moments(img, detail, pixels, total):
+    """Second moments of an RGB picture in one pass: `detail` (3x3) of its
+    horizontal and vertical neighbour differences, `pixels` (3x3) of the
+    pixels, `total` (3) their sums (for the mean)."""
+    h, w = img.shape[0], img.shape[1]
+    for y in range(h):
+        for x in range(w):
+            r = np.float64(img[y, x, 0])
+            g = np.float64(img[y, x, 1])
+            b = np.float64(img[y, x, 2])
+            total[0] += r
+            total[1] += g
+            total[2] += b
+            pixels[0, 0] += r * r
+            pixels[0, 1] += r * g
+            pixels[0, 2] += r * b
+            pixels[1, 1] += g * g
+            pixels[1, 2] += g * b
+            pixels[2, 2] += b * b
+            for dy, dx in ((0, 1), (1, 0)):
+                if y + dy < h and x + dx < w:
+                    dr = np.float64(img[y + dy, x + dx, 0]) - r
+                    dg = np.float64(img[y + dy, x + dx, 1]) - g
+                    db = np.float64(img[y + dy, x + dx, 2]) - b
+                    detail[0, 0] += dr * dr
+                    detail[0, 1] += dr * dg
+                    detail[0, 2] += dr * db
+                    detail[1, 1] += dg * dg
+                    detail[1, 2] += dg * db
+                    detail[2, 2] += db * db
+    for m in (detail, pixels):
+        m[1, 0] = m[0, 1]
+        m[2, 0] = m[0, 2]
+        m[2, 1] = m[1, 2]

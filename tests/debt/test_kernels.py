@@ -94,3 +94,17 @@ def test_compiled_cache_goes_when_any_debt_source_changes(tmp_path):
     (tmp_path / "coder._traverse-260.py311.nbi").write_bytes(b"fresh")
     jit._drop_stale_cache(str(tmp_path))
     assert (tmp_path / "coder._traverse-260.py311.nbi").exists()
+
+
+@settings(max_examples=40, deadline=None)
+@given(h=st.integers(1, 40), w=st.integers(1, 40), seed=st.integers(0, 2 ** 16))
+def test_colour_moments_match_numpy(h, w, seed):
+    img = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    detail, pixels, total = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(3)
+    kernels.colour_moments(img, detail, pixels, total)
+    x = img.astype(np.float64)
+    d = np.concatenate(((x[1:] - x[:-1]).reshape(-1, 3), (x[:, 1:] - x[:, :-1]).reshape(-1, 3)))
+    p = x.reshape(-1, 3)
+    np.testing.assert_allclose(detail, d.T @ d, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(pixels, p.T @ p, rtol=1e-12)
+    np.testing.assert_allclose(total, p.sum(axis=0), rtol=1e-12)
