@@ -143,14 +143,15 @@ def test_psnr_byte_by_byte_on_small_images(name, size, budget):
     # the 9/7 basis is not orthogonal and pixels are rounded to 8 bits and
     # clipped, so from one byte to the next PSNR can step back by a few
     # thousandths, rarely hundredths, of a dB on tiny images (never on 64-byte
-    # steps above).  Measured: 11 steps back on the seabed, together 0.02 dB;
-    # 2 on the still life (0.013 dB), 1 on the grey scene.
+    # steps above).  Measured: 5 steps back on the seabed, together 0.009 dB;
+    # 3 on the still life (0.045 dB, the largest 0.038), 1 on the grey scene
+    # (0.009 dB).
     img = samples.sample(name, *size)
     data = debt.encode(img, budget)
     curve = [psnr(img, debt.decode(data[:n])) for n in range(5, len(data) + 1)]
     drops = [a - b for a, b in zip(curve, curve[1:]) if b < a]
     assert len(drops) <= 15
-    assert max(drops, default=0.0) < 0.05
+    assert max(drops, default=0.0) < 0.1
     assert sum(drops) < 0.1
     assert curve[-1] > curve[0] + 10
 
