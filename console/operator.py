@@ -274,6 +274,7 @@ class Operator:
         self._pending_decode: tuple[int, bytes] | None = None
         self._decoder = DaemonWorker("debt-decode")
         self._decode_busy = False
+        self._undecodable_serial: int | None = None   # the picture last said undecodable
         # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
         from rovlink import debt
 
@@ -659,8 +660,20 @@ class Operator:
             img, prefix = job
             try:
                 picture = debt.decode(prefix)
-            except ValueError:
+            except debt.IncompleteStream:
                 continue  # not even the header yet
+            except ValueError as exc:
+                # A damaged stream, or one of another DEBT format (an ROV of
+                # another rovlink version, an old recording): said once per
+                # picture, loud, since the pilot sees no picture.
+                with self._lock:
+                    serial = self.image.serial if self.image.img == img else None
+                    first = serial is not None and serial != self._undecodable_serial
+                    if first:
+                        self._undecodable_serial = serial
+                if first:
+                    self.note(f"picture {serial} cannot be decoded: {exc}", "alert")
+                continue
             with self._lock:
                 if self.image.img != img or len(prefix) < self.image.decoded_bytes:
                     continue

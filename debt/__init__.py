@@ -10,8 +10,12 @@ longer prefix is a better one.
     picture = debt.decode(data[:n])
     debt.warm_up()   # compile the kernels ahead of the first image
     debt.warm_up_in_background()   # the same in a daemon thread (returned)
+
+decode raises ValueError for bytes it cannot decode, and its subclass
+IncompleteStream while the bytes do not yet hold the header (wait for more).
 """
 
 from .codec import Header, decode, encode, unpack_header, warm_up, warm_up_in_background
+from .header import IncompleteStream
 
-__all__ = ["encode", "decode", "Header", "unpack_header", "warm_up", "warm_up_in_background"]
+__all__ = ["encode", "decode", "Header", "IncompleteStream", "unpack_header", "warm_up", "warm_up_in_background"]

@@ -1,7 +1,7 @@
 # The DEBT stream header: what the decoder must know before the first coded bit.
 #
 # Header, most significant bit first, then padded to a byte with a check:
-#     MAGIC:4 (1011)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
+#     MAGIC:4 (1010)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
 #     if ROI:  SHIFT:4  X0:10  Y0:10  X1:10  Y1:10
 #     CHECK: the remaining bits of the last byte (7 without ROI, 3 with),
 #            the low bits of a CRC-8 of the header with CHECK zero
@@ -19,7 +19,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-MAGIC = 0b1011
+# The magic names the stream format: 1011 was format 1 (before colour
+# pictures were coded in their own rotation of RGB and the finest bands at
+# their synthesis norm, rovlink's DEBT before November 2026), 1010 is format
+# 2.  A decoder refuses a format it does not speak with a clear error instead
+# of showing a wrong picture (an old recording, or an ROV and a console of
+# different versions).
+MAGIC = 0b1010
+OLD_FORMATS = {0b1011: 1}
+
+
+class IncompleteStream(ValueError):
+    """The bytes do not yet hold the header: wait for more (not an error in the stream)."""
 MAX_SIDE = 1023          # 10-bit sizes and ROI corners, as in the IMAGE order
 MAX_SHIFT = 15
 FRACTION_BITS = 4        # 9/7 magnitudes are coded down to 1/16 of a unit
@@ -89,13 +100,16 @@ def pack_header(h: Header) -> bytes:
 
 def unpack_header(data: bytes) -> Header:
     if len(data) < 1:
-        raise ValueError("empty DEBT stream")
+        raise IncompleteStream("empty DEBT stream")
+    if data[0] >> 4 in OLD_FORMATS:
+        raise ValueError(f"a DEBT stream of format {OLD_FORMATS[data[0] >> 4]} (an older rovlink's): "
+                         f"this version decodes format 2 only")
     if data[0] >> 4 != MAGIC:
         raise ValueError("not a DEBT stream (bad magic)")
     has_roi = bool(data[0] & 0x02)
     size = header_size(has_roi)
     if len(data) < size:
-        raise ValueError(f"DEBT stream of {len(data)} bytes is shorter than its {size}-byte header")
+        raise IncompleteStream(f"DEBT stream of {len(data)} bytes is shorter than its {size}-byte header")
     value = int.from_bytes(data[:size], "big")
     nbits = 8 * size
 

@@ -151,6 +151,31 @@ def test_failsafe_is_shown_when_the_link_drops(tmp_path):
     asyncio.run(asyncio.wait_for(main(), 60))
 
 
+def test_pictures_of_another_debt_format_are_said_loudly_once_each(tmp_path):
+    # An ROV running an older rovlink sends DEBT format 1: the console shows
+    # no wrong picture, and says why once per picture, as an alert.
+    async def main():
+        async with Stack(fast_config(tmp_path)) as stack:
+            op = stack.operator
+            assert await until(lambda: op.image.images_completed >= 1, 30)
+
+            def older_rov(image, budget, **kw):
+                data = debt.encode(image, budget, **kw)
+                return bytes([0xB0 | (data[0] & 0x0F)]) + data[1:]   # magic 1011: format 1
+
+            stack.node._encode = older_rov
+            done = op.image.images_completed
+            assert await until(lambda: op.image.images_completed >= done + 3, 30)
+            said = [e for e in op.log_entries() if "cannot be decoded" in e["text"]]
+            assert said and all(e["level"] == "alert" and "format 1" in e["text"] for e in said)
+            pictures = {e["text"].split()[1] for e in said}
+            assert len(pictures) == len(said)            # once per picture
+            assert len(said) <= op.image.images_completed - done + 1
+            assert op.picture() is None                  # nothing wrong is shown
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
 def test_replay_refuses_files_that_are_not_recordings(tmp_path):
     bad = tmp_path / "bad.jsonl"
     bad.write_text("hello\n")

@@ -121,6 +121,21 @@ def test_no_picture_yet_is_404_with_a_message(client):
         assert "no image" in r.json()["message"]
 
 
+def test_a_kept_picture_that_cannot_be_decoded_is_422_saying_why(client, operator):
+    # A picture kept from an ROV of an older rovlink (DEBT format 1).
+    data = debt.encode(np.full((24, 32), 90, dtype=np.uint8), 200)
+    with operator._lock:
+        operator._image_history.append({"n": 7, "img": 1, "capture": None, "bytes": len(data),
+                                        "total_bytes": len(data), "partial": False, "received_wall": 0.0,
+                                        "seconds": 1.0, "settings": None,
+                                        "stream": bytes([0xB0 | (data[0] & 0x0F)]) + data[1:]})
+    for path in ("/api/images/7.png", "/api/images/7.json"):
+        r = client.get(path)
+        assert r.status_code == 422
+        assert "cannot be decoded" in r.json()["message"] and "format 1" in r.json()["message"]
+    assert client.get("/api/images").json()[0]["n"] == 7     # still listed
+
+
 # ----------------------------------------------------------------------
 # Control ownership
 # ----------------------------------------------------------------------

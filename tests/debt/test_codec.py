@@ -413,3 +413,16 @@ def test_corrupted_payload_decodes_to_a_picture(payload, seed):
     hsize = unpack_header(data).size
     out = debt.decode(data[:hsize] + payload)
     assert out.shape == img.shape and out.dtype == np.uint8
+
+
+def test_streams_of_another_format_are_refused_clearly(grey):
+    data = debt.encode(grey, 300)
+    older = bytes([0xB0 | (data[0] & 0x0F)]) + data[1:]     # format 1's magic
+    with pytest.raises(ValueError, match="format 1"):
+        debt.decode(older)
+    with pytest.raises(ValueError, match="bad magic"):
+        debt.decode(bytes([0x30]) + data[1:])
+    for n in range(0, unpack_header(data).size):
+        with pytest.raises(debt.IncompleteStream):
+            debt.decode(data[:n])
+    assert issubclass(debt.IncompleteStream, ValueError)

@@ -23,7 +23,9 @@ from ..models import ErrorBody, PastImage
 router = APIRouter(prefix="/api/images", tags=["image"])
 
 PNG_CACHE = 8
-NOT_KEPT = {404: {"model": ErrorBody, "description": "no such image is kept (only the last ones are)"}}
+NOT_KEPT = {404: {"model": ErrorBody, "description": "no such image is kept (only the last ones are)"},
+            422: {"model": ErrorBody, "description": "its bytes cannot be decoded (damaged, or another "
+                                                      "DEBT format: an older rovlink's recording)"}}
 
 
 class HistoryPngs:
@@ -41,7 +43,10 @@ class HistoryPngs:
 
         from rovlink import debt
 
-        picture = debt.decode(entry["stream"])
+        try:
+            picture = debt.decode(entry["stream"])
+        except ValueError as exc:   # damaged, or another DEBT format (an old recording)
+            raise HTTPException(422, f"image {n} cannot be decoded: {exc}") from None
         # The metadata rides in the PNG too (a tEXt chunk "rovlink"), should it travel alone.
         info = PngImagePlugin.PngInfo()
         info.add_text("rovlink", json.dumps(_public(entry)))
