@@ -274,6 +274,17 @@ def to_uint8(a, offset, out):
 
 
 @_jit
+def _add_products(m, a, b, c):
+    # The upper triangle of m += v v^T for v = (a, b, c).
+    m[0, 0] += a * a
+    m[0, 1] += a * b
+    m[0, 2] += a * c
+    m[1, 1] += b * b
+    m[1, 2] += b * c
+    m[2, 2] += c * c
+
+
+@_jit
 def colour_moments(img, detail, pixels, total):
     """Second moments of an RGB picture in one pass: `detail` (3x3) of its
     horizontal and vertical neighbour differences, `pixels` (3x3) of the
@@ -287,23 +298,13 @@ def colour_moments(img, detail, pixels, total):
             total[0] += r
             total[1] += g
             total[2] += b
-            pixels[0, 0] += r * r
-            pixels[0, 1] += r * g
-            pixels[0, 2] += r * b
-            pixels[1, 1] += g * g
-            pixels[1, 2] += g * b
-            pixels[2, 2] += b * b
-            for dy, dx in ((0, 1), (1, 0)):
-                if y + dy < h and x + dx < w:
-                    dr = np.float64(img[y + dy, x + dx, 0]) - r
-                    dg = np.float64(img[y + dy, x + dx, 1]) - g
-                    db = np.float64(img[y + dy, x + dx, 2]) - b
-                    detail[0, 0] += dr * dr
-                    detail[0, 1] += dr * dg
-                    detail[0, 2] += dr * db
-                    detail[1, 1] += dg * dg
-                    detail[1, 2] += dg * db
-                    detail[2, 2] += db * db
+            _add_products(pixels, r, g, b)
+            if x + 1 < w:
+                _add_products(detail, np.float64(img[y, x + 1, 0]) - r, np.float64(img[y, x + 1, 1]) - g,
+                              np.float64(img[y, x + 1, 2]) - b)
+            if y + 1 < h:
+                _add_products(detail, np.float64(img[y + 1, x, 0]) - r, np.float64(img[y + 1, x, 1]) - g,
+                              np.float64(img[y + 1, x, 2]) - b)
     for m in (detail, pixels):
         m[1, 0] = m[0, 1]
         m[2, 0] = m[0, 2]
