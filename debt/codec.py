@@ -107,6 +107,9 @@ PIXEL_SHARE = 0.3
 ROTATION_BYTES = 3
 
 
+GREY_AXIS_OUTER = np.full((3, 3), 1.0 / 3.0)   # (1, 1, 1)/sqrt(3), times itself
+
+
 def colour_rotation(img: np.ndarray) -> bytes:
     """The rotation for an RGB picture, as its three angle bytes."""
     detail = np.zeros((3, 3))
@@ -116,6 +119,7 @@ def colour_rotation(img: np.ndarray) -> bytes:
     n = max(img.shape[0] * img.shape[1], 1)
     pixels -= np.outer(total, total) / n          # about the mean
     cov = detail / max(np.trace(detail), 1e-9) + PIXEL_SHARE * pixels / max(np.trace(pixels), 1e-9)
+    cov += 1e-6 * GREY_AXIS_OUTER   # a flat picture (no covariance at all): brightness first
     _values, vectors = np.linalg.eigh(cov)
     return rotation_bytes(vectors[:, ::-1].T)   # rows: the axes, most energy first
 

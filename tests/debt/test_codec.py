@@ -173,6 +173,16 @@ def test_colour_prefix_without_its_axes_is_a_flat_picture():
     assert debt.decode(data[:size + codec.ROTATION_BYTES + 40]).std() > 0
 
 
+def test_a_flat_colour_picture_takes_brightness_first():
+    # No covariance to follow: the first axis is grey, so the first bytes
+    # bring the picture's brightness, then its colour.
+    img = np.full((64, 64, 3), (200, 10, 90), dtype=np.uint8)
+    r = codec.rotation_matrix(codec.colour_rotation(img))
+    assert r[0] @ np.full(3, 1 / np.sqrt(3)) > 0.999
+    errors = [np.abs(debt.decode(debt.encode(img, b)).astype(int) - img).mean() for b in (10, 20, 30, 60)]
+    assert errors == sorted(errors, reverse=True) and errors[-1] < 2
+
+
 def test_colour_axes_follow_the_pictures_detail(monkeypatch):
     # A red-green texture over a steady blue: the first axis is the
     # red-green direction (to the angle bytes' precision), the rotation is
