@@ -26,7 +26,13 @@
 # - Binary decisions go through the adaptive binary range coder of
 #   `rangecoder` with contexts: coefficient significance by band class and
 #   number of significant neighbours, set significance by band class and block
-#   size, sign, and refinement (first or later).
+#   size, sign, and refinement (first or later).  In the second and third
+#   colour components, the first component at the same place says more: its
+#   significance splits the significance contexts, and where it is
+#   significant the sign is predicted from it and from how the two signs
+#   relate at significant neighbours (+0.002/+0.005/+0.010/+0.017 dB mean
+#   over the 52 photograph variants at 1000/2000/4000/8000 B, about three
+#   times that on the 16 colour ones; the sign part a third of it).
 # - The decoder reads a truncated stream with interval arithmetic: it tracks
 #   the smallest and the largest code value the missing bytes allow and stops
 #   at the first decision on which they disagree.  Every decision it makes is
@@ -43,10 +49,10 @@ from .rangecoder import PROB_ONE, _code, _save
 # times 8 plus resolution level (0 = low band, j = level-j details), plus 16
 # for sets and coefficients inside the region of interest.
 NCLS = 32
-CTX_SIG = 0                      # + cls * 16 + neighbourhood context (0..8)
-CTX_SET = CTX_SIG + NCLS * 16    # + cls * 64 + min(k, 7) * 8 + set context (0..7)
-CTX_SIGN = CTX_SET + NCLS * 64   # + cls * 5 + sign context (0..4)
-CTX_REF = CTX_SIGN + NCLS * 5    # + cls * 2 + (first refinement)
+CTX_SIG = 0                      # + cls * 20 + neighbourhood context (0..9), + 10 beside a significant first component
+CTX_SET = CTX_SIG + NCLS * 20    # + cls * 64 + min(k, 7) * 8 + set context (0..7)
+CTX_SIGN = CTX_SET + NCLS * 64   # + cls * 7 + sign context (0..4; 5, 6 from the first component)
+CTX_REF = CTX_SIGN + NCLS * 7    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 # A decoder stopped inside a pass forgets the unfinished group of new
 # significance (SIG_GROUP coefficients) or refinements (REF_GROUP): one
@@ -135,7 +141,26 @@ def _sig_context(sig, off, h, w, y, x, orient):
 
 
 @_jit
+def _first_component(binfo, b, y, x):
+    # The same coefficient of the first colour component, or -1.
+    lb = binfo[b, 10]
+    if lb < 0 or y >= binfo[lb, 1] or x >= binfo[lb, 2]:
+        return -1
+    return binfo[lb, 0] + y * binfo[lb, 2] + x
+
+
+@_jit
 def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
+    # Plus 10 when the first colour component is significant at this place.
+    ctx = _sig_context_parent0(sig, binfo, b, off, h, w, y, x)
+    lc = _first_component(binfo, b, y, x)
+    if lc >= 0 and sig[lc]:
+        return ctx + 10
+    return ctx
+
+
+@_jit
+def _sig_context_parent0(sig, binfo, b, off, h, w, y, x):
     # With no significant neighbour, whether the parent (same orientation,
     # one level coarser) is significant still says much at low rates.
     ctx = _sig_context(sig, off, h, w, y, x, binfo[b, 5])
@@ -218,7 +243,7 @@ def _sign_part(sig, sgn, i):
 
 
 @_jit
-def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w, y, x, p,
+def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w, y, x, p,
                      cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp):
     # A coefficient just found significant: its sign, then its state.  The
     # sign is predicted from the signs of the horizontal and vertical
@@ -245,10 +270,36 @@ def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, 
         sctx = 0 if vc == 0 else 1
     else:
         sctx = 4 if vc == 1 else (3 if vc == 0 else 2)
+    # A colour component after the first, where the first is significant:
+    # the signs of the two relate the same way as at significant neighbours
+    # where both are (local colour correlation): predicted by their votes.
+    lc = _first_component(binfo, b, y, x)
+    if lc >= 0 and sig[lc]:
+        same = 0
+        other = 0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                yy = y + dy
+                xx = x + dx
+                if (dy == 0 and dx == 0) or yy < 0 or xx < 0 or yy >= h or xx >= w:
+                    continue
+                n = off + yy * w + xx
+                if not sig[n]:
+                    continue
+                ln = _first_component(binfo, b, yy, xx)
+                if ln < 0 or not sig[ln]:
+                    continue
+                if sgn[n] == sgn[ln]:
+                    same += 1
+                else:
+                    other += 1
+        if same != other:
+            flip = np.int64(sgn[lc]) if same > other else 1 - np.int64(sgn[lc])
+            sctx = 6 if abs(same - other) >= 2 else 5
     # (`neg` is a placeholder of one element when decoding: never index it then.)
     nb = (neg[c] if mode == 0 else 0) ^ flip
     a0, a1, a2, a3, a4, s = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                  CTX_SIGN + cls * 5 + sctx, nb)
+                                  CTX_SIGN + cls * 7 + sctx, nb)
     if s < 0:
         return a0, a1, a2, a3, a4, -1
     s ^= flip
@@ -344,7 +395,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     bit = 1 if _node_at(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
-                    ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
+                    ctx = CTX_SIG + cls * 20 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   counts, ctx, bit)
                     if r < 0:
@@ -355,7 +406,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         j += 1
                         continue
                     a0, a1, a2, a3, a4, r = _new_significant(
-                        mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w, y, x, p,
+                        mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w, y, x, p,
                         cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
@@ -438,7 +489,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                 m = _node_at(mag, node_max, binfo, noff, nw, b, ck, yy, xx)
                                 cbit = 1 if m >= thr else 0
                             if ck == 0:
-                                ctx = CTX_SIG + cls * 16 + _sig_context_parent(sig, binfo, b, off,
+                                ctx = CTX_SIG + cls * 20 + _sig_context_parent(sig, binfo, b, off,
                                                                                h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
@@ -459,7 +510,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         if ck == 0:
                             c = off + yy * w + xx
                             a0, a1, a2, a3, a4, r = _new_significant(
-                                mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, off, h, w,
+                                mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w,
                                 yy, xx, p, cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                             if r < 0:
                                 _save(st, a0, a1, a2, a3, a4)
