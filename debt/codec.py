@@ -185,8 +185,9 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool, rotation: np
         out = np.empty(comps[0].shape, dtype=np.uint8)
         kernels.to_uint8(np.ascontiguousarray(comps[0]), 128.0, out)
         return out
-    out = np.stack(comps, axis=-1) @ (rotation * SQRT3) + 128.0
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    out = np.empty(comps[0].shape + (3,), dtype=np.uint8)
+    kernels.to_rgb(*(np.ascontiguousarray(c) for c in comps), rotation * SQRT3, 128.0, out)
+    return out
 
 
 # ---------------------------------------------------------------- encode

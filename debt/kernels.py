@@ -274,6 +274,21 @@ def to_uint8(a, offset, out):
 
 
 @_jit
+def to_rgb(c0, c1, c2, m, offset, out):
+    """out[..., j] = clip(round(c0 m[0, j] + c1 m[1, j] + c2 m[2, j] + offset), 0, 255)
+    in one pass (colour pictures: components back to RGB)."""
+    h, w = c0.shape
+    for r in range(h):
+        for x in range(w):
+            a = c0[r, x]
+            b = c1[r, x]
+            c = c2[r, x]
+            for j in range(3):
+                v = np.rint(a * m[0, j] + b * m[1, j] + c * m[2, j] + offset)
+                out[r, x, j] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+
+
+@_jit
 def _add_products(m, a, b, c):
     # The upper triangle of m += v v^T for v = (a, b, c).
     m[0, 0] += a * a

@@ -108,3 +108,15 @@ def test_colour_moments_match_numpy(h, w, seed):
     np.testing.assert_allclose(detail, d.T @ d, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(pixels, p.T @ p, rtol=1e-12)
     np.testing.assert_allclose(total, p.sum(axis=0), rtol=1e-12)
+
+
+@settings(max_examples=30, deadline=None)
+@given(h=st.integers(1, 30), w=st.integers(1, 30), seed=st.integers(0, 2 ** 16))
+def test_to_rgb_matches_numpy(h, w, seed):
+    rng = np.random.default_rng(seed)
+    comps = [rng.normal(0, 90, (h, w)) for _ in range(3)]
+    m = rng.normal(0, 1, (3, 3))
+    out = np.empty((h, w, 3), dtype=np.uint8)
+    kernels.to_rgb(*comps, m, 128.0, out)
+    want = np.clip(np.rint(np.stack(comps, axis=-1) @ m + 128.0), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(out, want)
