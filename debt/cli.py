@@ -11,17 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from rovlink.command import CommandError
-
-
-def _budget(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number of bytes, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
-    return value
+from rovlink.command import CommandError, positive_int
 
 
 def _roi(text: str) -> tuple[int, int, int, int]:
@@ -76,7 +66,7 @@ def add_parser(subparsers) -> None:
     )
     enc.add_argument("input", metavar="IN", help="image file (PNG, JPEG, ...)")
     enc.add_argument("output", metavar="OUT", help="DEBT stream to write")
-    enc.add_argument("--bytes", dest="budget", type=_budget, required=True, metavar="N",
+    enc.add_argument("--bytes", dest="budget", type=positive_int, required=True, metavar="N",
                      help="byte budget of the stream (the header included)")
     enc.add_argument("--roi", type=_roi, metavar="X0,Y0,X1,Y1",
                      help="region of interest in pixels, (X1, Y1) exclusive")

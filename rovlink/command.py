@@ -117,6 +117,17 @@ def probability(text: str) -> float:
     return value
 
 
+def positive_int(text: str) -> int:
+    """A whole number, at least 1: a count or a byte budget."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
 def port(text: str) -> int:
     try:
         value = int(text)

@@ -32,6 +32,7 @@ import statistics
 import time
 
 from rovlink.assets import ASSETS_DIR
+from rovlink.command import positive_int
 
 from .table import emit, format_table
 
@@ -588,18 +589,6 @@ def render(result: dict) -> str:
     return "\n".join(parts)
 
 
-def _at_least_one(text: str) -> int:
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number, not {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
-    return value
-
-
 def _budgets(text: str) -> list[int]:
     # A wrong argument: argparse's one line and status 2, as every command.
     import argparse
@@ -620,7 +609,7 @@ def add_parser(subparsers) -> None:
         description=__doc__.split("\n\n")[0] if __doc__ else None,
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--runs", type=_at_least_one, default=7, metavar="N", help="timing runs per figure (default 7)")
+    p.add_argument("--runs", type=positive_int, default=7, metavar="N", help="timing runs per figure (default 7)")
     p.add_argument("--no-curve", action="store_true", help="skip the progressive curve")
     p.add_argument("--images", choices=("photos", "samples"), default="photos",
                    help="scikit-image's bundled photographs (default) or the project's three samples")
