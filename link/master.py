@@ -26,7 +26,10 @@ after the first reply (STOP as soon as there is one); STOP in every poll until
 a reply to a STOP poll shows HOLD, AUTOPILOT and POS_HOLD or DEPTH_HOLD; an
 ARM or MODE request until a reply shows it done or for 3 s, and a request
 equal to the last one the ROV saw goes out only after a reply to a poll with
-that field 0; the receive LEN cap follows the last poll's SIZE.
+that field 0; after the start, a STOP or a restarted ROV's SYNC, requests
+(but a disarm) go out as 0 until a reply to a VELOCITY poll comes (the first
+VELOCITY the ROV takes then only sets its reference); the receive LEN cap
+follows the last poll's SIZE.
 
 Decisions where PROTOCOL.md is silent:
 - A STOP pressed while one is being sent joins it: both ids are confirmed,
@@ -289,6 +292,12 @@ class Master:
         # ARM and MODE requests: [value, since, needs a 0 first] (§2: acted on when they change)
         self._requests: dict[str, list | None] = {"arm": None, "mode": None}
         self._last_seen: dict[str, int] = {"arm": Arm.NONE, "mode": Mode.KEEP}  # in the last answered VELOCITY
+        # §2 (1.1): the first VELOCITY the ROV takes after its start or a STOP
+        # only sets its ARM/MODE reference, so a request riding in it would be
+        # swallowed.  Until a reply to a VELOCITY poll sent after the last STOP
+        # poll (or since the start) comes, requests go out as 0 (a disarm
+        # excepted: it acts whenever it arrives), and they wait, not expire.
+        self._reference_unset = True
         self._orders: Deque[_PendingOrder] = collections.deque()
         self._stop: _StopState | None = None
         self._next_order_id = 1
@@ -455,6 +464,7 @@ class Master:
         if self._stop is not None:
             if self._ack is not None:
                 order = Stop()  # not sequenced: SEQ = ACK (§2)
+                self._reference_unset = True  # the ROV's ARM/MODE reference is reset by it
         elif self._orders and self._may_send_orders(now):
             pending = self._orders[0]
             if not pending.sent:
@@ -487,6 +497,9 @@ class Master:
             value, since, needs_gap = request
             if needs_gap:
                 continue  # 0 until a reply to a poll with 0 comes
+            if self._reference_unset and not (what == "arm" and value == Arm.DISARM):
+                request[1] = now  # held back: its 3 s start when it goes out
+                continue
             if now - since > self.request_hold_s:
                 self._requests[what] = None
                 self._events.append(RequestExpired(what))
@@ -608,6 +621,7 @@ class Master:
             self._events.append(OrderFateUnknown(self._stop.orphan.order_id, self._stop.orphan.order, now))
             self._stop.orphan = None
         self._ack = Reply.decode(plain).ack
+        self._reference_unset = True  # a new start: its first VELOCITY sets the reference
         self._next_image("the ROV restarted")
         return self.receive(plain, now)
 
@@ -655,6 +669,9 @@ class Master:
 
     def _update_requests(self, reply: Reply, poll: Poll | None, now: float) -> None:
         if poll is not None and isinstance(poll.order, Velocity):
+            # One poll is out at a time, so the ROV took this VELOCITY after
+            # any STOP sent before it: its reference is set now.
+            self._reference_unset = False
             sent = {"arm": poll.order.arm, "mode": poll.order.mode}
             for what, value in sent.items():
                 self._last_seen[what] = value

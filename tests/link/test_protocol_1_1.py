@@ -605,6 +605,23 @@ def test_a_repeated_request_first_sends_the_field_0_until_a_reply_comes():
     assert polls_of(master, 3.2).order.mode == Mode.STABILIZE
 
 
+def test_a_request_right_after_a_stop_waits_for_the_rovs_new_reference():
+    # The first VELOCITY the ROV takes after a STOP only sets its reference:
+    # a MODE riding in it would be swallowed.  So it goes out as 0 first.
+    master = started_master()
+    master.send_order(Stop())
+    assert isinstance(polls_of(master, 3.1).order, Stop)
+    assert of(answer(master, 3.15, hold=True, autopilot=True, mode=Mode.POS_HOLD), StopConfirmed)
+    master.request_mode(Mode.STABILIZE, 3.2)
+    master.request_arm(False, 3.2)
+    poll = polls_of(master, 3.2)
+    assert isinstance(poll.order, Velocity) and poll.order.mode == Mode.KEEP
+    assert poll.order.arm == Arm.DISARM          # a disarm acts whenever it arrives
+    answer(master, 3.25, autopilot=True, mode=Mode.POS_HOLD)
+    assert polls_of(master, 3.3).order.mode == Mode.STABILIZE
+    assert not of(master.take_events(), RequestExpired)
+
+
 def test_the_operator_len_cap_follows_the_last_polls_size():
     master = started_master(idle_size=0)
     polls_of(master, 3.0)
