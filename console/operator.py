@@ -87,11 +87,11 @@ log = logging.getLogger("rovlink.console.operator")
 MODE_NAMES = {m.name: m for m in Mode if 1 <= m <= 6}
 REPORTED_MODE_NAMES = {0: "UNKNOWN", **{int(m): m.name for m in MODE_NAMES.values()}, 7: "OTHER"}
 
-# Link state from replies (PROTOCOL.md §5): no reply for LOST_AFTER_S is a
+# Link state from replies (docs/PROTOCOL.md §5): no reply for LOST_AFTER_S is a
 # lost link; a reply lost or a CRC error within DEGRADED_WINDOW_S degrades it.
 LOST_AFTER_S = 3.0
 DEGRADED_WINDOW_S = 5.0
-ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (PROTOCOL.md §3)
+ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (docs/PROTOCOL.md §3)
 REQUEST_FOLLOW_S = 3.0    # an arm/disarm/mode the vehicle does not follow in this time is refused
 MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
 IMAGE_HISTORY = 24        # pictures kept to look back at (320x240x3 is 230 kB each)
@@ -384,7 +384,7 @@ class Operator:
             self._decoder.shutdown(wait=False, cancel_futures=True)
 
     def authenticate(self, key: bytes) -> None:
-        """Protocol version 2 (PROTOCOL.md §8): every frame authenticated with
+        """Protocol version 2 (docs/PROTOCOL.md §8): every frame authenticated with
         `key`.  Call before `run`.  The recording then also keeps the reply
         payloads the master was given ("reply": authentic, timely, tag
         removed), which is what a replay may show."""
@@ -540,7 +540,7 @@ class Operator:
 
     # When and where was an image captured?  Decision: the console stamps it from
     # the replies; the protocol carries no capture time (bytes are dear, and its
-    # image object is fixed by PROTOCOL.md §4).  The ROV (rov/node.py) captures the
+    # image object is fixed by docs/PROTOCOL.md §4).  The ROV (rov/node.py) captures the
     # next image as the last trunk of the previous one goes out, in the reply that
     # carries it (prefetch), or, when that capture was thrown away (settings
     # changed, too old, an image abandoned, the first image), when a poll asks for
@@ -1059,7 +1059,7 @@ class Operator:
             "lost_after_s": self.lost_after_s,
             "rov_failsafe_s": self.rov_failsafe_s,
             # No poll has reached the ROV for its failsafe time: it has
-            # stopped and holds depth (PROTOCOL.md §3), though it cannot say so.
+            # stopped and holds depth (docs/PROTOCOL.md §3), though it cannot say so.
             "failsafe_inferred": inferred,
             "failsafe_inferred_at": failsafe_at,
             "failsafe_inferred_since": time.strftime("%H:%M:%S", time.localtime(failsafe_at)) if inferred else None,

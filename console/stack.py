@@ -43,7 +43,7 @@ class StackConfig:
     image_settings: ImageSettings = ImageSettings(mono=False, budget_bytes=2000)
     start_depth_m: float = 2.0
     # The link key (32 bytes): protocol version 2, every frame authenticated
-    # (PROTOCOL.md §8).  None: version 1.1, unauthenticated.
+    # (docs/PROTOCOL.md §8).  None: version 1.1, unauthenticated.
     key: bytes | None = None
 
 

@@ -1,4 +1,4 @@
-"""Version 2 of the link: every frame authenticated (PROTOCOL.md §8), without I/O.
+"""Version 2 of the link: every frame authenticated (docs/PROTOCOL.md §8), without I/O.
 
 Goals: a frame made without the key is refused (about 2^-28 per try); a
 recorded frame is refused anywhere but at its one place in its one chain;
@@ -32,9 +32,12 @@ Decisions where §8 is silent (safe side, few bytes):
 - The operator's COUNT starts at a random value (an operator may start it
   anywhere; a random start makes a restarted operator's polls unlike the
   previous process's).
-- The operator judges "late" by the order in which it sent its polls and
-  HELLOs (one counter for both), so a reply to a poll sent before the
-  newest answered one is late even if it is the first answer to it.
+- The operator pairs every reply with the frame it answers by the chain
+  value its tag was made on, never with "the poll it awaits".  One poll or
+  HELLO is out at a time (the token rule, §2), so a reply is timely only
+  when it answers the last frame sent, for the first time, by that frame's
+  own deadline (the master's timeout for that very poll or HELLO, given
+  when it is sealed); anything else is late: counted, never used.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from __future__ import annotations
 import collections
 import hashlib
 import hmac
+import math
 import os
 from dataclasses import dataclass
 from typing import Callable
@@ -172,6 +176,7 @@ class RovCounters:
     replayed_hellos: int = 0
     stale_count: int = 0  # authentic, but its COUNT is not ahead of the last taken
     expired: int = 0  # authentic on a chain value older than the failsafe time
+    bad_hellos: int = 0  # authentic HELLOs with an ORDER other than NONE: a protocol error, no answer
 
 
 class RovChain:
@@ -218,6 +223,9 @@ class RovChain:
         signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
         if contents[0] & HELLO_BIT and len(signed) == HELLO_PAYLOAD + CHALLENGE_BYTES:
             value = _tag_matches(self.key, KIND_HELLO, b"", signed, tag)
+            if value is not None and signed[0] & 0x0F:
+                self.counters.bad_hellos += 1  # §8: a HELLO carries no order
+                return None
             if value is not None:
                 challenge = signed[HELLO_PAYLOAD:]
                 if challenge in self._challenge_set:
@@ -314,6 +322,7 @@ class _Sent:
     number: int
     value: bytes
     sent_at: float
+    deadline: float  # its answer is late after this (the master's timeout for it)
     answered: bool = False
 
 
@@ -324,8 +333,7 @@ class OperatorChain:
         self._random = random_bytes
         self._hellos: collections.deque = collections.deque(maxlen=OPERATOR_KEEP_HELLOS)
         self._polls: collections.deque = collections.deque(maxlen=OPERATOR_KEEP_POLLS)
-        self._number = 0
-        self._newest_answered = -1
+        self._number = 0  # frames sealed: the last one sent is number _number - 1
         self.chain_to: bytes | None = None  # the chain value the next poll is made on
         self.count = random_bytes(1)[0] if count is None else count % 256
         self.boot: bytes | None = None  # the ROV's, from the last SYNC taken
@@ -336,24 +344,27 @@ class OperatorChain:
     def synced(self) -> bool:
         return self.chain_to is not None
 
-    def seal_hello(self, payload: bytes, now: float, challenge: bytes | None = None) -> bytes:
+    def seal_hello(self, payload: bytes, now: float, *, deadline: float = math.inf,
+                   challenge: bytes | None = None) -> bytes:
+        """A HELLO frame; its SYNC is late after `deadline`."""
         if len(payload) != HELLO_PAYLOAD or not payload[0] & HELLO_BIT or payload[0] & 0x0F:
             raise ValueError("a HELLO is a 3-byte poll payload with HELLO set and ORDER NONE")
         challenge = self._random(CHALLENGE_BYTES) if challenge is None else challenge
         signed = payload + challenge
         value = mac(self.key, KIND_HELLO, b"", signed)
-        self._hellos.append(_Sent(self._number, value, now))
+        self._hellos.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.hellos += 1
         return frame(signed + value[:TAG_BYTES])
 
-    def seal_poll(self, payload: bytes, now: float) -> bytes:
+    def seal_poll(self, payload: bytes, now: float, *, deadline: float = math.inf) -> bytes:
+        """A poll frame chained to the last timely answer; its reply is late after `deadline`."""
         if self.chain_to is None:
             raise RuntimeError("no chain yet: send a HELLO and wait for its SYNC")
         signed = payload + bytes((self.count,))
         self.count = (self.count + 1) % 256
         value = mac(self.key, KIND_POLL, self.chain_to, signed)
-        self._polls.append(_Sent(self._number, value, now))
+        self._polls.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.polls += 1
         return frame(signed + value[:TAG_BYTES])
@@ -366,9 +377,10 @@ class OperatorChain:
         return (any(_tag_matches(self.key, KIND_REPLY, s.value, signed, tag) for s in self._polls)
                 or any(_tag_matches(self.key, KIND_SYNC, s.value, signed, tag) for s in self._hellos))
 
-    def open_reply(self, contents: bytes, now: float, timeout_s: float) -> ReplyIn | None:
+    def open_reply(self, contents: bytes, now: float) -> ReplyIn | None:
         """An authentic reply or SYNC (possibly `late`: count it, never use it),
-        or None for an inauthentic one (counted)."""
+        or None for an inauthentic one (counted).  Timely: it answers the last
+        poll or HELLO sent, for the first time, by that frame's deadline."""
         if len(contents) > TAG_BYTES:
             signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
             if len(signed) == SYNC_PAYLOAD + NONCE_BYTES and signed[13] & SYNC_BIT:
@@ -376,24 +388,23 @@ class OperatorChain:
                     value = _tag_matches(self.key, KIND_SYNC, sent.value, signed, tag)
                     if value is not None:
                         return self._answered(sent, value, signed[:SYNC_PAYLOAD], True,
-                                              signed[SYNC_PAYLOAD:SYNC_PAYLOAD + BOOT_BYTES], now, timeout_s)
+                                              signed[SYNC_PAYLOAD:SYNC_PAYLOAD + BOOT_BYTES], now)
             else:
                 for sent in reversed(self._polls):
                     value = _tag_matches(self.key, KIND_REPLY, sent.value, signed, tag)
                     if value is not None:
-                        return self._answered(sent, value, signed, False, None, now, timeout_s)
+                        return self._answered(sent, value, signed, False, None, now)
         self.counters.inauthentic += 1
         return None
 
     def _answered(self, sent: _Sent, value: bytes, payload: bytes, sync: bool, boot: bytes | None,
-                  now: float, timeout_s: float) -> ReplyIn:
+                  now: float) -> ReplyIn:
         self.last_authentic_at = now
-        late = sent.answered or sent.number < self._newest_answered or now - sent.sent_at > timeout_s
+        late = sent.answered or sent.number != self._number - 1 or now > sent.deadline
         if late:
             self.counters.late += 1
         else:
             sent.answered = True
-            self._newest_answered = sent.number
             self.chain_to = value
             if sync:
                 self.boot = boot

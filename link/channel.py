@@ -1,4 +1,4 @@
-"""A narrow wireless channel between two endpoints, emulated (PROTOCOL.md §7).
+"""A narrow wireless channel between two endpoints, emulated (docs/PROTOCOL.md §7).
 
 Goals: reproduce what a 1-2 kbit/s RF or acoustic modem does to the bytes,
 after the link models of ns-3 and UWSim: serialisation at the bitrate, an

@@ -1,5 +1,5 @@
 """`rovlink channel`: the channel emulator as a process between two endpoints.
-`rovlink keygen`: a new key for the authenticated link (PROTOCOL.md §8)."""
+`rovlink keygen`: a new key for the authenticated link (docs/PROTOCOL.md §8)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Framing of PROTOCOL.md §1: start byte, length, payload, CRC-16/CCITT-FALSE.
+"""Framing of docs/PROTOCOL.md §1: start byte, length, payload, CRC-16/CCITT-FALSE.
 
 Goals: never lose a true frame to line noise, never hand up a frame whose CRC
 fails, and never block on bytes that may never come.

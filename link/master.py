@@ -1,4 +1,4 @@
-"""The operator's end of the link (PROTOCOL.md §2–5), without I/O.
+"""The operator's end of the link (docs/PROTOCOL.md §2–5), without I/O.
 
 Goals: the pilot's freshest wish reaches the ROV every cycle; every one-shot
 order runs exactly once whatever is lost; the image arrives as fast as the
@@ -19,7 +19,7 @@ a STOP the pilot cancelled), `OrderNotSent` (queued orders a STOP cancelled),
 (`ImageAbandoned` also when the ROV restarts an image: FIRST over a partial
 copy) and `ReplyLost`.
 
-Rules of PROTOCOL.md 1.1 kept here: one one-shot order pending at a time,
+Rules of docs/PROTOCOL.md 1.1 kept here: one one-shot order pending at a time,
 sent with SEQ = not ACK until a reply's ACK equals it, the wish in every other
 poll meanwhile; every other poll carries SEQ = ACK; no one-shot order until 3 s
 after the first reply (STOP as soon as there is one); STOP in every poll until
@@ -31,7 +31,7 @@ that field 0; after the start, a STOP or a restarted ROV's SYNC, requests
 VELOCITY the ROV takes then only sets its reference); the receive LEN cap
 follows the last poll's SIZE.
 
-Decisions where PROTOCOL.md is silent:
+Decisions where docs/PROTOCOL.md is silent:
 - A STOP pressed while one is being sent joins it: both ids are confirmed,
   shown not carried out or cancelled together.
 - A STOP whose replies show AUTOPILOT 0 is reported (`StopNotCarriedOut`)
@@ -41,7 +41,8 @@ Decisions where PROTOCOL.md is silent:
   reports it (taken or rejected); when the STOP is confirmed or cancelled
   without such a flip it is reported `OrderCancelled` ("not taken").
 - SIZE class: while steering (a non-neutral wish, or one changed within
-  `steer_hold_s`) the small `steering_size`, for a short command cycle.
+  `steer_hold_s`) or sending a STOP, the small `steering_size`, for a short
+  command cycle.
   Otherwise the class with the best expected goodput for the bit error rate
   the master has observed (lost replies per bit sent); at a clean link that
   is SIZE 3, at BER 1e-3 it is SIZE 1.
@@ -60,6 +61,7 @@ Decisions where PROTOCOL.md is silent:
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import random
 from dataclasses import dataclass, field
@@ -104,7 +106,7 @@ class OrderAcknowledged:
 
 @dataclass(frozen=True)
 class OrderRejected:
-    """The ROV took the order (ACK flipped) and rejected it: PROTOCOL.md §3 REASON."""
+    """The ROV took the order (ACK flipped) and rejected it: docs/PROTOCOL.md §3 REASON."""
 
     order_id: int
     order: object
@@ -428,18 +430,26 @@ class Master:
     def awaiting_reply(self) -> bool:
         return self._awaiting is not None
 
+    def release_token(self, now: float) -> bool:
+        """Whether the token is ours at `now`: no poll awaits its reply, or its
+        deadline has passed (then the reply is counted lost, `ReplyLost`)."""
+        if self._awaiting is None:
+            return True
+        deadline = self.deadline()
+        assert deadline is not None
+        if now < deadline:
+            return False
+        self._reply_lost(now)
+        return True
+
     # ------------------------------------------------------------------
     # Sending
     # ------------------------------------------------------------------
 
     def next_poll(self, now: float) -> bytes | None:
         """The next poll frame if the token is ours at `now`, else None."""
-        if self._awaiting is not None:
-            deadline = self.deadline()
-            assert deadline is not None
-            if now < deadline:
-                return None
-            self._reply_lost(now)
+        if not self.release_token(now):
+            return None
         poll = self._build_poll(now)
         frame = encode_frame(poll.encode())
         expected = self._expected_reply_bytes(poll)
@@ -512,7 +522,8 @@ class Master:
         return not self._wish.is_neutral or now - self._wish_changed_at < self.steer_hold_s
 
     def _choose_size(self, now: float) -> int:
-        if self.steering(now):
+        if self.steering(now) or self._stop is not None:
+            # A STOP's answer comes as fast as a steering poll's (its reply short).
             size = self.steering_size
         elif self.idle_size is not None:
             size = self.idle_size
@@ -596,34 +607,45 @@ class Master:
         events.extend(self.take_events())
         return events
 
-    def on_sync(self, payload: bytes, restarted: bool, now: float) -> list[object]:
-        """Version 2 (§8): a SYNC reply to our HELLO, with `restarted` when its
-        BOOT differs from the last one.  The same ROV: a reply like any other
-        (its ACK and REJECTED judge a pending order).  A restarted ROV: every
-        partial image is discarded, ACK is taken from the SYNC, an order sent
-        and not answered has an unknown fate and is not sent again, queued
-        orders are not sent; a STOP goes on until confirmed."""
+    def on_sync(self, payload: bytes, restarted: bool, now: float, round_trip_s: float | None = None) -> list[object]:
+        """Version 2 (§8): a SYNC reply to our HELLO (the chain paired them),
+        with `restarted` when its BOOT differs from the last one.  It answers
+        the HELLO, not a poll: it shows the ROV's status and gives its ACK,
+        but confirms no STOP, settles no order and clears no ARM/MODE request
+        (the next reply to a poll does that: its ACK still names the same
+        order).  A restarted ROV: every partial image is discarded, ACK is
+        taken from the SYNC, an order sent and not answered has an unknown
+        fate and is not sent again, queued orders are not sent, ARM/MODE
+        requests wait for a reply to a VELOCITY poll; a STOP goes on until
+        confirmed."""
         try:
-            Reply.decode(payload, allow_sync=True)
+            reply = dataclasses.replace(Reply.decode(payload, allow_sync=True), sync=False)
         except ProtocolError:
             self.stats.protocol_errors += 1
             return self.take_events()
-        plain = bytes(payload[:13]) + bytes((payload[13] & 0xFE,)) + bytes(payload[14:])
-        if not restarted:
-            return self.receive(plain, now)
-        for pending in list(self._orders):
-            if pending.sent:
-                self._events.append(OrderFateUnknown(pending.order_id, pending.order, now))
-            else:
-                self._events.append(OrderNotSent(pending.order_id, pending.order, "the ROV restarted"))
-        self._orders.clear()
-        if self._stop is not None and self._stop.orphan is not None:
-            self._events.append(OrderFateUnknown(self._stop.orphan.order_id, self._stop.orphan.order, now))
-            self._stop.orphan = None
-        self._ack = Reply.decode(plain).ack
-        self._reference_unset = True  # a new start: its first VELOCITY sets the reference
-        self._next_image("the ROV restarted")
-        return self.receive(plain, now)
+        if restarted:
+            for pending in list(self._orders):
+                if pending.sent:
+                    self._events.append(OrderFateUnknown(pending.order_id, pending.order, now))
+                else:
+                    self._events.append(OrderNotSent(pending.order_id, pending.order, "the ROV restarted"))
+            self._orders.clear()
+            if self._stop is not None and self._stop.orphan is not None:
+                self._events.append(OrderFateUnknown(self._stop.orphan.order_id, self._stop.orphan.order, now))
+                self._stop.orphan = None
+            self._reference_unset = True  # a new start: its first VELOCITY sets the reference
+            self._next_image("the ROV restarted")
+        # The same ROV: its ACK is the one the next reply will show too, so a
+        # pending order's SEQ is unchanged and that reply settles it.
+        self._ack = reply.ack
+        self.stats.replies += 1
+        self.stats.last_round_trip_s = round_trip_s
+        self._last_reply = reply
+        if self._first_reply_at is None:
+            self._first_reply_at = now  # §3: the 3 s start rule counts from the first SYNC
+        events = self.take_events()
+        events.append(PoseReceived(reply, now, round_trip_s))
+        return events
 
     def _update_ack(self, reply: Reply, now: float) -> list[object]:
         events: list[object] = []

@@ -1,4 +1,4 @@
-"""Payloads of PROTOCOL.md §2–5: the poll (operator → ROV) and the reply.
+"""Payloads of docs/PROTOCOL.md §2–5: the poll (operator → ROV) and the reply.
 
 Goals: one dataclass per thing on the wire, each able to `encode()` itself to
 the exact payload bytes and to be rebuilt by `decode(payload)`; an illegal
@@ -9,7 +9,7 @@ Plan: the orders (`Velocity`, `Position`, `ImageSettings`, `Stop`, `NoOrder`,
 not be sent can never be constructed.  `Poll` and `Reply` carry the header
 fields and delegate the order body to the order classes.
 
-Two kinds of bad payload (PROTOCOL.md §1 (1.1)):
+Two kinds of bad payload (docs/PROTOCOL.md §1 (1.1)):
 - A structural fault raises `ProtocolError` (the receiver counts it and
   ignores the frame): a body length that does not match its ORDER, a
   reserved bit set (poll bit 6 in 1.1, VELOCITY byte 0 bits 5–3, POSITION
@@ -22,11 +22,13 @@ Two kinds of bad payload (PROTOCOL.md §1 (1.1)):
   -18000..18000; IMAGE X1 <= X0 or Y1 <= Y0 (unless all four are zero),
   BUDGET above 8189.  The order dataclasses refuse such values when built.
 
-Decisions where PROTOCOL.md is silent (kept strict: a frame whose bits are
+Decisions where docs/PROTOCOL.md is silent (kept strict: a frame whose bits are
 not exactly as specified is refused rather than guessed at):
 - Reply: a trunk at OFFSET 0 without FIRST is a structural fault too (§5:
-  FIRST is set exactly when the trunk starts at offset 0); angles outside
-  -18000..18000 centidegrees are errors.  REASON 3, or a REASON without
+  FIRST is set exactly when the trunk starts at offset 0).  An angle outside
+  -18000..18000 centidegrees is a value out of range, not a fault (§5): the
+  reply decodes with ATTITUDE_VALID cleared and roll, pitch and yaw 0 (the
+  attitude is unknown), the rest of it used.  REASON 3, or a REASON without
   REJECTED, decodes as it is (shown as unknown, not an error).
 - Reserved order codes 5–15 decode to `ReservedOrder` with the body that
   follows (at most 9 bytes).
@@ -45,6 +47,7 @@ MAX_BUDGET = MAX_OBJECT - 2
 SIZE_CLASS_BYTES = (24, 48, 96, 239)
 REPLY_HEADER = 14  # reply payload bytes without image data
 REPLY_IMAGE_HEADER = 16  # reply payload bytes before the trunk
+ATTITUDE_VALID_BIT = 0x10  # reply byte 13
 
 
 class ProtocolError(ValueError):
@@ -504,6 +507,10 @@ class Reply:
             head >> 7, (head >> 6) & 1, (head >> 5) & 1, (head >> 4) & 1, (head >> 3) & 1, head & 0x7
         )
         x, y, z, roll, pitch, yaw, status = struct.unpack(">hhhhhhB", payload[1:14])
+        if any(abs(a) > 18000 for a in (roll, pitch, yaw)):
+            # §5: out of range is not a fault: the attitude is unknown, the rest stands.
+            roll = pitch = yaw = 0
+            status &= ~ATTITUDE_VALID_BIT & 0xFF
         if status & 0x01 and not allow_sync:
             raise ProtocolError("reply SYNC must be 0 in version 1.1")
         img = offset = None

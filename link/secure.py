@@ -1,4 +1,4 @@
-"""Version 2 of the link around the version 1.1 state machines (PROTOCOL.md §8).
+"""Version 2 of the link around the version 1.1 state machines (docs/PROTOCOL.md §8).
 
 Goals: the master and the slave keep deciding everything version 1.1
 decides (orders, ACK, images, failsafe); version 2 only decides which frames
@@ -22,9 +22,9 @@ they wrap:
   dropped: the master then sees its poll unanswered, as §8 asks.
 
 Decisions where §8 is silent:
-- The SYNC is handed to the master as the reply to a HELLO (`on_sync` when
-  the master has it, else as an ordinary reply with SYNC cleared, which gives
-  it the ACK and the status the SYNC carries).
+- The SYNC is handed to the master as the answer to a HELLO (`on_sync`):
+  it gives the master the ROV's status and ACK, and confirms no STOP, settles
+  no order and clears no ARM/MODE request (a reply to a poll does that).
 - The master's timeouts count the 5 (poll) and 4 (reply) bytes version 2
   adds: its margin grows by their air time.
 """
@@ -43,7 +43,7 @@ from .auth import (
     PollIn,
     RovChain,
 )
-from .frame import OVERHEAD
+from .frame import MAX_FRAME, OVERHEAD
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
@@ -115,8 +115,10 @@ class SecureSlave(_Wrapper):
     def __init__(self, slave, key: bytes, *, boot: bytes | None = None) -> None:
         object.__setattr__(self, "_inner", slave)
         self.slave = slave
-        # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2).
-        slave.max_frame = min(slave.max_frame, 259 - REPLY_EXTRA)
+        # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2,
+        # and a link's maximum frame size counts the tag).
+        _check_max_frame(slave.max_frame)
+        slave.max_frame = min(slave.max_frame, MAX_FRAME) - REPLY_EXTRA
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=MAX_POLL_LEN)
 
@@ -138,8 +140,11 @@ class SecureSlave(_Wrapper):
         replies = []
         before = self.decoder.counters.inauthentic
         for contents in self.decoder.feed(data):
+            bad_hellos = self.chain.counters.bad_hellos
             got = self.chain.check_poll(contents, now)
-            if isinstance(got, HelloIn):
+            if got is None and self.chain.counters.bad_hellos != bad_hellos:
+                self.slave.stats.protocol_errors += 1  # a HELLO with an order: authentic, not answered
+            elif isinstance(got, HelloIn):
                 replies.append(self.chain.seal_sync(self._sync_payload(), got, now))
             elif isinstance(got, PollIn):
                 one = self.slave.receive(got.payload, now)
@@ -162,11 +167,14 @@ class SecureMaster(_Wrapper):
         object.__setattr__(self, "_inner", master)
         self.master = master
         master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
-        master.max_frame = min(master.max_frame, 259 - REPLY_EXTRA)  # the trunks the slave will send
+        # §8: the link's maximum frame size counts the tag, so the trunks the
+        # slave sends are 4 bytes shorter (SIZE 3: 235 bytes).
+        _check_max_frame(master.max_frame)
+        master.max_frame = min(master.max_frame, MAX_FRAME) - REPLY_EXTRA
         self.chain = OperatorChain(key)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=self._max_reply_len)
         self.stats2 = SecureStats()
-        self._hello_deadline: float | None = None
+        self._hello_deadline: float | None = None  # a HELLO holds the token until then
         self._last_was_hello = False
         self._events: list[object] = []
         self._last_size = 3
@@ -201,23 +209,27 @@ class SecureMaster(_Wrapper):
     # -- sending -----------------------------------------------------------
 
     def next_poll(self, now: float) -> bytes | None:
+        # The token rule (§2) holds for HELLOs too: nothing goes out while a
+        # poll or a HELLO awaits its answer or its deadline.
         if self._hello_deadline is not None:
             if now < self._hello_deadline:
                 return None
             self._hello_deadline = None  # no SYNC in time
+        if not self.master.release_token(now):
+            return None
         hello = not self.chain.synced or (self._silent_too_long(now) and not self._last_was_hello)
         if hello:
             self._last_was_hello = True
             self._hello_deadline = now + self.hello_timeout()
             self.stats2.hellos_sent += 1
-            return self.chain.seal_hello(HELLO_PAYLOAD, now)
+            return self.chain.seal_hello(HELLO_PAYLOAD, now, deadline=self._hello_deadline)
         frame = self.master.next_poll(now)
         if frame is None:
             return None
         self._last_was_hello = False
         payload = frame[2:-2]
         self._last_size = (payload[0] >> 4) & 0x03
-        return self.chain.seal_poll(payload, now)
+        return self.chain.seal_poll(payload, now, deadline=self.master.deadline())
 
     def take_events(self) -> list[object]:
         events, self._events = self._events, []
@@ -237,8 +249,11 @@ class SecureMaster(_Wrapper):
         return events
 
     def receive(self, contents: bytes, now: float) -> list[object]:
-        timeout = self.hello_timeout() if self._hello_deadline is not None else self._poll_timeout()
-        got = self.chain.open_reply(contents, now, max(timeout, self.hello_timeout()))
+        """One frame's contents.  The chain pairs it with the poll or HELLO it
+        answers: only an answer to the last one sent, within that frame's own
+        deadline, reaches the master (a SYNC as a SYNC, never as the answer
+        to a poll); anything else is late and confirms nothing."""
+        got = self.chain.open_reply(contents, now)
         if got is None:
             self.stats2.inauthentic += 1
             return [InauthenticFrame("reply")]
@@ -249,18 +264,18 @@ class SecureMaster(_Wrapper):
             self.on_reply(got.payload, got.sync, now)
         if not got.sync:
             return self.master.receive(got.payload, now)
-        self._hello_deadline = None
+        self._hello_deadline = None  # the HELLO is answered: the token is ours
         first = self.stats2.syncs == 0
         restarted = not first and got.boot != self._boot
         self._boot = got.boot
         self.stats2.syncs += 1
         self.stats2.restarts_seen += restarted
         events: list[object] = [Synced(got.boot, restarted, first)]
-        on_sync = getattr(self.master, "on_sync", None)
-        if on_sync is not None:
-            events.extend(on_sync(got.payload, restarted, now))
-        else:
-            payload = bytearray(got.payload)
-            payload[13] &= ~SYNC_BIT & 0xFF
-            events.extend(self.master.receive(bytes(payload), now))
+        events.extend(self.master.on_sync(got.payload, restarted, now, now - got.sent_at))
         return events
+
+
+def _check_max_frame(max_frame: int) -> None:
+    if max_frame < SYNC_FRAME_BYTES:
+        raise ValueError(f"version 2 needs a maximum frame size of at least {SYNC_FRAME_BYTES} bytes "
+                         f"(a SYNC reply), got {max_frame}")

@@ -1,4 +1,4 @@
-"""The ROV's end of the link (PROTOCOL.md §2–5, version 1.1), without I/O.
+"""The ROV's end of the link (docs/PROTOCOL.md §2–5, version 1.1), without I/O.
 
 Goals: answer every valid poll at once and no corrupted one; run each
 one-shot order at most once and report its outcome (ACK flips when it is
@@ -33,7 +33,7 @@ Events for the node:
 - `WishInvalid(why)`: a VELOCITY with -128, ARM 3 or MODE 7 (applied as neutral).
 - `ImageWanted`, `ImageDelivered`, `FailsafeEntered`, `FailsafeCleared`.
 
-Decisions where PROTOCOL.md is silent:
+Decisions where docs/PROTOCOL.md is silent:
 - A structural fault (§1) is counted and not answered.  A reserved order
   code (5–15) is handled like an invalid order: rejected with REASON 0 and its
   poll does not feed the failsafe timer (it did not decode to an order this
@@ -134,7 +134,7 @@ class OrderExecuted:
 @dataclass(frozen=True)
 class OrderRejected:
     code: int
-    reason: int  # PROTOCOL.md §3 REASON
+    reason: int  # docs/PROTOCOL.md §3 REASON
     why: str
 
 

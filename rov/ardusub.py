@@ -34,7 +34,7 @@ SubMode.__doc__ = "ArduSub's custom mode numbers (HEARTBEAT.custom_mode), from p
 # Protocol names that ArduSub spells differently.
 _ARDUSUB_NAME = {"DEPTH_HOLD": "ALT_HOLD", "POS_HOLD": "POSHOLD"}
 
-# Protocol MODE (PROTOCOL.md §2 VELOCITY, §5 reply) -> ArduSub's mode, for 1..6.
+# Protocol MODE (docs/PROTOCOL.md §2 VELOCITY, §5 reply) -> ArduSub's mode, for 1..6.
 PROTOCOL_TO_SUB: dict[int, SubMode] = {
     int(mode): SubMode[_ARDUSUB_NAME.get(mode.name, mode.name)]
     for mode in Mode

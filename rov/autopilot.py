@@ -66,7 +66,7 @@ API (all methods thread-safe and non-blocking, safe to call from asyncio code)
                                           # velocity until failsafe(False).
     bridge.snapshot() -> AutopilotSnapshot   # frozen; see rov.telemetry.
   Ticket.status is "pending", "accepted", "failed" or "cancelled"; .reason says why
-  in words; .reject_reason is PROTOCOL.md §3's REASON for a failed one (1 impossible
+  in words; .reject_reason is docs/PROTOCOL.md §3's REASON for a failed one (1 impossible
   now, 2 the autopilot refused or did not answer within 2 s); .done once it is not
   pending; .wait(timeout_s) blocks (threads and tests only).  GotoTicket adds
   .target (the resolved absolute target) and .reached.  "cancelled" means

@@ -25,7 +25,7 @@ from __future__ import annotations
 import signal
 import threading
 
-from rovlink.command import CommandError, add_key_arguments, link_key, positive
+from rovlink.command import CommandError, add_key_arguments, check_frame_size, link_key, positive
 
 STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
@@ -104,6 +104,7 @@ def run_rov(args) -> int:
     except TransportError as exc:
         raise CommandError(str(exc)) from None
     key = link_key(args)  # None: --insecure, protocol version 1.1
+    check_frame_size(endpoint, key)
     try:
         camera = open_camera(args.camera)
     except (CameraError, ValueError) as exc:

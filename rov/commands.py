@@ -4,7 +4,7 @@ tracker the bridge drives, and the tickets the node polls.
 Goals
 - Every request the ROV makes of ArduSub (arm, disarm, mode change, message
   interval) ends in exactly one known outcome: accepted, failed with a reason the
-  node can map to PROTOCOL.md §3's REASON, or cancelled.
+  node can map to docs/PROTOCOL.md §3's REASON, or cancelled.
 - No clock, no socket, no thread: the bridge hands in `now` and MAVLink's answers,
   and gets back what to send (as `link.master` is driven).
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 from rovlink.rov.ardusub import MAV_RESULT_NAMES, mavlink
 
-# PROTOCOL.md §3 REASON for a rejected order.
+# docs/PROTOCOL.md §3 REASON for a rejected order.
 REASON_INVALID = 0
 REASON_IMPOSSIBLE = 1  # impossible now: no position estimate, no autopilot, disarmed
 REASON_REFUSED = 2  # the autopilot refused, or gave no answer in time
@@ -61,7 +61,7 @@ class Ticket:
 
     @property
     def reject_reason(self) -> int | None:
-        """For a failed ticket, PROTOCOL.md §3's REASON: 1 impossible now, 2 refused."""
+        """For a failed ticket, docs/PROTOCOL.md §3's REASON: 1 impossible now, 2 refused."""
         return self._reject_reason
 
     @property

@@ -1,4 +1,4 @@
-"""The position order (PROTOCOL.md §2 POSITION) as ArduSub's GUIDED mode flies it,
+"""The position order (docs/PROTOCOL.md §2 POSITION) as ArduSub's GUIDED mode flies it,
 without I/O.
 
 Goals
@@ -20,7 +20,7 @@ Plan
 - The order ends with `cancel` (STOP, a mode request, a newer order) or when the
   autopilot leaves GUIDED by itself.
 - A GUIDED that the autopilot accepts after the order failed for want of an answer
-  (PROTOCOL.md §3: an answer after the 2 s) sets `brake_wanted`: the bridge brakes
+  (docs/PROTOCOL.md §3: an answer after the 2 s) sets `brake_wanted`: the bridge brakes
   as for STOP, since nobody flies that GUIDED any more.
 """
 

@@ -9,9 +9,9 @@ Plan: one asyncio loop runs `link.aio.run_slave` on the modem's Endpoint and
 a 10 Hz task that copies the bridge's snapshot into the slave's status.  The
 slave's events are turned into bridge calls here.  Images are captured and
 encoded in one worker thread; the result is handed to the slave from the
-loop, and until then the slave answers without image data (PROTOCOL.md §4).
+loop, and until then the slave answers without image data (docs/PROTOCOL.md §4).
 
-The slave decides what the protocol means (PROTOCOL.md 1.1: ARM/MODE acted
+The slave decides what the protocol means (docs/PROTOCOL.md 1.1: ARM/MODE acted
 on when they change, HOLD, the velocity lapse, the failsafe); the node turns
 its events into bridge calls and reports the autopilot's answers back:
 `OrderStarted` -> `bridge.goto(...)`, whose ticket is watched (10 Hz) and

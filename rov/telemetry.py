@@ -2,7 +2,7 @@
 
 Goals
 - One frozen `AutopilotSnapshot` for the node's reply, with every field's validity
-  as PROTOCOL.md §5 defines it: AUTOPILOT = a HEARTBEAT within 3 s;
+  as docs/PROTOCOL.md §5 defines it: AUTOPILOT = a HEARTBEAT within 3 s;
   POSITION_VALID = a LOCAL_POSITION_NED received in the last second;
   ATTITUDE_VALID = an ATTITUDE from the autopilot less than 1 s old.
 - After an autopilot loss, or when an autopilot is (re)found, values from before

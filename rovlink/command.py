@@ -51,6 +51,17 @@ def link_key(args):
         raise CommandError(str(exc)) from None
 
 
+def check_frame_size(endpoint, key) -> None:
+    """Version 2 needs frames of at least a SYNC reply (docs/PROTOCOL.md §8): a
+    smaller `mtu` is a CommandError before anything starts."""
+    from rovlink.link.secure import SYNC_FRAME_BYTES
+
+    max_frame = getattr(endpoint, "max_frame", None)
+    if key is not None and max_frame is not None and max_frame < SYNC_FRAME_BYTES:
+        raise CommandError(f"mtu={max_frame}: link version 2 needs frames of at least {SYNC_FRAME_BYTES} bytes "
+                           f"(a SYNC reply); raise the mtu, or use --insecure (version 1.1)")
+
+
 def add_key_arguments(p) -> None:
     p.add_argument("--key", metavar="FILE",
                    help="the link key (rovlink keygen FILE): protocol version 2, every frame authenticated")

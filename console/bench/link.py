@@ -2,7 +2,7 @@
 
 For each bit error rate and for three protocol modes ("rovlink": adaptive SIZE
 classes and receiver-driven retransmission, version 1.1; "rovlink v2": the
-same with every frame authenticated, PROTOCOL.md §8, 9 bytes more per cycle
+same with every frame authenticated, docs/PROTOCOL.md §8, 9 bytes more per cycle
 and a HELLO/SYNC to start; "paper": fixed 40-byte trunks and no
 retransmission, one lost trunk losing the image) two sessions are run with
 the real Master, Slave and Channel:
@@ -118,7 +118,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
             sim.at(now + change_s, change)
 
         # A pilot starts from centred sticks: the ROV ignores non-zero wishes
-        # until a neutral one has arrived (HOLD at start, PROTOCOL.md §5).
+        # until a neutral one has arrived (HOLD at start, docs/PROTOCOL.md §5).
         sim.at(2.0, change)
     sim.run_until(duration_s)
     result.replies_lost = master.stats.replies_lost

@@ -43,13 +43,14 @@ def run(args) -> int:
 
     from .serve import default_record_path, serve_operator
 
-    from rovlink.command import link_key
+    from rovlink.command import check_frame_size, link_key
 
     try:
         endpoint = open_transport(args.link)
     except TransportError as exc:
         raise CommandError(str(exc)) from None
     key = link_key(args)
+    check_frame_size(endpoint, key)
     record = None if args.no_record else (args.record or default_record_path())
 
     async def main() -> None:

@@ -44,7 +44,7 @@ def run(args) -> int:
     record = None if args.no_record else (args.record or default_record_path())
     import os
 
-    # Both ends run here: a throwaway key for this session (PROTOCOL.md §8).
+    # Both ends run here: a throwaway key for this session (docs/PROTOCOL.md §8).
     key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
                          camera=args.camera, record=record, key=key,

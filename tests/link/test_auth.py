@@ -1,4 +1,4 @@
-"""Version 2's authenticated chain (PROTOCOL.md §8): the test vectors byte for
+"""Version 2's authenticated chain (docs/PROTOCOL.md §8): the test vectors byte for
 byte, what each end takes and refuses, key files, and the framing that
 delivers an authentic frame early."""
 
@@ -65,7 +65,7 @@ def test_the_section_8_vectors_byte_for_byte():
     assert isinstance(got, HelloIn) and got.chain.hex() == CHAINS[0]
     sync = rov.seal_sync(SYNC_PAYLOAD, got, 0.01)
     assert sync == wire(SYNC)
-    answer = op.open_reply(contents(sync), 0.02, timeout_s=1.0)
+    answer = op.open_reply(contents(sync), 0.02)
     assert answer.sync and not answer.late and answer.boot == wire("12 34 56 78")
     assert op.chain_to.hex() == CHAINS[1]
     poll = op.seal_poll(VELOCITY_PAYLOAD, 0.03)
@@ -75,7 +75,7 @@ def test_the_section_8_vectors_byte_for_byte():
     rov.take(taken, 0.04)
     reply = rov.seal_reply(REPLY_PAYLOAD, taken, 0.05)
     assert reply == wire(REPLY)
-    answer = op.open_reply(contents(reply), 0.06, timeout_s=1.0)
+    answer = op.open_reply(contents(reply), 0.06)
     assert answer.payload == REPLY_PAYLOAD and not answer.late and op.chain_to.hex() == CHAINS[3]
 
 
@@ -93,7 +93,7 @@ def _session(n_polls: int = 5):
     frames.append(("hello", hello))
     sync = rov.seal_sync(SYNC_PAYLOAD, rov.check_poll(contents(hello), 0.0), 0.0)
     frames.append(("sync", sync))
-    op.open_reply(contents(sync), 0.0, 1.0)
+    op.open_reply(contents(sync), 0.0)
     t = 0.1
     for _ in range(n_polls):
         poll = op.seal_poll(VELOCITY_PAYLOAD, t)
@@ -103,7 +103,7 @@ def _session(n_polls: int = 5):
         rov.take(taken, t)
         reply = rov.seal_reply(REPLY_PAYLOAD, taken, t)
         frames.append(("reply", reply))
-        assert not op.open_reply(contents(reply), t + 0.05, 1.0).late
+        assert not op.open_reply(contents(reply), t + 0.05).late
         t += 0.2
     return op, rov, frames, t
 
@@ -148,24 +148,55 @@ def test_an_authentic_poll_that_does_not_parse_moves_no_reference():
 
 def test_the_operator_never_uses_a_late_or_inauthentic_reply():
     op, rov, _, t = _session(1)
-    p1 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t)), t)
+    p1 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t, deadline=t + 0.5)), t)
     rov.take(p1, t)
     r1 = rov.seal_reply(REPLY_PAYLOAD, p1, t)
-    p2 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 1.0)), t + 1.0)
+    p2 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 1.0, deadline=t + 1.5)), t + 1.0)
     rov.take(p2, t + 1.0)
     r2 = rov.seal_reply(REPLY_PAYLOAD, p2, t + 1.0)
-    assert not op.open_reply(contents(r2), t + 1.1, 0.5).late
+    assert not op.open_reply(contents(r2), t + 1.1).late
     chained = op.chain_to
-    assert op.open_reply(contents(r1), t + 1.2, 0.5).late  # answers an older poll than one answered
-    assert op.open_reply(contents(r2), t + 1.2, 0.5).late  # answered already
+    assert op.open_reply(contents(r1), t + 1.2).late  # answers an older poll than the last sent
+    assert op.open_reply(contents(r2), t + 1.2).late  # answered already
     assert op.chain_to == chained
-    p3 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 2.0)), t + 2.0)
+    p3 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t + 2.0, deadline=t + 2.5)), t + 2.0)
     rov.take(p3, t + 2.0)
-    assert op.open_reply(contents(rov.seal_reply(REPLY_PAYLOAD, p3, t + 2.0)), t + 3.0, 0.5).late  # past timeout
+    assert op.open_reply(contents(rov.seal_reply(REPLY_PAYLOAD, p3, t + 2.0)), t + 2.6).late  # past its deadline
     forged = bytearray(contents(r2))
     forged[3] ^= 1
-    assert op.open_reply(bytes(forged), t + 3.1, 0.5) is None
+    assert op.open_reply(bytes(forged), t + 3.1) is None
     assert op.counters.late == 3 and op.counters.inauthentic == 1
+
+
+def test_a_reply_to_a_poll_before_the_last_sent_is_late_even_unanswered():
+    """One poll at a time: a reply held back past the next poll answers a poll
+    that is no longer the present, even if nothing answered it yet (issue 16)."""
+    op, rov, _, t = _session(1)
+    p1 = rov.check_poll(contents(op.seal_poll(VELOCITY_PAYLOAD, t, deadline=t + 0.5)), t)
+    rov.take(p1, t)
+    held = rov.seal_reply(REPLY_PAYLOAD, p1, t)  # the radio keeps it
+    op.seal_poll(VELOCITY_PAYLOAD, t + 0.5, deadline=t + 1.0)  # the resend, after p1's deadline
+    answer = op.open_reply(contents(held), t + 0.6)  # within p1's own timeout of the resend, but not p1's
+    assert answer is not None and answer.late
+
+
+def test_a_sync_after_its_hellos_deadline_is_late():
+    op, rov, _, t = _session(1)
+    hello = op.seal_hello(wire("40 1f ff"), t, deadline=t + 0.58)
+    sync = rov.seal_sync(SYNC_PAYLOAD, rov.check_poll(contents(hello), t), t)
+    boot = op.boot
+    answer = op.open_reply(contents(sync), t + 1.0)
+    assert answer.late and op.boot == boot
+
+
+def test_a_hello_with_an_order_is_a_protocol_error_and_gets_no_sync():
+    op, rov = OperatorChain(K), RovChain(K)
+    hello = bytearray(op.seal_hello(wire("40 1f ff"), 0.0))
+    # An authentic HELLO carrying STOP (ORDER 4): made with the key, as a buggy operator would.
+    signed = bytes((0x44, 0x1F, 0xFF)) + bytes(hello[5:13])
+    tag = mac(K, b"H", b"", signed)[:4]
+    assert rov.check_poll(signed + tag, 0.0) is None
+    assert rov.counters.bad_hellos == 1 and rov.counters.hellos == 0
 
 
 def test_a_restarted_rov_is_known_by_its_boot():
@@ -174,7 +205,7 @@ def test_a_restarted_rov_is_known_by_its_boot():
     hello = op.seal_hello(wire("40 1f ff"), t)
     sync = new_rov.seal_sync(SYNC_PAYLOAD, new_rov.check_poll(contents(hello), t), t)
     old_boot = op.boot
-    answer = op.open_reply(contents(sync), t + 0.1, 1.0)
+    answer = op.open_reply(contents(sync), t + 0.1)
     assert answer.sync and answer.boot == new_rov.boot != old_boot and op.boot == new_rov.boot
 
 

@@ -1,4 +1,4 @@
-"""PROTOCOL.md 1.1, rule by rule, on the sans-I/O machines with a fake clock."""
+"""docs/PROTOCOL.md 1.1, rule by rule, on the sans-I/O machines with a fake clock."""
 
 import dataclasses
 import random

@@ -1,4 +1,4 @@
-"""PROTOCOL.md §6 test vectors, byte for byte, both directions."""
+"""docs/PROTOCOL.md §6 test vectors, byte for byte, both directions."""
 
 import pytest
 

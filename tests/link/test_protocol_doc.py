@@ -1,0 +1,75 @@
+"""docs/PROTOCOL.md is the contract: every test vector it prints is one the tests
+check byte for byte, and every vector the tests check is printed there.  A change
+of the wire that forgets the page (or a row of the page no test reads) fails here."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from rovlink.link.frame import FrameDecoder
+from rovlink.link.messages import Mode, Reply
+from rovlink.link.secure import SecureSlave
+from rovlink.link.slave import Slave
+
+from . import test_auth, test_vectors
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
+OUT_OF_RANGE_REPLY = "55 0e 3c 00 78 00 00 00 00 00 00 00 00 69 78 f0 06 16"
+HELLO_WITH_ORDER = "55 0f 44 1f ff 01 02 03 04 05 06 07 08 eb 64 74 d6 f5 a6"
+
+
+def _section(title_start: str) -> str:
+    text = DOC.read_text(encoding="utf-8")
+    start = text.index(f"\n## {title_start}")
+    end = text.find("\n## ", start + 1)
+    return text[start:] if end < 0 else text[start:end]
+
+
+def _rows(section: str) -> list[list[str]]:
+    """Table rows whose second cell is a backticked frame (`55 ...`): the cells' texts."""
+    rows = []
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 2 and re.fullmatch(r"`55( [0-9a-f]{2})+`", cells[1]):
+            rows.append([c.strip("`") for c in cells])
+    return rows
+
+
+def test_the_contract_is_in_the_repository_and_names_itself():
+    text = DOC.read_text(encoding="utf-8")
+    assert "docs/PROTOCOL.md" in text and "../shared" not in text
+
+
+def test_section_6_prints_exactly_the_vectors_the_tests_check():
+    printed = {row[1] for row in _rows(_section("6."))}
+    tested = {wire for _, wire in test_vectors.VECTORS} | {OUT_OF_RANGE_REPLY}
+    assert printed == tested
+
+
+def test_section_8_prints_exactly_the_vectors_and_chain_values_the_tests_check():
+    rows = _rows(_section("8."))
+    printed = {row[1] for row in rows}
+    assert printed == {test_auth.HELLO, test_auth.SYNC, test_auth.POLL, test_auth.REPLY, HELLO_WITH_ORDER}
+    chains = [row[2] for row in rows if row[2] != "—"]
+    assert chains == test_auth.CHAINS
+    for row in rows:  # each chain value starts with its frame's TAG (the 4 bytes before the CRC)
+        if row[2] != "—":
+            assert bytes.fromhex(row[1])[-6:-2] == bytes.fromhex(row[2])[:4]
+
+
+def test_an_angle_out_of_range_reads_as_attitude_unknown_and_the_rest_as_sent():
+    (payload,) = FrameDecoder().feed(bytes.fromhex(OUT_OF_RANGE_REPLY))
+    assert Reply.decode(payload) == Reply(ack=1, armed=True, hold=True, mode=Mode.POS_HOLD, x_cm=120,
+                                          autopilot=True, failsafe=True, position_valid=True,
+                                          attitude_valid=False)
+
+
+def test_a_hello_carrying_an_order_gets_no_sync_and_is_counted():
+    rov = SecureSlave(Slave(), test_auth.K)
+    out = rov.receive_bytes(bytes.fromhex(HELLO_WITH_ORDER), 0.0)
+    assert out.reply is None
+    assert rov.chain.counters.bad_hellos == 1 and rov.slave.stats.protocol_errors == 1
+    # The same challenge in a proper HELLO is still answered: it was not remembered.
+    out = rov.receive_bytes(bytes.fromhex(test_auth.HELLO), 0.1)
+    assert out.reply is not None and rov.chain.counters.syncs == 1
