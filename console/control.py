@@ -20,6 +20,12 @@ Plan:
 - Wishes go neutral after STOP, at every change of holder, when the holder
   is lost (its page closed, a script silent for `lease_s`), when a streamed
   velocity stops arriving (`deadman_s`), and whenever nobody holds control.
+- Re-centring belongs to the holder: whoever takes control (a page, a script,
+  the ground station, the first holder of a console just started) moves the
+  vehicle only after its own input has been neutral once since it took
+  control; until then its wish goes out as neutral and the status says
+  "centre the sticks to drive".  The operator is told whether a pilot's input
+  is in force, so that nobody's neutral never releases the ROV's HOLD.
 - One mode list (from the protocol's `Mode`), one key map, one set of
   defaults and limits: `page_config()`, which GET /api/config serves and the
   page builds its mode box and keys from.
@@ -228,6 +234,12 @@ class Client:
     streamed_at: float | None = None
     # The key of the 3D scene embedded in this page (browser clients), if any.
     scene_key: str | None = None
+    # Its input is a stream that may be held off neutral (page keys, gamepad, joystick).
+    streams: bool = True
+    # Its input has been neutral once since it took control (or since a STOP or the
+    # dead man, for a stream): only then does it drive.
+    centred: bool = False
+    centre_told: bool = False  # the log said so, once per spell
 
 
 @dataclass
@@ -300,6 +312,7 @@ class ControlDesk:
             PreviewTarget: self._preview, ClearTarget: self._clear_target, SendTarget: self._send_target,
             ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop}
         assert set(self._effects) == set(PERMISSION)
+        operator.set_pilot_in_force(False)  # nobody holds control yet
 
     # ------------------------------------------------------------------
     # The one order path
@@ -350,15 +363,37 @@ class ControlDesk:
     def _mode(self, order: SetMode, caller: Caller) -> int:
         return self.operator.set_mode(order.mode)
 
+    def _uncentre(self, holder: Client) -> None:
+        """Its input no longer counts until it has been neutral (lock held)."""
+        holder.centred = holder.centre_told = False
+        self.operator.set_pilot_in_force(False)
+
+    def _centred(self, holder: Client) -> None:
+        """Its own input is neutral: it drives from now on, and the ROV's HOLD may go."""
+        if not holder.centred:
+            holder.centred = True
+            self.operator.set_pilot_in_force(True)
+        self.operator.recentred()
+
     def _drive(self, order: Drive, caller: Caller) -> tuple:
+        holder = self._holder_client()
+        if holder is not None and order.values == NEUTRAL:
+            was = holder.centred
+            self._centred(holder)
+            if not was:
+                self._publish_control()
+        elif holder is not None and not holder.centred:
+            # Held since before it took control (a console restarted with the stick
+            # forward, a ground station taking over) or since a STOP: not yet its drive.
+            self.operator.set_velocity(*NEUTRAL)
+            holder.streamed_at = None
+            if not holder.centre_told:
+                holder.centre_told = True
+                self.operator.note(f"{holder.name}: centre the sticks to drive", "warn")
+            return NEUTRAL
         self.operator.set_velocity(*order.values)
-        client = self._clients.get(caller.client_id) if caller.client_id else None
-        if client is not None:
-            client.streamed_at = self._clock() if order.streamed and order.values != NEUTRAL else None
-        elif caller.via == "scene":
-            holder = self._holder_client()
-            if holder is not None:
-                holder.streamed_at = self._clock() if order.streamed and order.values != NEUTRAL else None
+        if holder is not None:
+            holder.streamed_at = self._clock() if order.streamed and order.values != NEUTRAL else None
         return order.values
 
     def _go_to(self, order: GoTo, caller: Caller) -> int:
@@ -414,6 +449,10 @@ class ControlDesk:
         holder = self._holder_client()
         if holder is not None:
             holder.streamed_at = None
+            if holder.streams:
+                # STOP sets HOLD: a held stick is not the pilot's drive until centred again.
+                self._uncentre(holder)
+                self._publish_control()
         order_id = self.operator.stop()
         if self.target is not None:
             self.target = None
@@ -482,8 +521,14 @@ class ControlDesk:
         if self.operator.replaying:
             raise Replaying("this console replays a recording: there is no ROV to order")
 
-    def take(self, client_id: str | None, name: str = "") -> Client:
-        """Give control to `client_id`, or to a new script client if None."""
+    def take(self, client_id: str | None, name: str = "", *, streams_input: bool | None = None) -> Client:
+        """Give control to `client_id`, or to a new script client if None.
+
+        `streams_input`: its input is a stream that may already be held off
+        neutral (a page's keys and gamepad, a ground station's joystick): it
+        drives only once that input has been neutral since this taking.  By
+        default a page streams, a script does not (it has sent nothing yet,
+        and each of its wishes is a deliberate new one)."""
         self.check_live()
         with self._lock:
             if client_id is None:
@@ -501,6 +546,10 @@ class ControlDesk:
             self._holder, self._held_since = client.id, self._clock()
             self._disarmed_unattended = False
             client.streamed_at = None
+            client.streams = client.kind == "browser" if streams_input is None else streams_input
+            self._uncentre(client)
+            if not client.streams:
+                self._centred(client)  # a script's first wish is a deliberate new one
             self.version += 1
         taken = f" from {previous.name}" if previous else ""
         self.operator.note(f"control taken by {client.name}{taken}")
@@ -517,6 +566,7 @@ class ControlDesk:
         # Caller holds the lock.
         self._set_neutral()
         self._holder, self._held_since = None, None
+        self.operator.set_pilot_in_force(False)
         self._unheld_since = self._clock()
         self.version += 1
         self.operator.note(why)
@@ -594,7 +644,9 @@ class ControlDesk:
                     and now - holder.streamed_at > self.deadman_s:
                 holder.streamed_at = None
                 self._set_neutral()
+                self._uncentre(holder)  # the stick's state is unknown until its next neutral
                 self.operator.note(f"velocity from {holder.name} stopped arriving: neutral", "warn")
+                self._publish_control()
             if holder is not None and holder.kind == "script" and now - holder.last_seen > self.lease_s:
                 self._release(f"control released: {holder.name} silent for {self.lease_s:g} s")
                 holder = None
@@ -641,4 +693,5 @@ class ControlDesk:
                 "unattended_s": unattended,
                 "unattended_warning": unattended is not None and unattended >= self.unattended_warn_s,
                 "disarm_unattended_s": self.disarm_unattended_s,
+                "centre_to_drive": holder is not None and not holder.centred,
             }

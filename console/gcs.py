@@ -109,7 +109,8 @@ class DeskCommands:
             if status.get("held"):
                 raise CommandRefused(m.MAV_RESULT_DENIED,
                                      f"control is held by {status.get('holder') or 'another client'}")
-            self._client_id = self.desk.take(self._client_id, self.name).id
+            # The joystick may be held off neutral already: it drives once it has been centred.
+            self._client_id = self.desk.take(self._client_id, self.name, streams_input=True).id
             return Caller(self._client_id, via="gcs")
 
     def heard(self) -> None:
@@ -209,7 +210,7 @@ class GcsLink:
         self._last_pose = None  # (t, x, y, z) of the last reply used for speeds
         self._speeds = (0.0, 0.0, 0.0)  # north, east, down m/s
         self._reply_seen = None
-        self._alerted = {"lost": False, "failsafe": False}
+        self._alerted = {"lost": False, "failsafe": False, "autopilot_lost": False, "centre": False}
         self._last_image = None
         self._unsubscribe = None
         self.sent: dict[str, int] = {}
@@ -294,6 +295,11 @@ class GcsLink:
             if topic == "image" and payload.get("complete") and payload.get("img") != self._last_image:
                 self._last_image = payload.get("img")
                 self.statustext(m.MAV_SEVERITY_INFO, f"rovlink: image {payload.get('img')} complete")
+            elif topic == "control":
+                centre = bool(payload.get("centre_to_drive")) and payload.get("holder") == getattr(self.commands, "name", None)
+                if centre and not self._alerted["centre"]:
+                    self.statustext(m.MAV_SEVERITY_WARNING, "rovlink: centre the sticks to drive")
+                self._alerted["centre"] = centre
             elif topic == "order" and str(payload.get("state", "")).startswith(("rejected", "cancelled", "failed")):
                 self.statustext(m.MAV_SEVERITY_WARNING,
                                 f"rovlink: {payload.get('kind')} {payload.get('state')}"[:50])
@@ -365,15 +371,23 @@ class GcsLink:
         return north, east
 
     def _heartbeat(self, reply, lost: bool) -> None:
+        """ArduSub's HEARTBEAT as the replies tell it.  A mode is claimed only when
+        known: with the autopilot lost on the ROV (ArduSub's own heartbeat would be
+        absent) or a mode the protocol cannot name, the custom mode flag is off
+        (custom_mode 0 would read as STABILIZE) and the state says the rest."""
         from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 
         m = _mavlink()
-        base = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        base = 0
         custom = 0
         if reply is None:
             status = m.MAV_STATE_UNINIT
+        elif not reply.autopilot:
+            status = m.MAV_STATE_CRITICAL  # nothing on the ROV flies it: no mode, not armed that we know
         else:
-            custom = int(PROTOCOL_TO_SUB.get(reply.mode, 0))  # an unknown mode: ArduSub's 0
+            if reply.mode in PROTOCOL_TO_SUB:
+                base |= m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                custom = int(PROTOCOL_TO_SUB[reply.mode])
             if reply.armed:
                 base |= m.MAV_MODE_FLAG_SAFETY_ARMED
             if lost or reply.failsafe:
@@ -409,6 +423,13 @@ class GcsLink:
             self._alerted["failsafe"] = failsafe
             if failsafe:
                 self.statustext(m.MAV_SEVERITY_CRITICAL, "rovlink: ROV in FAILSAFE (link loss)")
+        autopilot_lost = not reply.autopilot
+        if not lost and autopilot_lost != self._alerted["autopilot_lost"]:  # a stale reply says nothing new
+            self._alerted["autopilot_lost"] = autopilot_lost
+            if autopilot_lost:
+                self.statustext(m.MAV_SEVERITY_CRITICAL, "rovlink: autopilot lost on the ROV")
+            else:
+                self.statustext(m.MAV_SEVERITY_NOTICE, "rovlink: autopilot back on the ROV")
 
     # -- what the ground station says ------------------------------------
 

@@ -780,6 +780,19 @@ class Operator:
         if changed:
             self._publish("wish", self.wish_state())
 
+    def set_pilot_in_force(self, in_force: bool) -> None:
+        """Whether the wish is a pilot's own input: someone holds control and has
+        re-centred since taking it (the command layer decides).  When not, a
+        neutral wish releases no HOLD on the ROV (link.master.set_pilot_in_force)."""
+        with self._lock:
+            self.master.set_pilot_in_force(in_force)
+
+    def recentred(self) -> None:
+        """The holder's own input is neutral: its re-centring reaches the ROV
+        (releasing a HOLD) even if the sticks move again before the next poll."""
+        with self._lock:
+            self.master.recentred()
+
     def replayed_wish(self, values: tuple[float, ...]) -> None:
         """A recorded wish change, shown as it was (a replay sends nothing)."""
         with self._lock:

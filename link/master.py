@@ -76,6 +76,7 @@ from .messages import (
     Arm,
     ImageSettings,
     Mode,
+    NoOrder,
     Poll,
     Position,
     ProtocolError,
@@ -291,6 +292,11 @@ class Master:
         self._rng = rng or random.Random()
         self._wish = Velocity()
         self._wish_changed_at = -math.inf
+        # Whether a pilot's own input is in force (see `set_pilot_in_force`).
+        self.pilot_in_force = True
+        # The pilot re-centred while the ROV showed HOLD: VELOCITY polls carry
+        # zero axes until a reply shows HOLD gone or answers such a poll.
+        self._recentre_owed = False
         # ARM and MODE requests: [value, since, needs a 0 first] (§2: acted on when they change)
         self._requests: dict[str, list | None] = {"arm": None, "mode": None}
         self._last_seen: dict[str, int] = {"arm": Arm.NONE, "mode": Mode.KEEP}  # in the last answered VELOCITY
@@ -332,6 +338,22 @@ class Master:
         if (wish.vx, wish.vy, wish.vz, wish.vyaw) != (self._wish.vx, self._wish.vy, self._wish.vz, self._wish.vyaw):
             self._wish_changed_at = now
         self._wish = wish
+
+    def set_pilot_in_force(self, in_force: bool) -> None:
+        """Whether the wish is a pilot's own input (a holder who has re-centred
+        since taking control).  When it is not, a neutral wish is nobody's, and
+        while the last reply shows HOLD it goes out as ORDER NONE, not as a
+        VELOCITY of four zero axes: the ROV's HOLD is released only by a
+        pilot's own re-centring (docs/PROTOCOL.md §5, (decided))."""
+        self.pilot_in_force = bool(in_force)
+
+    def recentred(self) -> None:
+        """The pilot's own input is neutral now (its sticks centred).  While the
+        ROV shows HOLD, VELOCITY polls carry four zero axes until a reply to one
+        comes, so that the re-centring reaches the ROV even if the sticks move
+        again before the next poll; a neutral the console sets itself (STOP,
+        nobody holding) never does this."""
+        self._recentre_owed = True
 
     def request_arm(self, arm: bool, now: float) -> None:
         self._request("arm", Arm.ARM if arm else Arm.DISARM, now)
@@ -488,12 +510,24 @@ class Master:
                 order = pending.order
                 seq = pending.seq
             self._wish_turn = not self._wish_turn
+        if isinstance(order, Velocity):
+            if self._nobodys_neutral(order):
+                order = NoOrder()
+            elif self._recentre_owed and self._last_reply is not None and self._last_reply.hold:
+                order = Velocity(0, 0, 0, 0, order.arm, order.mode)
         size = self._choose_size(now)
         if self.images_enabled:
             img, offset = self._image.img, min(len(self._image.data), NO_IMAGE_DATA - 1)
         else:
             img, offset = self._image.img, NO_IMAGE_DATA
         return Poll(seq=seq, size=size, order=order, img=img, offset=offset)  # type: ignore[arg-type]
+
+    def _nobodys_neutral(self, wish: Velocity) -> bool:
+        """A neutral wish with no request, of nobody's input, while the ROV holds
+        (or before any reply): sent as NONE, so that it releases no HOLD."""
+        if self.pilot_in_force or not wish.is_neutral or wish.arm or wish.mode:
+            return False
+        return self._last_reply is None or self._last_reply.hold
 
     def _may_send_orders(self, now: float) -> bool:
         """§3: no one-shot order until `start_wait_s` after the first reply."""
@@ -690,6 +724,8 @@ class Master:
         return []
 
     def _update_requests(self, reply: Reply, poll: Poll | None, now: float) -> None:
+        if not reply.hold or (poll is not None and isinstance(poll.order, Velocity) and poll.order.is_neutral):
+            self._recentre_owed = False  # the ROV has the re-centring, or needs none
         if poll is not None and isinstance(poll.order, Velocity):
             # One poll is out at a time, so the ROV took this VELOCITY after
             # any STOP sent before it: its reference is set now.

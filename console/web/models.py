@@ -263,6 +263,8 @@ class ControlStatus(BaseModel):
     unattended_s: float | None = Field(None, description="armed with nobody in control for this long")
     unattended_warning: bool = False
     disarm_unattended_s: float | None = None
+    centre_to_drive: bool = Field(False, description="the holder's input has not been neutral since it took "
+                                                     "control: its wish goes out neutral until it is")
 
 
 class Target(BaseModel):

@@ -49,6 +49,13 @@ def operator(clock, tmp_path):
     op.close()
 
 
+def take_centred(desk, client_id):
+    """Take control as a page does: it sends its input as it is then, here neutral
+    (the page's own re-centring, after which its drive is in force)."""
+    desk.take(client_id)
+    desk.submit(control.Drive(), Caller(client_id))
+
+
 def reply_at(operator, clock, **fields) -> None:
     """A reply arrives now, as the link loop hands it over."""
     operator._on_events([PoseReceived(Reply(autopilot=True, position_valid=True, **fields), operator.now(), 0.1)],
@@ -64,7 +71,7 @@ def test_the_permission_table_decides_for_every_caller(operator, clock):
     desk = ControlDesk(operator, clock=clock)
     pilot = desk.connect("pilot", scene_key=KEY)
     watcher = desk.connect("watcher", scene_key="w" * 32)
-    desk.take(pilot.id)
+    take_centred(desk, pilot.id)
     callers = {"pilot": Caller(pilot.id), "pilot's scene": Caller(scene_key=KEY, via="scene"),
                "watcher": Caller(watcher.id), "watcher's scene": Caller(scene_key="w" * 32, via="scene"),
                "a scene opened alone": Caller(via="scene"), "nobody": Caller()}
@@ -84,13 +91,17 @@ def test_the_permission_table_decides_for_every_caller(operator, clock):
 def test_wishes_go_neutral_after_stop_a_change_of_holder_a_lost_holder_and_nobody(operator, clock):
     desk = ControlDesk(operator, clock=clock, lease_s=5.0)
     a, b = desk.connect("a"), desk.connect("b")
-    desk.take(a.id)
+    take_centred(desk, a.id)
     desk.submit(control.Drive(0.5, 0.2), Caller(a.id))
     desk.submit(control.Stop(), Caller(b.id))  # anyone may stop
     assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    desk.submit(control.Drive(0.5), Caller(a.id))  # a's stick still forward after the STOP: no drive
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    assert desk.status(a.id)["centre_to_drive"]
 
+    desk.submit(control.Drive(), Caller(a.id))  # centred
     desk.submit(control.Drive(0.5), Caller(a.id))
-    desk.take(b.id)  # a change of holder
+    take_centred(desk, b.id)  # a change of holder
     assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
 
     desk.submit(control.Drive(vyaw=0.4), Caller(b.id))
@@ -112,7 +123,7 @@ def test_wishes_go_neutral_after_stop_a_change_of_holder_a_lost_holder_and_nobod
 def test_a_key_press_drives_only_for_the_dead_mans_time(operator, clock):
     desk = ControlDesk(operator, clock=clock, deadman_s=1.0)
     pilot = desk.connect("pilot", scene_key=KEY)
-    desk.take(pilot.id)
+    take_centred(desk, pilot.id)
     desk.submit(control.Drive(0.5, streamed=True), Caller(scene_key=KEY, via="scene"))
     clock.t += 0.5
     desk.tick()
@@ -125,7 +136,7 @@ def test_a_key_press_drives_only_for_the_dead_mans_time(operator, clock):
 def test_unattended_armed_vehicle_warns_and_disarms_when_configured(operator, clock):
     desk = ControlDesk(operator, clock=clock, unattended_warn_s=60.0, disarm_unattended_s=120.0)
     pilot = desk.connect("pilot")
-    desk.take(pilot.id)
+    take_centred(desk, pilot.id)
     reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
     desk.disconnect(pilot.id)
     assert desk.status()["unattended_s"] == 0.0 and not desk.status()["unattended_warning"]
@@ -262,7 +273,7 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
 def test_the_shared_target_says_sent_whoever_sent_it(operator, clock):
     desk = ControlDesk(operator, clock=clock)
     pilot = desk.connect("pilot", scene_key=KEY)
-    desk.take(pilot.id)
+    take_centred(desk, pilot.id)
     seen = []
     operator.subscribe(lambda topic, payload: seen.append(payload) if topic == "target" else None)
     # Previewed in the scene, sent from the page (REST): the scene's card follows the desk's target.
@@ -275,3 +286,42 @@ def test_the_shared_target_says_sent_whoever_sent_it(operator, clock):
     assert seen[-1] is None and desk.target_state() is None
     with pytest.raises(control.OrderError, match="no target"):
         desk.submit(control.SendTarget(), Caller(pilot.id))
+
+
+def test_a_page_that_takes_control_with_a_held_stick_drives_only_once_it_is_centred(operator, clock):
+    desk = ControlDesk(operator, clock=clock)
+    assert operator.master.pilot_in_force is False  # nobody holds control: nobody's neutral
+    pilot = desk.connect("pilot")
+    desk.take(pilot.id)
+    assert desk.status(pilot.id)["centre_to_drive"] and not operator.master.pilot_in_force
+    desk.submit(control.Drive(0.6, streamed=True), Caller(pilot.id))  # held since before it took control
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    assert sum("centre the sticks to drive" in e["text"] for e in operator.log_entries()) == 1
+    desk.submit(control.Drive(0.6, streamed=True), Caller(pilot.id))
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    desk.submit(control.Drive(streamed=True), Caller(pilot.id))  # centred: its own input, neutral
+    assert not desk.status(pilot.id)["centre_to_drive"] and operator.master.pilot_in_force
+    desk.submit(control.Drive(0.6, streamed=True), Caller(pilot.id))
+    assert operator.velocity_wish() == (0.6, 0.0, 0.0, 0.0)
+    # STOP (anyone's): the stick still forward is not a drive until it is centred again.
+    desk.submit(control.Stop(), Caller(desk.connect("watcher").id))
+    desk.submit(control.Drive(0.6, streamed=True), Caller(pilot.id))
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0) and desk.status(pilot.id)["centre_to_drive"]
+    desk.submit(control.Drive(streamed=True), Caller(pilot.id))
+    desk.submit(control.Drive(0.6, streamed=True), Caller(pilot.id))
+    assert operator.velocity_wish() == (0.6, 0.0, 0.0, 0.0)
+    # Released: nobody's input again.
+    desk.release(pilot.id)
+    assert not operator.master.pilot_in_force
+
+
+def test_a_script_drives_at_once_and_a_ground_station_only_once_centred(operator, clock):
+    desk = ControlDesk(operator, clock=clock)
+    script = desk.take(None, "script")
+    assert not desk.status(script.id)["centre_to_drive"] and operator.master.pilot_in_force
+    desk.submit(control.Drive(0.4), Caller(script.id))
+    assert operator.velocity_wish() == (0.4, 0.0, 0.0, 0.0)
+    gcs = desk.take(None, "ground station", streams_input=True)
+    desk.submit(control.Drive(0.6, streamed=True), Caller(gcs.id, via="gcs"))
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    assert desk.status()["centre_to_drive"] and desk.status()["holder"] == "ground station"

@@ -103,6 +103,9 @@ def test_arm_mode_and_drive_from_the_ground_station(demo):
     assert state["pose"]["armed"] is True and state["pose"]["mode"] == "DEPTH_HOLD"
     assert state["control"]["held"] and state["control"]["holder"] == "ground station"
     start = gcs.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=10)
+    for _ in range(5):  # the sticks centred first, as a ground station streams them
+        gcs.mav.manual_control_send(1, 0, 0, 500, 0, 0)
+        time.sleep(0.1)
     until = time.monotonic() + 6
     while time.monotonic() < until:
         gcs.mav.manual_control_send(1, 700, 0, 500, 0, 0)

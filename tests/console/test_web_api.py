@@ -96,7 +96,7 @@ def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
     assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "log", "replaying", "wall", "control", "target"}
     assert state["control"] == {"held": False, "holder": None, "holder_kind": None, "held_for_s": None,
                                 "you": False, "lease_s": 30.0, "unattended_s": None, "unattended_warning": False,
-                                "disarm_unattended_s": None}
+                                "disarm_unattended_s": None, "centre_to_drive": False}
     assert state["pose"]["received"] is None  # no link, no odometry
     assert client.get("/api/link").json()["polls_sent"] == 0
     assert client.get("/api/image").json()["received_bytes"] == 0
@@ -333,6 +333,7 @@ def test_websocket_velocity_only_from_the_holder_and_released_on_disconnect(clie
         r = client.post("/api/control/take", headers=me)
         assert r.status_code == 200 and r.json()["control"]["holder_kind"] == "browser"
         assert next_of(ws, "control")["control"]["you"] is True
+        ws.send_json({"type": "velocity"})  # the page's input right after taking: neutral
         ws.send_json({"type": "velocity", "vx": 0.5, "vyaw": -0.25})
         assert wait_for(lambda: wish(operator) == (0.5, 0.0, 0.0, -0.25), 2.0)
         # REST orders with the page's id work too.
@@ -346,6 +347,7 @@ def test_websocket_velocity_falls_back_to_neutral_when_its_repeats_stop(operator
     with TestClient(create_app(operator, velocity_deadman_s=0.3)) as c, c.websocket_connect("/ws") as ws:
         me = {HEADER: ws.receive_json()["client_id"]}
         c.post("/api/control/take", headers=me)
+        ws.send_json({"type": "velocity"})  # the page's input right after taking: neutral
         ws.send_json({"type": "velocity", "vz": -0.8})
         assert wait_for(lambda: wish(operator) == (0.0, 0.0, -0.8, 0.0), 2.0)
         # No repeat: the dead man sets neutral, control stays.

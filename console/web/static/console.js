@@ -204,10 +204,14 @@ function renderControl(c) {
       `take control or disarm.${disarm}`;
   }
   let text;
-  if (c.you) text = "You have control.";
-  else if (c.held) text = `Watching: ${c.holder} has control.`;
+  if (c.you) text = c.centre_to_drive ? "You have control: centre the sticks to drive." : "You have control.";
+  else if (c.held) text = `Watching: ${c.holder} has control` + (c.centre_to_drive ? " (sticks not centred yet)." : ".");
   else text = "Watching: nobody has control.";
   $("control-text").textContent = text;
+  $("control-text").classList.toggle("centre-to-drive", !!c.centre_to_drive);
+  // Asked to re-centre (just taken control, after a STOP): our input as it is now.
+  // Neutral re-centres at once; held keys or a held stick drive only once centred.
+  if (c.you && c.centre_to_drive) sendVelocity(true);
 }
 
 // ---------------------------------------------------------------------------
@@ -285,6 +289,9 @@ function stop() {
   page.held.clear();
   page.lastSent = NEUTRAL;
   send({ type: "stop" });
+  // After STOP only our input as it is now counts: the keys are let go, a stick held
+  // off centre is not a drive until it has been centred.
+  sendVelocity(true);
 }
 
 // ---------------------------------------------------------------------------
