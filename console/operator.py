@@ -238,6 +238,9 @@ class Operator:
         self._clock = clock or time.monotonic
         max_frame = (endpoint.max_frame if endpoint is not None else None) or 259
         self.master = master or Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame)
+        # Nobody's input is in force until the command layer says a pilot's is: a
+        # console that starts releases no HOLD (docs/PROTOCOL.md §5, decided).
+        self.master.set_pilot_in_force(False)
         self.bitrate_bps = bitrate_bps
         self.delay_s = delay_s
         self.history = History()

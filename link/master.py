@@ -527,6 +527,8 @@ class Master:
         (or before any reply): sent as NONE, so that it releases no HOLD."""
         if self.pilot_in_force or not wish.is_neutral or wish.arm or wish.mode:
             return False
+        if any(r is not None for r in self._requests.values()):
+            return False  # an ARM/MODE request rides in VELOCITY polls (the first sets the reference)
         return self._last_reply is None or self._last_reply.hold
 
     def _may_send_orders(self, now: float) -> bool:

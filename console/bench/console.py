@@ -57,6 +57,7 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
     sim: SimLink | None = None
     record = Path(tempfile.mkdtemp(prefix="rovlink-bench-")) / "session.jsonl"
     operator = Operator(None, master=master, clock=lambda: sim.now if sim else 0.0, record=record)
+    operator.set_pilot_in_force(True)  # the random pilot below holds control
 
     def on_master(event, now):
         operator._on_events([event], now)
