@@ -313,6 +313,7 @@ class ControlDesk:
             ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop}
         assert set(self._effects) == set(PERMISSION)
         operator.set_pilot_in_force(False)  # nobody holds control yet
+        operator.set_attended(False)
 
     # ------------------------------------------------------------------
     # The one order path
@@ -544,6 +545,7 @@ class ControlDesk:
             previous = self._holder_client()
             self._set_neutral()
             self._holder, self._held_since = client.id, self._clock()
+            self.operator.set_attended(True)
             self._disarmed_unattended = False
             client.streamed_at = None
             client.streams = client.kind == "browser" if streams_input is None else streams_input
@@ -567,6 +569,7 @@ class ControlDesk:
         self._set_neutral()
         self._holder, self._held_since = None, None
         self.operator.set_pilot_in_force(False)
+        self.operator.set_attended(False)
         self._unheld_since = self._clock()
         self.version += 1
         self.operator.note(why)

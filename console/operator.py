@@ -91,6 +91,9 @@ REPORTED_MODE_NAMES = {0: "UNKNOWN", **{int(m): m.name for m in MODE_NAMES.value
 # lost link; a reply lost or a CRC error within DEGRADED_WINDOW_S degrades it.
 LOST_AFTER_S = 3.0
 DEGRADED_WINDOW_S = 5.0
+VELOCITY_LAPSE_S = 1.5    # a VELOCITY lapses on the ROV after this long without another (docs/PROTOCOL.md §5)
+NEUTRAL_WISH = (0.0, 0.0, 0.0, 0.0)
+STOP_WISH = ("STOP",)     # a STOP poll in the timeline of wishes sent: brake and HOLD
 ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (docs/PROTOCOL.md §3)
 REQUEST_FOLLOW_S = 3.0    # an arm/disarm/mode the vehicle does not follow in this time is refused
 MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
@@ -287,6 +290,9 @@ class Operator:
                                           "wall0": round(self.wall0, 3)})
         self._last_poll_at: float | None = None
         self._last_poll_velocity: tuple | None = None
+        # The wishes as they went out, each with when it reaches the ROV (send time,
+        # its air time and the one-way delay): (arrival, (vx, vy, vz, vyaw) | STOP).
+        self._sent_wishes: collections.deque = collections.deque(maxlen=256)
         self.replaying = False
         self._shown_link_state: str | None = None
         self._image_history: collections.deque = collections.deque(maxlen=IMAGE_HISTORY)
@@ -416,9 +422,12 @@ class Operator:
         except ProtocolError:
             return
         order = poll.order
+        arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
+        if isinstance(order, Stop):
+            self._sent_wishes.append((arrival, STOP_WISH))
         if hasattr(order, "vyaw"):
-            arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
             self._last_poll_velocity = (arrival, order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)
+            self._sent_wishes.append((arrival, self._last_poll_velocity[1:]))
             for what, field_ in (("arm", "arm"), ("mode", "mode")):
                 if getattr(order, field_, 0):
                     self._mark_sent(self._requests.get(what), t)
@@ -790,6 +799,12 @@ class Operator:
         with self._lock:
             self.master.set_pilot_in_force(in_force)
 
+    def set_attended(self, attended: bool) -> None:
+        """Whether a pilot holds control (the command layer says): replies are
+        then sized for the pilot's reaction and a fresh pose, not only for pictures."""
+        with self._lock:
+            self.master.set_attended(attended)
+
     def recentred(self) -> None:
         """The holder's own input is neutral: its re-centring reaches the ROV
         (releasing a HOLD) even if the sticks move again before the next poll."""
@@ -943,26 +958,62 @@ class Operator:
         return None if self._odometry_at is None else self.now() - self._odometry_at
 
     def predicted_pose(self, at: float | None = None) -> Pose | None:
-        """Dead reckoning from the last odometry to `at` (session time; now by default)."""
+        """Dead reckoning from the last odometry to `at` (session time; now by
+        default): the vehicle model run from the pose's sample time under the
+        wishes as they were sent, each from when it reached the ROV (never
+        today's wish over yesterday's pose), as the ROV applies them: a STOP
+        brakes, HOLD ignores non-zero wishes until a neutral one arrives, a
+        wish lapses after VELOCITY_LAPSE_S without another."""
         with self._lock:
-            reply, sampled, wish, vel = self._reply, self._odometry_at, self._wish, self._velocity_est
+            reply, sampled, vel = self._reply, self._odometry_at, self._velocity_est
+            timeline = list(self._sent_wishes)
         if reply is None or sampled is None:
             return None
         # No further than the ROV's failsafe time: by then, with no poll
         # heard, it has stopped; beyond it the uncertainty grows instead.
-        horizon = max(0.0, min((self.now() if at is None else at) - sampled, self.rov_failsafe_s))
+        end = sampled + max(0.0, min((self.now() if at is None else at) - sampled, self.rov_failsafe_s))
         pose = Pose.from_reply(reply)
-        if horizon <= 0.0:
+        if end <= sampled:
             return pose
-        from rovlink.rov.vehicle import Controls, PilotInput, VehicleModel, VehicleState
+        from rovlink.rov.vehicle import VehicleModel, VehicleState
 
         state = VehicleState(x_m=pose.x_m, y_m=pose.y_m, z_m=pose.z_m, yaw_rad=math.radians(pose.yaw_deg),
                              vn_mps=vel[0], ve_mps=vel[1], vd_mps=vel[2], yaw_rate_radps=math.radians(vel[3]))
         model = VehicleModel(state=state)
-        controls = Controls(pilot=PilotInput.from_velocity(*wish), mode=_protocol_to_sub_mode(reply.mode),
-                            armed=reply.armed, target=None)
-        s = model.step(horizon, controls)
+        mode = _protocol_to_sub_mode(reply.mode)
+        hold = bool(reply.hold or reply.failsafe)
+        wish, wish_at = NEUTRAL_WISH, -math.inf
+        t = sampled
+        for arrival, sent in timeline:
+            if arrival > t:
+                t = self._predict_until(model, t, min(arrival, end), wish, wish_at, hold, mode, reply.armed)
+                if t >= end:
+                    break
+            if sent is STOP_WISH:
+                wish, hold = NEUTRAL_WISH, True
+            else:
+                wish, wish_at = sent, arrival
+                if hold and not any(sent):
+                    hold = False  # the re-centring reached the ROV
+        if t < end:
+            self._predict_until(model, t, end, wish, wish_at, hold, mode, reply.armed)
+        s = model.state
         return Pose(s.x_m, s.y_m, s.z_m, pose.roll_deg, pose.pitch_deg, math.degrees(s.yaw_rad))
+
+    @staticmethod
+    def _predict_until(model, t: float, until: float, wish: tuple, wish_at: float, hold: bool, mode,
+                       armed: bool) -> float:
+        """Step the model from t to `until` under `wish` as the ROV applies it."""
+        from rovlink.rov.vehicle import Controls, PilotInput
+
+        lapse_at = wish_at + VELOCITY_LAPSE_S
+        for t0, t1, applied in ((t, min(until, lapse_at), wish), (max(t, lapse_at), until, NEUTRAL_WISH)):
+            if t1 > t0:
+                if hold:
+                    applied = NEUTRAL_WISH
+                model.step(t1 - t0, Controls(pilot=PilotInput.from_velocity(*applied), mode=mode, armed=armed,
+                                             target=None))
+        return until
 
     def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
                      step_s: float = 0.5) -> list[tuple[float, float, float]]:

@@ -42,7 +42,11 @@ Decisions where docs/PROTOCOL.md is silent:
   without such a flip it is reported `OrderCancelled` ("not taken").
 - SIZE class: while steering (a non-neutral wish, or one changed within
   `steer_hold_s`) or sending a STOP, the small `steering_size`, for a short
-  command cycle.
+  command cycle.  While a pilot holds control (`attended`) and has moved the
+  sticks within `react_window_s`, the same: the first wish after a pause
+  reaches the ROV within a steering cycle.  Attended but still for longer,
+  at most `attended_size` (SIZE 2, 96 bytes): the pose shown stays under
+  1.5 s old.
   Otherwise the class with the best expected goodput for the bit error rate
   the master has observed (lost replies per bit sent); at a clean link that
   is SIZE 3, at BER 1e-3 it is SIZE 1.
@@ -260,6 +264,8 @@ class Master:
         steering_size: int = 0,
         idle_size: int | None = None,
         steer_hold_s: float = 1.5,
+        react_window_s: float = 10.0,
+        attended_size: int = 2,
         max_frame: int = 259,
         retransmit: bool = True,
         images: bool = True,
@@ -281,6 +287,11 @@ class Master:
         self.steering_size = steering_size
         self.idle_size = idle_size  # None: adapt to the observed error rate
         self.steer_hold_s = steer_hold_s
+        self.react_window_s = react_window_s
+        self.attended_size = attended_size
+        # A pilot holds control (the console says so): cycles are sized for the
+        # pilot's reaction, not only for picture throughput (see _choose_size).
+        self.attended = False
         self.max_frame = min(max_frame, 259)
         self.retransmit = retransmit
         self.images_enabled = images
@@ -346,6 +357,11 @@ class Master:
         VELOCITY of four zero axes: the ROV's HOLD is released only by a
         pilot's own re-centring (docs/PROTOCOL.md §5, (decided))."""
         self.pilot_in_force = bool(in_force)
+
+    def set_attended(self, attended: bool) -> None:
+        """Whether a pilot holds control: the SIZE choice then keeps the pilot's
+        reaction short (`_choose_size`); with nobody in control, pictures first."""
+        self.attended = bool(attended)
 
     def recentred(self) -> None:
         """The pilot's own input is neutral now (its sticks centred).  While the
@@ -561,6 +577,13 @@ class Master:
         if self.steering(now) or self._stop is not None:
             # A STOP's answer comes as fast as a steering poll's (its reply short).
             size = self.steering_size
+        elif self.attended and now - self._wish_changed_at < self.react_window_s:
+            # A pilot who paused is likely to steer again soon: the first wish after
+            # the pause reaches the ROV within a steering cycle.
+            size = self.steering_size
+        elif self.attended:
+            # Watching: a reply short enough that the pose shown stays fresh.
+            size = min(self.attended_size, self._best_size_for_error_rate())
         elif self.idle_size is not None:
             size = self.idle_size
         else:

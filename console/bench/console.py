@@ -9,6 +9,10 @@
 - web load (unless `--no-load`): see console/bench/load.py: poll interval
   and lost replies of `rovlink demo` while 300 WebSocket readers and 5
   parallel 200 MB uploads hit its web server.
+- prediction (unless `--no-prediction`): see console/bench/prediction.py: the
+  predicted pose's and the received pose's error against the vehicle model's
+  truth by the pose's age, the pose's age while not steering, and the first
+  wish after a pause at the ROV; on the clean link and under loss.
 - page (unless `--no-page`): the real demo stack at 1.9 kbit/s, the web app and
   headless Chromium on the operator page: how often the page receives a new
   predicted pose, and how long a received trunk takes to show in the page
@@ -159,6 +163,14 @@ def run(args) -> int:
         "",
         format_table(["minute", "Python heap MB"], [[round(s["t_s"] / 60, 1), s["heap_mb"]] for s in samples]),
     ]
+    if not args.no_prediction:
+        from .prediction import measure_prediction, prediction_lines, prediction_targets
+
+        clean = measure_prediction(args.prediction_minutes * 60, args.seed)
+        lossy = measure_prediction(args.prediction_minutes * 60, args.seed, ber=args.prediction_lossy_ber)
+        doc["prediction"] = {"clean": clean, "lossy": lossy}
+        doc["targets"].update(prediction_targets(clean, lossy))
+        lines += ["", *prediction_lines(clean), "", *prediction_lines(lossy)[:2]]
     import os
 
     from rovlink.console.bench.page import CHROMIUM
@@ -228,6 +240,12 @@ def add_parser(subparsers) -> None:
     p.add_argument("--flat-mb", type=float, default=2.0, metavar="MB",
                    help="largest rise of the heap peak from the first half to the second that counts as flat (2)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-prediction", action="store_true",
+                   help="skip the prediction and reaction measurement (simulated time, a few seconds)")
+    p.add_argument("--prediction-minutes", type=float, default=10.0, metavar="MIN",
+                   help="simulated minutes of the prediction session (10)")
+    p.add_argument("--prediction-lossy-ber", type=float, default=3e-4, metavar="BER",
+                   help="bit error rate of the second prediction session, which fills the older ages (3e-4)")
     p.add_argument("--no-page", action="store_true",
                    help="skip the operator page measurement (headless Chromium, about a minute)")
     p.add_argument("--page-seconds", type=float, default=40.0, metavar="S", help="page measurement time (40)")
