@@ -102,6 +102,7 @@ class GroundStation:
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="ardupilotmega",
                                                source_system=255, source_component=190)
         self.stick_x = 0
+        self.stick_r = 0
         self.streaming = False
         self.texts: list[str] = []
         self.heartbeats: list = []
@@ -118,7 +119,7 @@ class GroundStation:
             if self.streaming and now >= next_send and self.conn.clients:
                 next_send = now + 0.1
                 with self._lock:
-                    self.conn.mav.manual_control_send(1, self.stick_x, 0, 500, 0, 0)
+                    self.conn.mav.manual_control_send(1, self.stick_x, 0, 500, self.stick_r, 0)
             m = self.conn.recv_match(blocking=True, timeout=0.05)
             if m is None:
                 continue
@@ -191,6 +192,24 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         start = _fresh_pose(procs)
         assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), procs.pose()
         gcs.stick_x = 0
+
+        # The ghost does not jump when the stick moves: full yaw now changes nothing
+        # before the wish can have reached the ROV, then the turn grows at the yaw rate.
+        time.sleep(3.0)
+        ghost = []
+        t_end = time.monotonic() + 3.0
+        gcs.stick_r = 1000
+        while time.monotonic() < t_end:
+            ghost.append((time.monotonic(), procs.pose()["predicted"]["yaw_deg"]))
+            time.sleep(0.05)
+        gcs.stick_r = 0
+        steps = [abs((b - a + 180) % 360 - 180) / max(tb - ta, 0.05) for (ta, a), (tb, b) in zip(ghost, ghost[1:])]
+        turned = abs((ghost[-1][1] - ghost[0][1] + 180) % 360 - 180)
+        assert turned > 20, ghost  # it did turn
+        # Between looks 50 ms apart: the turn at its rate (~62 deg/s) and the small corrections each
+        # new pose brings, never the wish of now applied over the pose's whole age (a second or so of
+        # full yaw at once: over 1000 deg/s between two looks).
+        assert max(steps) < 300, (max(steps), ghost)
     finally:
         gcs.close()
         procs.close()
