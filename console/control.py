@@ -64,7 +64,8 @@ AXES = ("vx", "vy", "vz", "vyaw")
 # The page matches KeyboardEvent.code "Key" + letter, the scene viser hotkeys.
 KEYS: dict[str, tuple[str, int]] = {"W": ("vx", +1), "S": ("vx", -1), "D": ("vy", +1), "A": ("vy", -1),
                                     "E": ("vyaw", +1), "Q": ("vyaw", -1), "F": ("vz", +1), "R": ("vz", -1)}
-STOP_KEY = "Space"
+STOP_KEY = "Space"        # STOP from any focus but a text field, where it types
+STOP_KEY_ANYWHERE = "Escape"  # STOP from any focus, text fields included
 KEY_GAIN = 0.5            # the fraction a held key asks for (the page's strength slider starts here)
 DEADMAN_S = 1.0           # a streamed velocity (keys, gamepad) goes neutral when not repeated within it
 LEASE_S = 30.0            # a script holding control and silent this long loses it
@@ -277,7 +278,7 @@ def page_config(**extra) -> dict:
     """What every surface needs to build its controls: modes, keys, limits, defaults."""
     return {"modes": list(MODES), "keys": {k: [axis, sign] for k, (axis, sign) in KEYS.items()},
             "wish_scale": wish_scale(),
-            "stop_key": STOP_KEY, "key_gain": KEY_GAIN,
+            "stop_key": STOP_KEY, "stop_key_anywhere": STOP_KEY_ANYWHERE, "key_gain": KEY_GAIN,
             "limits": {k: list(v) for k, v in LIMITS.items()}, "default_target": dict(DEFAULT_TARGET),
             "default_roi_shift": DEFAULT_ROI_SHIFT,
             "go_to_mode": "GUIDED", **extra}
@@ -621,17 +622,6 @@ class ControlDesk:
             return f"control is held by {holder.name}, not by this page: take control to order"
         holder.last_seen = self._clock()
         return None
-
-    # ------------------------------------------------------------------
-    # Velocity adapters kept for callers that stream or stand (ws, REST, gcs)
-    # ------------------------------------------------------------------
-
-    def stream_velocity(self, client_id: str, vx: float, vy: float, vz: float, vyaw: float) -> None:
-        """A velocity message on the WebSocket; NotHolder if it is not the holder's."""
-        self.submit(Drive(vx, vy, vz, vyaw, streamed=True), Caller(client_id, via="ws"))
-
-    def rest_velocity(self, client_id: str | None, vx: float, vy: float, vz: float, vyaw: float) -> None:
-        self.submit(Drive(vx, vy, vz, vyaw), Caller(client_id))
 
     # ------------------------------------------------------------------
     # Timers

@@ -36,6 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from rovlink.link import master as _master
 from rovlink.link.frame import OVERHEAD
 from rovlink.link.master import (
     ImageAbandoned,
@@ -58,8 +59,6 @@ from rovlink.link.messages import (
     Stop,
 )
 from rovlink.link.transport import Endpoint
-
-from rovlink.link import master as _master
 
 
 class _Never:
@@ -200,7 +199,8 @@ class DaemonWorker:
         self._queue.put((fn, future))
         return future
 
-    def shutdown(self, wait: bool = False, cancel_futures: bool = True) -> None:
+    def shutdown(self) -> None:
+        """Stop after the job in hand; queued jobs are dropped (a daemon thread: nobody waits)."""
         self._closed = True
         self._queue.put(None)
 
@@ -390,7 +390,7 @@ class Operator:
                     self._on_events(events, t)
                     data = endpoint.recv_nowait()
         finally:
-            self._decoder.shutdown(wait=False, cancel_futures=True)
+            self._decoder.shutdown()
 
     def authenticate(self, key: bytes) -> None:
         """Protocol version 2 (docs/PROTOCOL.md §8): every frame authenticated with
@@ -447,7 +447,7 @@ class Operator:
 
     def close(self) -> None:
         self.recorder.close()
-        self._decoder.shutdown(wait=False, cancel_futures=True)
+        self._decoder.shutdown()
 
     # ------------------------------------------------------------------
     # Events from the master (or a replay)

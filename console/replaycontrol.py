@@ -345,7 +345,7 @@ class ReplayController:
         except Exception:  # shut down, or slow: nothing more to wait for
             pass
         fresh = Operator(None, clock=self.clock)
-        fresh._decoder.shutdown(wait=False, cancel_futures=True)
+        fresh._decoder.shutdown()
         with op._lock:
             for name, value in vars(fresh).items():
                 if name not in _KEPT:

@@ -23,8 +23,18 @@ from __future__ import annotations
 import numpy as np
 
 from . import coder, kernels, rangecoder, twolevel
-from .header import (MAX_SHIFT, MAX_SIDE, PACKET_TOP, RESIDUAL_TOP, TWO_LEVEL_TOP,  # noqa: F401 (re-exported)
-                     Header, header_size, max_top, pack_header, unpack_header)
+from .header import (  # noqa: F401 (re-exported)
+    MAX_SHIFT,
+    MAX_SIDE,
+    PACKET_TOP,
+    RESIDUAL_TOP,
+    TWO_LEVEL_TOP,
+    Header,
+    header_size,
+    max_top,
+    pack_header,
+    unpack_header,
+)
 from .plan import ICT, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
 

@@ -8,8 +8,8 @@
 # binary images are best coded as such.
 #
 # Plan
-# - The picture is a quadtree of blocks: level 0 the pixels, level l blocks of
-#   2^l x 2^l (clipped to the image), one root at level L.  A block is
+# - The picture is a quadtree of blocks: level 0 the pixels, level lev blocks of
+#   2^lev x 2^lev (clipped to the image), one root at level L.  A block is
 #   uniform 0, uniform 1 or mixed.
 # - Levels are coded from the root down, each in raster order.  A block whose
 #   parent is uniform is known without a decision; under a mixed parent it
@@ -44,8 +44,8 @@ from .jit import _jit
 from .rangecoder import PROB_ONE, _code, _save
 
 NLEV_CTX = 8             # levels 1..7+ have contexts of their own
-CTX_MIX = 0                                   # + min(l, 7) * 256 + neighbours
-CTX_VAL = CTX_MIX + NLEV_CTX * 256            # + min(l, 3) * 256 + neighbours
+CTX_MIX = 0                                   # + min(lev, 7) * 256 + neighbours
+CTX_VAL = CTX_MIX + NLEV_CTX * 256            # + min(lev, 3) * 256 + neighbours
 CTX_PIX = CTX_VAL + 4 * 256                   # + 3**6 neighbour codes
 NCTX = CTX_PIX + 729
 
@@ -92,41 +92,41 @@ def _pyramid(bits: np.ndarray, lh, lw, off) -> np.ndarray:
     out = np.empty(int(off[-1]), dtype=np.int8)
     cur = bits.astype(np.int8)
     out[:cur.size] = cur.ravel()
-    for l in range(1, lh.shape[0]):
+    for lev in range(1, lh.shape[0]):
         h, w = cur.shape
-        pad = np.full((2 * int(lh[l]), 2 * int(lw[l])), -1, dtype=np.int8)
+        pad = np.full((2 * int(lh[lev]), 2 * int(lw[lev])), -1, dtype=np.int8)
         pad[:h, :w] = cur
         kids = np.stack([pad[0::2, 0::2], pad[0::2, 1::2], pad[1::2, 0::2], pad[1::2, 1::2]])
         all0 = np.all((kids == 0) | (kids == -1), axis=0)
         all1 = np.all((kids == 1) | (kids == -1), axis=0)
         cur = np.where(all0, 0, np.where(all1, 1, 2)).astype(np.int8)
-        out[off[l]:off[l + 1]] = cur.ravel()
+        out[off[lev]:off[lev + 1]] = cur.ravel()
     return out
 
 
 @_jit
-def _known(dec, off, lh, lw, top, l, y, x):
-    """What the coder knows of block (y, x) at level l: 0/1 uniform, 2 mixed,
+def _known(dec, off, lh, lw, top, lev, y, x):
+    """What the coder knows of block (y, x) at level lev: 0/1 uniform, 2 mixed,
     3 not known (or outside the picture)."""
-    if y < 0 or x < 0 or y >= lh[l] or x >= lw[l]:
+    if y < 0 or x < 0 or y >= lh[lev] or x >= lw[lev]:
         return 3
-    s = dec[off[l] + y * lw[l] + x]
+    s = dec[off[lev] + y * lw[lev] + x]
     if s >= 0:
         return s
-    if l < top:
-        ps = dec[off[l + 1] + (y >> 1) * lw[l + 1] + (x >> 1)]
+    if lev < top:
+        ps = dec[off[lev + 1] + (y >> 1) * lw[lev + 1] + (x >> 1)]
         if ps == 0 or ps == 1:
             return ps
     return 3
 
 
 @_jit
-def _siblings(dec, off, lh, lw, l, y, x):
+def _siblings(dec, off, lh, lw, lev, y, x):
     """For the last block of its parent: the one colour all its siblings are
     uniform in (0 or 1), or -1 when they are not, or when it is not the last."""
     py, px = y >> 1, x >> 1
-    last_y = min(2 * py + 1, lh[l] - 1)
-    last_x = min(2 * px + 1, lw[l] - 1)
+    last_y = min(2 * py + 1, lh[lev] - 1)
+    last_x = min(2 * px + 1, lw[lev] - 1)
     if y != last_y or x != last_x:
         return -1
     v = -1
@@ -134,7 +134,7 @@ def _siblings(dec, off, lh, lw, l, y, x):
         for cx in range(2 * px, last_x + 1):
             if cy == y and cx == x:
                 continue
-            s = dec[off[l] + cy * lw[l] + cx]
+            s = dec[off[lev] + cy * lw[lev] + cx]
             if s != 0 and s != 1:
                 return -1
             if v == -1:
@@ -147,27 +147,27 @@ def _siblings(dec, off, lh, lw, l, y, x):
 @_jit
 def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
     a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
-    for l in range(top, -1, -1):
-        for y in range(lh[l]):
-            for x in range(lw[l]):
-                i = off[l] + y * lw[l] + x
-                if l < top:
-                    ps = dec[off[l + 1] + (y >> 1) * lw[l + 1] + (x >> 1)]
+    for lev in range(top, -1, -1):
+        for y in range(lh[lev]):
+            for x in range(lw[lev]):
+                i = off[lev] + y * lw[lev] + x
+                if lev < top:
+                    ps = dec[off[lev + 1] + (y >> 1) * lw[lev + 1] + (x >> 1)]
                     if ps != 2:
                         dec[i] = ps
                         continue
-                left = _known(dec, off, lh, lw, top, l, y, x - 1)
-                up = _known(dec, off, lh, lw, top, l, y - 1, x)
-                right = _known(dec, off, lh, lw, top, l, y, x + 1)
-                down = _known(dec, off, lh, lw, top, l, y + 1, x)
-                forced = _siblings(dec, off, lh, lw, l, y, x) if l < top else -1
-                if l > 0:
+                left = _known(dec, off, lh, lw, top, lev, y, x - 1)
+                up = _known(dec, off, lh, lw, top, lev, y - 1, x)
+                right = _known(dec, off, lh, lw, top, lev, y, x + 1)
+                down = _known(dec, off, lh, lw, top, lev, y + 1, x)
+                forced = _siblings(dec, off, lh, lw, lev, y, x) if lev < top else -1
+                if lev > 0:
                     nbr = ((left * 4 + up) * 4 + right) * 4 + down
                     bit = 0
                     if mode == 0:
                         bit = 1 if truth[i] == 2 else 0
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                                  CTX_MIX + min(l, NLEV_CTX - 1) * 256 + nbr, bit)
+                                                  CTX_MIX + min(lev, NLEV_CTX - 1) * 256 + nbr, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
                         return 0
@@ -180,7 +180,7 @@ def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
                     if mode == 0:
                         bit = truth[i]
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
-                                                  CTX_VAL + min(l, 3) * 256 + nbr, bit)
+                                                  CTX_VAL + min(lev, 3) * 256 + nbr, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
                         return 0
@@ -270,10 +270,10 @@ def decode_payload(payload: bytes, height: int, width: int, colour: bool) -> np.
     # Unresolved blocks in the mean of the two colours; every level that is
     # known uniform paints its colour, coarse to fine.
     state = np.full((height, width), 2, dtype=np.int8)
-    for l in range(top, -1, -1):
-        s = dec[off[l]:off[l + 1]].reshape(int(lh[l]), int(lw[l]))
-        if l:
-            s = np.repeat(np.repeat(s, 1 << l, axis=0), 1 << l, axis=1)[:height, :width]
+    for lev in range(top, -1, -1):
+        s = dec[off[lev]:off[lev + 1]].reshape(int(lh[lev]), int(lw[lev]))
+        if lev:
+            s = np.repeat(np.repeat(s, 1 << lev, axis=0), 1 << lev, axis=1)[:height, :width]
         known = (s == 0) | (s == 1)
         state[known] = s[known]
     out = np.empty((height, width, nc), dtype=np.uint8)

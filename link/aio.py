@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Callable, Iterable
+from typing import Callable
 
 from .channel import Channel
 from .master import Master
@@ -130,8 +130,3 @@ async def run_channel(channel: Channel, a: Endpoint, b: Endpoint) -> None:
     finally:
         for t in tasks:
             t.cancel()
-
-
-async def close_all(endpoints: Iterable[Endpoint]) -> None:
-    for ep in endpoints:
-        await ep.close()

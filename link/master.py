@@ -435,14 +435,6 @@ class Master:
         """A STOP is being sent (not yet confirmed)."""
         return self._stop is not None
 
-    @property
-    def pending_orders(self) -> list[object]:
-        return ([Stop()] if self._stop else []) + [p.order for p in self._orders]
-
-    def set_images(self, enabled: bool) -> None:
-        """Stop or resume asking for image data (e.g. after BUDGET 0)."""
-        self.images_enabled = enabled
-
     # ------------------------------------------------------------------
     # Timing
     # ------------------------------------------------------------------
@@ -829,10 +821,6 @@ class Master:
     @property
     def last_reply(self) -> Reply | None:
         return self._last_reply
-
-    @property
-    def image_img(self) -> int:
-        return self._image.img
 
     @property
     def image_received(self) -> int:

@@ -325,7 +325,6 @@ class InvalidOrder:
 
 
 Order = Union[NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder, InvalidOrder]
-ONE_SHOT_ORDERS = (Position, ImageSettings, ReservedOrder)
 
 _ORDER_CLASSES = {c.code: c for c in (NoOrder, Velocity, Position, ImageSettings, Stop)}
 
@@ -546,11 +545,3 @@ class Reply:
             last=bool(last),
             hold=bool(hold),
         )
-
-
-def size_class_for(trunk_bytes: int) -> int:
-    """The smallest SIZE class whose trunk holds `trunk_bytes` (3 if none does)."""
-    for size, cap in enumerate(SIZE_CLASS_BYTES):
-        if trunk_bytes <= cap:
-            return size
-    return 3

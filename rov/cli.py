@@ -256,6 +256,5 @@ def run_sim(args) -> int:
                       f"pilot x {t.pilot.x} y {t.pilot.y} z {t.pilot.z} r {t.pilot.r}", file=sys.stderr, flush=True)
             else:
                 time.sleep(3600)
-    finally:
+    finally:  # only Ctrl-C (KeyboardInterrupt, which the dispatcher reports) ends the loop above
         sim.stop()
-    return 0

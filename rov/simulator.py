@@ -41,7 +41,6 @@ API
     sim.start()                 # background thread; sim.bridge_url -> "udpout:127.0.0.1:PORT"
     sim.truth()                 # SimTruth(state, armed, mode, pilot, target): ground truth
     sim.stop()                  # or use `with SimulatedVehicle(...) as sim:`
-    sim.serve_forever()         # the same loop in the calling thread (CLI), until stop()
 """
 
 from __future__ import annotations
@@ -164,12 +163,6 @@ class SimulatedVehicle:
 
     def __exit__(self, *exc) -> None:
         self.stop()
-
-    def serve_forever(self) -> None:
-        """Run the loop in this thread until stop() (or KeyboardInterrupt)."""
-        self._stop.clear()
-        self._open()
-        self._run()
 
     @property
     def bridge_url(self) -> str:

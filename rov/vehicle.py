@@ -50,7 +50,6 @@ from dataclasses import dataclass
 
 from rovlink.rov.ardusub import SubMode  # ArduSub's modes, from pymavlink (re-exported here)
 
-
 # Modes that need a horizontal position estimate; ArduSub refuses them without one.
 POSITION_MODES = frozenset({SubMode.GUIDED, SubMode.POSHOLD, SubMode.AUTO, SubMode.CIRCLE})
 # Modes the model flies; others (ACRO, AUTO, ...) are refused by the simulator.

@@ -214,8 +214,6 @@ def load_samples() -> dict:
     return images
 
 
-load_images = load_samples  # the name earlier callers used
-
 
 def _photograph(name: str):
     import numpy as np

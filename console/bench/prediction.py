@@ -33,9 +33,9 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
     from rovlink.console.operator import Operator
     from rovlink.link.channel import Channel, LinkParams
     from rovlink.link.messages import Mode
+    from rovlink.link.secure import SecureSlave
     from rovlink.link.sim import SimLink
     from rovlink.link.slave import BrakeRequested, Slave, VelocityCommanded, status_from_pose
-    from rovlink.link.secure import SecureSlave
     from rovlink.rov.vehicle import Controls, PilotInput, SubMode, VehicleModel, VehicleState
 
     rng = random.Random(seed)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rovlink.command import add_key_arguments, non_negative, positive
+
 from .serve import add_gcs_arguments, add_server_arguments
 
 
@@ -36,14 +37,12 @@ def run(args) -> int:
     require_console_extra()
     import asyncio
 
-    from rovlink.command import CommandError
+    from rovlink.command import CommandError, check_frame_size, link_key
     from rovlink.console.linkthread import LinkThread
     from rovlink.console.operator import Operator
     from rovlink.link.transport import TransportError, open_transport
 
     from .serve import default_record_path, serve_operator
-
-    from rovlink.command import check_frame_size, link_key
 
     try:
         endpoint = open_transport(args.link)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rovlink.command import non_negative, positive, probability
+
 from .serve import add_gcs_arguments, add_server_arguments
 
 

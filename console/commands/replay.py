@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rovlink.command import positive
+
 from .serve import add_server_arguments
 
 # As console/replaycontrol.py (not imported here: the CLI must start without the console extra).

@@ -37,7 +37,7 @@ Plan
   where it was taken; while it is unknown the camera now shows the picture.
 - viser callbacks are one-liners that delegate to plain methods, which the tests
   call directly: `preview_roi_world` / `select_roi_world` (the picture's drag),
-  `move_target` (the gizmo), `send_target`, `stop_vehicle`, `reset_target`.
+  `move_target` (the gizmo), `send_target`, `stop_vehicle`.
   The drag callback is `async def`, so its start/update/end phases run in order
   on viser's loop; the methods it reaches only take the operator's lock briefly.
 - The panel (`console.scene.panel`) holds every GUI control and the plots.
@@ -53,7 +53,6 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -600,11 +599,6 @@ class ConsoleScene:
     def target_state(self) -> dict | None:
         return self.desk.target_state() if self.desk is not None else None
 
-    @property
-    def preview_points(self) -> list:
-        t = self.target_state()
-        return [] if t is None else t["points"]
-
     def move_target(self, position_world, wxyz, *, place_gizmo: bool = True,
                     caller: Caller = CONSOLE) -> list[tuple[float, float, float]]:
         """The gizmo moved: the shared target there (the desk previews the path,
@@ -650,10 +644,6 @@ class ConsoleScene:
         self.preview_node.points = np.stack([pts[:-1], pts[1:]], axis=1)
         self.preview_node.visible = True
 
-    def preview_target_ned(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0) -> list:
-        """Show a target typed elsewhere as if the gizmo had put it there."""
-        return self.desk.submit(control.PreviewTarget(x_m, y_m, z_m, yaw_deg))
-
     def send_target(self, caller: Caller = CONSOLE) -> int | None:
         """The pilot confirmed: the POSITION order goes out (GUIDED on the ROV)."""
         if self.target is None:
@@ -677,9 +667,6 @@ class ConsoleScene:
         if pose is not None:
             self.gizmo.position, self.gizmo.wxyz = frames.pose_to_world(
                 Pose(pose.x_m, pose.y_m, pose.z_m, 0.0, 0.0, pose.yaw_deg))
-
-    def reset_target(self, caller: Caller = CONSOLE) -> None:
-        self.desk.submit(control.ClearTarget(), caller)
 
     # ------------------------------------------------------------------
     # Updates (background thread)

@@ -38,9 +38,9 @@ import numpy as np
 from viser import uplot
 
 from rovlink.console import control
-from rovlink.console.scene import chase
 from rovlink.console.control import AXES, KEY_GAIN, KEYS, LIMITS, MODES, NotHolder
 from rovlink.console.operator import OrderError
+from rovlink.console.scene import chase
 
 log = logging.getLogger("rovlink.console.scene.panel")
 

@@ -29,13 +29,12 @@ from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
+from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
 from rovlink.console.operator import Operator
 
 from . import errors
-from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
 from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
-from .routers import control, image, images, link, orders, state, ws
-from .routers import replay
+from .routers import control, image, images, link, orders, replay, state, ws
 from .routers.image import PngCache
 from .telemetry import SharedSnapshot
 

@@ -11,11 +11,8 @@ from typing import Annotated
 from fastapi import Depends, Header
 from starlette.requests import HTTPConnection
 
+from rovlink.console.control import ControlDesk
 from rovlink.console.operator import Operator
-
-from rovlink.console.control import Client, ControlDesk
-
-CLIENT_HEADER = "X-Rovlink-Client"
 
 
 def get_operator(conn: HTTPConnection) -> Operator:
@@ -36,9 +33,3 @@ DeskDep = Annotated[ControlDesk, Depends(get_desk)]
 ClientIdDep = Annotated[str | None, Depends(client_id)]
 
 
-def holder(desk: DeskDep, cid: ClientIdDep) -> Client:
-    """Refuse (409, via NotHolder) an order from anyone but the holder."""
-    return desk.require(cid)
-
-
-HolderDep = Annotated[Client, Depends(holder)]

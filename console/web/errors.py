@@ -16,9 +16,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
-from rovlink.console.operator import OrderError
-
 from rovlink.console.control import NotHolder, UnknownClient
+from rovlink.console.operator import OrderError
 
 
 def describe(errors) -> str:

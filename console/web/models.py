@@ -323,6 +323,7 @@ class Config(BaseModel):
     modes: list[str]
     keys: dict[str, tuple[str, int]] = Field(description="key letter -> (axis, sign); hold to drive")
     stop_key: str
+    stop_key_anywhere: str = Field("Escape", description="STOP from any focus, text fields included")
     key_gain: float
     wish_scale: dict[str, dict[str, float | str]] = Field(
         description="per axis, what a wish fraction means: 'drag' (steady speed, the root of "

@@ -10,9 +10,8 @@ import math
 import threading
 import time
 
-from rovlink.console.operator import Operator
-
 from rovlink.console.control import ControlDesk
+from rovlink.console.operator import Operator
 
 
 def snapshot(operator: Operator, desk: ControlDesk, client_id: str | None, *, orders: int, log: int) -> dict:

@@ -269,3 +269,22 @@ def test_a_dropped_link_shows_in_link_health_and_the_failsafe_stays_visible(open
                            timeout=30000)
     assert page.is_visible("#failsafe")
     assert float(page.text_content("#link-odo-age").split()[0]) < 1.5
+
+
+def test_typing_in_a_text_field_never_sends_stop_and_escape_is_stop_from_there(open_page, live):
+    """Issue 20 of the pilot's page: "link lost" typed into the log filter stopped the vehicle."""
+    page = open_page()
+    take_control(page)
+
+    def stops():
+        return sum(o["kind"] == "STOP" for o in live.operator.orders_state())
+
+    before = stops()
+    page.click("#log-filter")
+    page.keyboard.type("link lost")
+    assert page.input_value("#log-filter") == "link lost"
+    page.wait_for_timeout(300)  # a STOP would be on its way by now (the page sends at once)
+    assert stops() == before, "typing a space in the filter sent STOP"
+    page.keyboard.press("Escape")  # STOP from inside the field
+    assert wait_for(lambda: stops() == before + 1, 3), "Escape in a field is not STOP"
+    page.click("#disarm")

@@ -15,8 +15,8 @@ from rovlink.console import control
 from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, Replaying
 from rovlink.console.operator import Operator
 from rovlink.console.web.app import create_app
-from rovlink.link.master import PoseReceived, ReplyLost
 from rovlink.link.frame import encode_frame
+from rovlink.link.master import PoseReceived, ReplyLost
 from rovlink.link.messages import Mode, Poll, Reply, Velocity
 
 from ..helpers import local_test_client

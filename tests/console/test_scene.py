@@ -28,6 +28,7 @@ import trimesh
 from viser import transforms as tf
 
 from rovlink import debt
+from rovlink.console import control
 from rovlink.console.scene import chase, frames
 from rovlink.console.scene.app import (
     CAMERA_HFOV_DEG,
@@ -36,7 +37,6 @@ from rovlink.console.scene.app import (
     SeabedAsset,
     as_rgb,
 )
-from rovlink.console import control
 from rovlink.console.scene.panel import ControlPanel, link_bins, step_values
 from rovlink.console.scene.roi import draw_roi, roi_from_pixels
 from rovlink.console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh

@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 from rovlink import debt
+from rovlink.console.control import ControlDesk
 from rovlink.console.operator import Operator
 from rovlink.console.scene.app import scene_key_from_path
-from rovlink.console.control import ControlDesk
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
@@ -110,7 +110,9 @@ def test_a_watchers_scene_cannot_order_and_the_holders_can(live):
             pilot, watcher = pages
             # Both embedded scenes are connected, each with its page's key, each with its own panel.
             assert wait_for(lambda: len(scene.panels) >= 2, 30), "the scenes did not connect"
-            keys = lambda: [scene.viewer_key(c) for c in scene.server.get_clients()]
+            def keys():
+                return [scene.viewer_key(c) for c in scene.server.get_clients()]
+
             assert wait_for(lambda: sum(k is not None for k in keys()) >= 2, 10), keys()
             for page in pages:  # software WebGL on a shared machine: the panels take a while
                 # Embedded in the page, the panel starts minimized (the 3-D view free): open it.

@@ -418,7 +418,7 @@ def test_uncertainty_ring_grows_with_the_odometry_age(live, monkeypatch):
     radii = []
     for seconds in (2.0, 4.5, 8.0):
         age["s"] = seconds
-        assert wait_for(lambda: ring_radius() is not None
+        assert wait_for(lambda seconds=seconds: ring_radius() is not None
                         and abs(ring_radius() - MAX_SPEED_MPS * seconds) < 0.06, 2.0), (seconds, ring_radius())
         radii.append(ring_radius())
     assert radii == sorted(radii) and radii[0] >= MAX_SPEED_MPS * UNCERTAINTY_SHOWN_AFTER_S

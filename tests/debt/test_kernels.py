@@ -11,7 +11,6 @@ from rovlink import debt
 from rovlink.debt import kernels
 from rovlink.debt.transform import band_shapes, forward, inverse, levels_for, mallat_origins
 
-
 NO_ROI = np.zeros(4, dtype=np.int64)
 
 

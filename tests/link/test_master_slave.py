@@ -8,18 +8,18 @@ import pytest
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.frame import FrameDecoder, encode_frame
 from rovlink.link.master import (
-    ImageAbandoned,
     ImageComplete,
     ImageProgress,
     Master,
     OrderAcknowledged,
-    OrderCancelled,
     OrderNotSent,
-    OrderRejected as MasterOrderRejected,
     PoseReceived,
     ReplyLost,
     RequestExpired,
     StopConfirmed,
+)
+from rovlink.link.master import (
+    OrderRejected as MasterOrderRejected,
 )
 from rovlink.link.messages import (
     ImageSettings,

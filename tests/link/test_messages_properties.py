@@ -9,12 +9,12 @@ from hypothesis import strategies as st
 from rovlink.link.frame import FrameDecoder, encode_frame
 from rovlink.link.messages import (
     ImageSettings,
+    InvalidOrder,
     NoOrder,
     Poll,
     Position,
     ProtocolError,
     Reply,
-    InvalidOrder,
     ReservedOrder,
     Stop,
     Velocity,

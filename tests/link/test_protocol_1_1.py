@@ -15,11 +15,13 @@ from rovlink.link.master import (
     OrderAcknowledged,
     OrderCancelled,
     OrderNotSent,
-    OrderRejected as MasterRejected,
     PoseReceived,
     RequestExpired,
     StopConfirmed,
     StopNotCarriedOut,
+)
+from rovlink.link.master import (
+    OrderRejected as MasterRejected,
 )
 from rovlink.link.messages import (
     NO_IMAGE_DATA,

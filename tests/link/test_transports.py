@@ -24,7 +24,7 @@ def run(coro, timeout=60):
     return asyncio.run(asyncio.wait_for(coro, timeout))
 
 
-async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None, channel_eps=None):
+async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None):
     master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2, start_wait_s=0.2)
     slave = Slave(image_source=lambda img, s: stream)
     slave.update_status(HOLDING)

@@ -40,10 +40,10 @@ import logging
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
-from rovlink.console.operator import OrderError
-
 from rovlink.console import control
 from rovlink.console.control import Caller, NotHolder
+from rovlink.console.operator import OrderError
+
 from ..deps import DeskDep, OperatorDep
 from ..errors import describe, same_origin
 from ..models import VelocityOrder

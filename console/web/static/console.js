@@ -171,7 +171,8 @@ function setupControls(config) {
     return tr;
   });
   const stop = document.createElement("tr");
-  stop.innerHTML = "<td><kbd>Space</kbd></td><td>STOP (from anywhere, the 3D view too)</td>";
+  stop.innerHTML = "<td><kbd>Space</kbd> <kbd>Esc</kbd></td><td>STOP (from anywhere, the 3D view too; " +
+    "Esc in a text field, where Space types)</td>";
   $("keymap").replaceChildren(...rows, stop);
   $("gain").value = config.key_gain;
   $("gain-value").textContent = `${Math.round(config.key_gain * 100)} %`;
@@ -245,6 +246,12 @@ function sendVelocity(force) {
   }
 }
 
+function textField(ev) {
+  const t = ev.target;
+  return !!t && (t.tagName === "TEXTAREA" || t.isContentEditable
+    || (t.tagName === "INPUT" && !["range", "checkbox", "radio", "button", "submit", "color"].includes(t.type)));
+}
+
 function typing(ev) {
   const t = ev.target;
   return t && (t.tagName === "INPUT" && t.type !== "range" && t.type !== "checkbox" || t.tagName === "SELECT"
@@ -253,8 +260,10 @@ function typing(ev) {
 
 function onKeyDown(ev) {
   wakeAudio();
-  // Space is STOP from any focus (a field, a button, the page).
-  if (ev.code === "Space" && !ev.ctrlKey && !ev.metaKey && !ev.altKey) {
+  // STOP is one key away from any focus: Escape everywhere, Space everywhere but in a
+  // text field (where it types a space: a filter's words never stop the vehicle).
+  const plain = !ev.ctrlKey && !ev.metaKey && !ev.altKey;
+  if (plain && (ev.code === "Escape" || (ev.code === "Space" && !textField(ev)))) {
     ev.preventDefault();
     if (!ev.repeat) stop();
     return;
