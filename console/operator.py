@@ -50,6 +50,8 @@ from rovlink.link.master import (
     RequestExpired,
 )
 from rovlink.link.messages import (
+    NO_IMAGE_DATA,
+    REPLY_IMAGE_HEADER,
     ImageSettings,
     Mode,
     Poll,
@@ -293,6 +295,8 @@ class Operator:
         # The wishes as they went out, each with when it reaches the ROV (send time,
         # its air time and the one-way delay): (arrival, (vx, vy, vz, vyaw) | STOP).
         self._sent_wishes: collections.deque = collections.deque(maxlen=256)
+        # The image requests as they went out: (sent at, IMG, OFFSET, largest trunk its SIZE allows).
+        self._image_requests: collections.deque = collections.deque(maxlen=256)
         self.replaying = False
         self._shown_link_state: str | None = None
         self._image_history: collections.deque = collections.deque(maxlen=IMAGE_HISTORY)
@@ -422,6 +426,10 @@ class Operator:
         except ProtocolError:
             return
         order = poll.order
+        if poll.offset != NO_IMAGE_DATA:
+            with self._lock:
+                trunk_cap = self.master.reply_frame_bytes(poll.size) - OVERHEAD - REPLY_IMAGE_HEADER
+            self._image_requests.append((t, poll.img, poll.offset, trunk_cap))
         arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
         if isinstance(order, Stop):
             self._sent_wishes.append((arrival, STOP_WISH))
@@ -565,13 +573,23 @@ class Operator:
     # the reply that ended the previous image was lost and sent again, the capture
     # is earlier than "not_before" by the retries (one poll cycle each).  Without an
     # earlier reply to bound it ("not_before" None) it may be of any age (§4).
-    def _mark_capture_window(self, t: float, why: str) -> None:
-        # The ROV may have captured from the moment it took the poll this reply
-        # answers: not before that poll left here (a sure bound, whatever the load
-        # on either end; the reply's arrival less its transmission could be later).
+    def _mark_capture_window(self, t: float, why: str, *, img: int | None = None, total: int | None = None,
+                             since: float | None = None) -> None:
+        # The ROV may have captured from the moment it took the first poll whose
+        # answer could carry the previous image's last trunk (OFFSET + the largest
+        # trunk its SIZE allows reaches the object's end): not before that poll left
+        # here.  A sure bound whatever is lost and sent again, and whatever the load
+        # on either end (the poll this reply answers may be a resend, later than the
+        # capture); without the image's end, the poll this reply answers.
         reply = self._reply
         pose = Pose.from_reply(reply) if reply is not None and reply.position_valid is not False else None
         sent = self._reply_poll_sent_at
+        if img is not None and total is not None:
+            # This image's polls only (IMG wraps at 8): those sent since its first request.
+            ends = [at for at, i, offset, cap in list(self._image_requests)
+                    if i == img and offset + cap >= total and (since is None or at >= since) and at <= t]
+            if ends:
+                sent = min(ends) if sent is None else min(min(ends), sent)
         self._next_capture = (sent if sent is not None and sent <= t else t, pose, why)
 
     def _capture_stamp(self, t_first: float) -> dict:
@@ -617,7 +635,8 @@ class Operator:
             self.image.images_completed += 1
             self.image.stream = event.data
             self._keep_image(t, partial=False)
-            self._mark_capture_window(t, "prefetch")
+            self._mark_capture_window(t, "prefetch", img=event.img, total=2 + len(event.data),
+                                      since=event.started_at)
         self.recorder.write({"k": "image", "t": round(t, 4), "img": event.img, "bytes": len(event.data),
                              "seconds": round(event.at - event.started_at, 3)})
         self.note(f"image {event.img} complete: {len(event.data)} bytes in {event.at - event.started_at:.1f} s")
