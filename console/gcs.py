@@ -206,6 +206,7 @@ class GcsLink:
         self._periods = {name: 1.0 / hz for name, (hz, _) in STREAMS.items()}
         self._next_at = {name: 0.0 for name in STREAMS}
         self._next_heartbeat = 0.0
+        self._heartbeat_said = None  # (armed, mode, autopilot, failsafe) the last HEARTBEAT told
         self._awaited: list[_Awaited] = []
         self._last_pose = None  # (t, x, y, z) of the last reply used for speeds
         self._speeds = (0.0, 0.0, 0.0)  # north, east, down m/s
@@ -323,7 +324,11 @@ class GcsLink:
         lost = self._link_lost()
         if reply is not None:
             self._update_speeds(reply, t)
-        if t >= self._next_heartbeat:
+        said = None if reply is None else (reply.armed, reply.mode, reply.autopilot, reply.failsafe)
+        if t >= self._next_heartbeat or (said != self._heartbeat_said and not lost):
+            # 1 Hz, and at once when a reply shows a change (ArduSub too sends an extra
+            # HEARTBEAT on a mode change): the ground station is no later than the page.
+            self._heartbeat_said = said
             self._next_heartbeat = t + 1.0
             self._heartbeat(reply, lost)
             self._alerts(reply, lost)
