@@ -42,8 +42,9 @@ def run(args) -> int:
     from rovlink.console.operator import Operator
     from rovlink.link.transport import TransportError, open_transport
 
-    from .serve import default_record_path, serve_operator
+    from .serve import check_ports, default_record_path, serve_operator
 
+    check_ports(args)  # before any banner, recording or link
     try:
         endpoint = open_transport(args.link)
     except TransportError as exc:

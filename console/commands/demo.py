@@ -40,8 +40,9 @@ def run(args) -> int:
     from rovlink.command import CommandError
     from rovlink.console.stack import Stack, StackConfig
 
-    from .serve import default_record_path, serve_operator
+    from .serve import check_ports, default_record_path, serve_operator
 
+    check_ports(args)  # before any banner, recording or link
     record = None if args.no_record else (args.record or default_record_path())
     import os
 

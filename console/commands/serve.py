@@ -24,6 +24,26 @@ def add_server_arguments(p) -> None:
                         "laptop's DNS name; requests naming any other host are refused (DNS rebinding). Repeatable")
 
 
+def check_ports(args) -> None:
+    """Before anything starts, prints a banner or writes a recording: the page's and
+    the scene's ports must differ and be free on --host (a CommandError, one line)."""
+    import socket
+
+    from rovlink.command import CommandError
+
+    if args.port == args.viser_port:
+        raise CommandError("--port and --viser-port must differ")
+    for name, number in (("--port", args.port), ("--viser-port", args.viser_port)):
+        family = socket.AF_INET6 if ":" in args.host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind((args.host, number))
+            except OSError as exc:
+                raise CommandError(f"{name} {number}: cannot serve on {args.host}:{number} "
+                                   f"({exc.strerror or exc}); choose another with {name}") from None
+
+
 def gcs_url(text: str) -> str:
     import argparse
 

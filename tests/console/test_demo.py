@@ -169,11 +169,17 @@ def test_demo_refuses_a_busy_port(tmp_path):
         s.bind(("127.0.0.1", 0))
         s.listen()
         busy = s.getsockname()[1]
-        out = subprocess.run([sys.executable, "-m", "rovlink", "demo", "--port", str(busy), "--viser-port",
-                              str(free_tcp_port()), "--no-record"], capture_output=True, text=True, timeout=120,
-                             cwd=tmp_path)
-    assert out.returncode == 1
-    assert "cannot serve the page" in out.stderr
-    assert "Traceback" not in out.stderr
+        record = tmp_path / "runs" / "session.jsonl"
+        for which in ("--port", "--viser-port"):
+            ports = {"--port": str(free_tcp_port()), "--viser-port": str(free_tcp_port()), which: str(busy)}
+            out = subprocess.run([sys.executable, "-m", "rovlink", "demo", *[x for kv in ports.items() for x in kv],
+                                  "--record", str(record)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+            assert out.returncode == 1
+            # Said before anything starts: one line, no banner, nothing recorded.
+            assert out.stderr.strip().splitlines() == [
+                f"rovlink demo: error: {which} {busy}: cannot serve on 127.0.0.1:{busy} (Address already in use); "
+                f"choose another with {which}"], out.stderr
+            assert out.stdout == ""
+            assert not record.exists() and not record.parent.exists()
 
 
