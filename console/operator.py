@@ -36,7 +36,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from rovlink.link import master as _master
 from rovlink.link.frame import OVERHEAD
 from rovlink.link.master import (
     ImageAbandoned,
@@ -45,41 +44,30 @@ from rovlink.link.master import (
     Master,
     OrderAcknowledged,
     OrderCancelled,
+    OrderFateUnknown,
+    OrderNotSent,
+    OrderRejected,
+    PollSent,
     PoseReceived,
     ReplyLost,
     RequestExpired,
+    StopConfirmed,
+    StopNotCarriedOut,
 )
 from rovlink.link.messages import (
     NO_IMAGE_DATA,
     REPLY_IMAGE_HEADER,
     ImageSettings,
     Mode,
-    Poll,
     Position,
     ProtocolError,
     Reply,
     Stop,
+    Velocity,
 )
+from rovlink.link.secure import InauthenticFrame, LateReply, Synced
 from rovlink.link.transport import Endpoint
 
-
-class _Never:
-    """Stands for an event this master does not have (protocol 1.0)."""
-
-
-# Protocol 1.1's events, where the master has them.
-OrderRejected = getattr(_master, "OrderRejected", _Never)
-OrderNotSent = getattr(_master, "OrderNotSent", _Never)
-OrderFateUnknown = getattr(_master, "OrderFateUnknown", _Never)
-StopConfirmed = getattr(_master, "StopConfirmed", _Never)
-StopNotCarriedOut = getattr(_master, "StopNotCarriedOut", _Never)
-try:  # protocol 2's authenticated link, where it exists
-    from rovlink.link import secure as _secure
-except ImportError:
-    _secure = None
-InauthenticFrame = getattr(_secure, "InauthenticFrame", _Never)
-LateReply = getattr(_secure, "LateReply", _Never)
-Synced = getattr(_secure, "Synced", _Never)
 AUTH_ALERT_COUNT, AUTH_ALERT_WINDOW_S = 3, 10.0  # more forged replies than this in the window: alert
 
 log = logging.getLogger("rovlink.console.operator")
@@ -271,7 +259,6 @@ class Operator:
         self._orders: dict[int, dict] = {}  # console order id -> its info (kind, state, times, details)
         self._next_order_id = 1
         self._by_master_id: dict[int, int] = {}  # the master's one-shot order ids -> ours
-        self._one_shot: dict[int, object] = {}  # our id -> the order object, while not yet sent
         self._requests: dict[str, int] = {}  # "arm"/"mode" -> our id of the request awaiting its effect
         self._crc_seen = 0
         self.inauthentic_frames = 0
@@ -303,7 +290,6 @@ class Operator:
         self._next_capture: tuple[float, Pose | None, str] | None = None  # see _capture_stamp
         # "1.1" until `authenticate` puts version 2 around the master.
         self.link_version = "1.1"
-        self._poll_payload: Callable[[bytes], bytes | None] = lambda frame: frame[2:-2]
 
     # ------------------------------------------------------------------
     # Time and subscribers
@@ -372,7 +358,6 @@ class Operator:
                 self._check_requests(t)
                 if frame is not None:
                     endpoint.send(frame)
-                    self._frame_sent(frame, t)
                 with self._lock:
                     deadline = self.master.deadline()
                 wait = 0.05 if deadline is None else max(0.0, deadline - self.now())
@@ -401,7 +386,7 @@ class Operator:
         `key`.  Call before `run`.  The recording then also keeps the reply
         payloads the master was given ("reply": authentic, timely, tag
         removed), which is what a replay may show."""
-        from rovlink.link.secure import SecureMaster, poll_payload
+        from rovlink.link.secure import SecureMaster
 
         def record_reply(payload: bytes, sync: bool, now: float) -> None:
             self.recorder.write({"k": "reply", "t": round(now, 4), "hex": payload.hex(), "sync": sync})
@@ -409,21 +394,18 @@ class Operator:
         with self._lock:
             self.master = SecureMaster(self.master, key)
             self.master.on_reply = record_reply
-            self._poll_payload = poll_payload
             self.link_version = "2"
         self.recorder.write({"k": "link", "t": round(self.now(), 4), "version": 2})
 
-    def _frame_sent(self, frame: bytes, t: float) -> None:
+    def _poll_sent(self, sent: PollSent, t: float) -> None:
+        """What the master said it sent: recorded, and the orders it carried marked sent."""
+        frame = sent.frame
         self.recorder.write({"k": "tx", "t": round(t, 4), "hex": frame.hex()})
         self.history.link_events.append((t, "tx", len(frame)))
         self._last_poll_at = t
         self._last_poll_velocity = None
-        payload = self._poll_payload(frame)
-        if payload is None:  # a HELLO: no order in it
-            return
-        try:
-            poll = Poll.decode(payload)
-        except ProtocolError:
+        poll = sent.poll
+        if poll is None:  # a HELLO: no order in it
             return
         order = poll.order
         if poll.offset != NO_IMAGE_DATA:
@@ -433,17 +415,15 @@ class Operator:
         arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s
         if isinstance(order, Stop):
             self._sent_wishes.append((arrival, STOP_WISH))
-        if hasattr(order, "vyaw"):
+        if isinstance(order, Velocity):
             self._last_poll_velocity = (arrival, order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)
             self._sent_wishes.append((arrival, self._last_poll_velocity[1:]))
             for what, field_ in (("arm", "arm"), ("mode", "mode")):
                 if getattr(order, field_, 0):
                     self._mark_sent(self._requests.get(what), t)
-        elif getattr(order, "one_shot", False):
+        for master_id in sent.order_ids:
             with self._lock:
-                mine = next((i for i, o in sorted(self._one_shot.items()) if o == order), None)
-                if mine is not None:
-                    del self._one_shot[mine]
+                mine = self._by_master_id.get(master_id)
             self._mark_sent(mine, t)
 
     def _mark_sent(self, order_id: int | None, t: float) -> None:
@@ -465,6 +445,8 @@ class Operator:
         for event in events:
             if isinstance(event, PoseReceived):
                 self._pose(event.reply, t, event.round_trip_s)
+            elif isinstance(event, PollSent):
+                self._poll_sent(event, t)
             elif isinstance(event, ImageProgress):
                 self._image_progress(event, t)
             elif isinstance(event, ImageComplete):
@@ -717,7 +699,6 @@ class Operator:
         """A one-shot order's fate, from the master (its ids)."""
         with self._lock:
             order_id = self._by_master_id.get(master_id)
-            self._one_shot.pop(order_id, None)
         if order_id is None:
             return
         info = self._set_order_state(order_id, state, t)
@@ -903,7 +884,6 @@ class Operator:
         with self._lock:
             master_id = self.master.send_order(order)
             self._by_master_id[master_id] = order_id
-            self._one_shot[order_id] = order
         return order_id
 
     def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,

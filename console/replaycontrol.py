@@ -40,6 +40,8 @@ import weakref
 from pathlib import Path
 from typing import Callable
 
+from rovlink.link.secure import poll_sent_from_frame
+
 from .recording import ReplyReplayer, read_records
 
 log = logging.getLogger("rovlink.console.replay")
@@ -309,7 +311,9 @@ class ReplayController:
             op._on_events(events, now)
         elif kind == "tx":
             counts["tx"] += 1
-            op._frame_sent(bytes.fromhex(record["hex"]), now)
+            sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version)
+            if sent is not None:
+                op._on_events([sent], now)
         elif kind == "wish":
             counts["wish"] += 1
             op.replayed_wish(tuple(v / 127 for v in record["v"]))

@@ -96,6 +96,22 @@ from .messages import (
 
 
 @dataclass(frozen=True)
+class PollSent:
+    """A poll (or, in version 2, a HELLO) went out: what it carried, so that no one
+    decodes the master's bytes again.  `order_ids`: the master's ids of the one-shot
+    order or the STOP it carried (a STOP pressed twice: both), else empty."""
+
+    at: float
+    frame: bytes  # as sent (version 2: sealed)
+    poll: Poll | None  # None for a HELLO
+    order_ids: tuple[int, ...] = ()
+
+    @property
+    def hello(self) -> bool:
+        return self.poll is None
+
+
+@dataclass(frozen=True)
 class PoseReceived:
     reply: Reply
     at: float
@@ -480,8 +496,9 @@ class Master:
         """The next poll frame if the token is ours at `now`, else None."""
         if not self.release_token(now):
             return None
-        poll = self._build_poll(now)
+        poll, order_ids = self._build_poll(now)
         frame = encode_frame(poll.encode())
+        self._events.append(PollSent(now, frame, poll, order_ids))
         expected = self._expected_reply_bytes(poll)
         # §1 (1.1): no reply longer than this poll's SIZE allows is a start.
         self.decoder.max_len = self.reply_frame_bytes(poll.size) - OVERHEAD
@@ -498,12 +515,14 @@ class Master:
         events, self._events = self._events, []
         return events
 
-    def _build_poll(self, now: float) -> Poll:
+    def _build_poll(self, now: float) -> tuple[Poll, tuple[int, ...]]:
         order: object = self._soft_state(now)
+        order_ids: tuple[int, ...] = ()
         seq = self._ack if self._ack is not None else 0
         if self._stop is not None:
             if self._ack is not None:
                 order = Stop()  # not sequenced: SEQ = ACK (§2)
+                order_ids = tuple(self._stop.order_ids)
                 self._reference_unset = True  # the ROV's ARM/MODE reference is reset by it
         elif self._orders and self._may_send_orders(now):
             pending = self._orders[0]
@@ -516,6 +535,7 @@ class Master:
                     self._next_image("settings changed")
             if not self._wish_turn:
                 order = pending.order
+                order_ids = (pending.order_id,)
                 seq = pending.seq
             self._wish_turn = not self._wish_turn
         if isinstance(order, Velocity):
@@ -528,7 +548,7 @@ class Master:
             img, offset = self._image.img, min(len(self._image.data), NO_IMAGE_DATA - 1)
         else:
             img, offset = self._image.img, NO_IMAGE_DATA
-        return Poll(seq=seq, size=size, order=order, img=img, offset=offset)  # type: ignore[arg-type]
+        return Poll(seq=seq, size=size, order=order, img=img, offset=offset), order_ids  # type: ignore[arg-type]
 
     def _nobodys_neutral(self, wish: Velocity) -> bool:
         """A neutral wish with no request, of nobody's input, while the ROV holds

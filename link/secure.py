@@ -31,6 +31,7 @@ Decisions where §8 is silent:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from .auth import (
@@ -44,6 +45,7 @@ from .auth import (
     RovChain,
 )
 from .frame import MAX_FRAME, OVERHEAD
+from .master import PollSent
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
@@ -53,13 +55,20 @@ SYNC_FRAME_BYTES = OVERHEAD + 14 + 12 + TAG_BYTES
 MAX_POLL_LEN = 3 + 9 + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
 
 
-def poll_payload(frame: bytes) -> bytes | None:
-    """The 1.1 poll payload inside a version 2 poll frame (COUNT and TAG
-    removed); None for a HELLO, which carries no order."""
+def poll_sent_from_frame(frame: bytes, at: float, *, version: str) -> PollSent | None:
+    """A recorded poll frame as the master said it sent it (a replay has frames,
+    not events; no order ids); None for bytes that are no poll."""
+    from .messages import Poll, ProtocolError
+
     contents = frame[2:-2]
-    if contents and contents[0] & HELLO_BIT:
+    if version == "2":
+        if contents and contents[0] & HELLO_BIT:
+            return PollSent(at, frame, None)
+        contents = contents[:-POLL_EXTRA]
+    try:
+        return PollSent(at, frame, Poll.decode(contents))
+    except ProtocolError:
         return None
-    return contents[:-POLL_EXTRA]
 
 
 @dataclass(frozen=True)
@@ -222,14 +231,20 @@ class SecureMaster(_Wrapper):
             self._last_was_hello = True
             self._hello_deadline = now + self.hello_timeout()
             self.stats2.hellos_sent += 1
-            return self.chain.seal_hello(HELLO_PAYLOAD, now, deadline=self._hello_deadline)
+            hello = self.chain.seal_hello(HELLO_PAYLOAD, now, deadline=self._hello_deadline)
+            self._events.append(PollSent(now, hello, None))
+            return hello
         frame = self.master.next_poll(now)
         if frame is None:
             return None
         self._last_was_hello = False
         payload = frame[2:-2]
         self._last_size = (payload[0] >> 4) & 0x03
-        return self.chain.seal_poll(payload, now, deadline=self.master.deadline())
+        sealed = self.chain.seal_poll(payload, now, deadline=self.master.deadline())
+        # The master said what it sent: the frame that left is the sealed one.
+        self._events.extend(dataclasses.replace(e, frame=sealed) if isinstance(e, PollSent) else e
+                            for e in self.master.take_events())
+        return sealed
 
     def take_events(self) -> list[object]:
         events, self._events = self._events, []

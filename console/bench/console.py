@@ -67,23 +67,15 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
         operator._on_events([event], now)
 
     sim = SimLink(master, slave, channel, on_master_event=on_master)
-    # The operator's loop records frames both ways; the simulated link
-    # does the same through these two taps.
-    next_poll = master.next_poll
+    # The operator's loop records the bytes received; the simulated link does the
+    # same through this tap (what was sent comes with the master's events).
     receive_bytes = master.receive_bytes
-
-    def tapped_next_poll(now):
-        frame = next_poll(now)
-        if frame is not None:
-            operator._frame_sent(frame, now)
-        return frame
 
     def tapped_receive(data, now):
         operator.recorder.write({"k": "rx", "t": round(now, 4), "hex": data.hex()})
         operator.history.link_events.append((now, "rx", len(data)))
         return receive_bytes(data, now)
 
-    master.next_poll = tapped_next_poll  # type: ignore[method-assign]
     master.receive_bytes = tapped_receive  # type: ignore[method-assign]
 
     def pilot(now):

@@ -74,15 +74,6 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
 
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=ber), seed=seed)
     sim = SimLink(master, slave, channel, on_master_event=on_master, on_slave_event=on_slave)
-    next_poll = master.next_poll
-
-    def tapped_next_poll(t):
-        frame = next_poll(t)
-        if frame is not None:
-            operator._frame_sent(frame, t)
-        return frame
-
-    object.__setattr__(master, "next_poll", tapped_next_poll)
 
     def step_truth(t):
         s = truth.step(0.02, Controls(pilot=applied["pilot"], mode=SubMode.ALT_HOLD, armed=True))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from rovlink.console.operator import Operator
 from rovlink.link.frame import encode_frame
-from rovlink.link.master import ImageComplete, ImageProgress, PoseReceived
+from rovlink.link.master import ImageComplete, ImageProgress, PollSent, PoseReceived
 from rovlink.link.messages import Mode, Poll, Reply, Velocity
 
 
@@ -28,7 +28,8 @@ def test_a_lost_last_trunk_widens_the_window_back_to_the_first_poll_that_could_e
 
     def poll(t, img, offset, size=3):
         clock.t = t
-        op._frame_sent(encode_frame(Poll(seq=0, size=size, order=Velocity(), img=img, offset=offset).encode()), t)
+        sent = Poll(seq=0, size=size, order=Velocity(), img=img, offset=offset)
+        op._on_events([PollSent(t, encode_frame(sent.encode()), sent)], t)
 
     poll(5.0, 2, 0)
     poll(8.0, 2, 100, size=0)  # 100 + 24 does not reach the end: not a possible last trunk

@@ -16,7 +16,7 @@ from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, 
 from rovlink.console.operator import Operator
 from rovlink.console.web.app import create_app
 from rovlink.link.frame import encode_frame
-from rovlink.link.master import PoseReceived, ReplyLost
+from rovlink.link.master import PollSent, PoseReceived, ReplyLost
 from rovlink.link.messages import Mode, Poll, Reply, Velocity
 
 from ..helpers import local_test_client
@@ -199,7 +199,7 @@ def test_the_prediction_stops_at_the_rovs_failsafe_time(operator, clock):
     operator.set_velocity(1.0, 0.0, 0.0, 0.0)
     # The wish goes out (the prediction runs the wishes as they were sent).
     poll = Poll(seq=0, size=0, order=Velocity(127, 0, 0, 0), img=0, offset=8191)
-    operator._frame_sent(encode_frame(poll.encode()), operator.now())
+    operator._on_events([PollSent(operator.now(), encode_frame(poll.encode()), poll)], operator.now())
     clock.t += 2.0
     early = operator.predicted_pose()
     clock.t += 2.0

@@ -10,7 +10,7 @@ import math
 
 from rovlink.console.operator import Operator
 from rovlink.link.frame import encode_frame
-from rovlink.link.master import PoseReceived
+from rovlink.link.master import PollSent, PoseReceived
 from rovlink.link.messages import Mode, Poll, Reply, Stop, Velocity
 
 
@@ -30,7 +30,8 @@ def _operator():
 
 def _poll(op, clock, t, order) -> None:
     clock.t = t
-    op._frame_sent(encode_frame(Poll(seq=0, size=0, order=order, img=0, offset=8191).encode()), t)
+    poll = Poll(seq=0, size=0, order=order, img=0, offset=8191)
+    op._on_events([PollSent(t, encode_frame(poll.encode()), poll)], t)
 
 
 def _reply(op, clock, t, **kw) -> None:

@@ -285,3 +285,26 @@ def test_an_angle_out_of_range_shows_the_attitude_unknown_and_the_rest_is_used()
     assert not got.attitude_valid and got.yaw_cdeg == 0
     assert (got.ack, got.hold, got.failsafe, got.rejected, got.reason, got.x_cm, got.mode) == (
         1, True, True, True, 1, 120, Mode.POS_HOLD)
+
+
+def test_the_master_says_what_it_sent_hellos_polls_and_their_orders():
+    """PollSent (issue 17 of the console's house): the frame as it left (sealed), the
+    poll it carried, the ids of the orders in it; nobody decodes the bytes again."""
+    from rovlink.link.master import PollSent
+
+    master, slave, link, mev, sev = _link(8)
+    sent_frames: list[bytes] = []
+    real = link.channel.send
+    link.channel.send = lambda side, data, now: (sent_frames.append(bytes(data)) if side == "a" else None,
+                                                  real(side, data, now))[1]
+    link.run_until(8.0)
+    position_id = master.send_order(Position(100, 0, 200, 0))
+    link.run_until(12.0)
+    stop_id = master.send_order(Stop())
+    link.run_until(16.0)
+    told = [e for _, e in mev if isinstance(e, PollSent)]
+    assert [e.frame for e in told] == sent_frames  # every frame that left, as it left
+    assert told[0].hello and told[0].poll is None
+    assert any(isinstance(e.poll.order, Position) and e.order_ids == (position_id,) for e in told if e.poll)
+    assert any(isinstance(e.poll.order, Stop) and e.order_ids == (stop_id,) for e in told if e.poll)
+    assert all(e.order_ids == () for e in told if e.poll and not isinstance(e.poll.order, (Position, Stop)))
