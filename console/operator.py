@@ -36,6 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from rovlink.link.aio import run_master
 from rovlink.link.frame import OVERHEAD
 from rovlink.link.master import (
     ImageAbandoned,
@@ -347,39 +348,23 @@ class Operator:
         if self.endpoint is None:
             raise RuntimeError("no link endpoint: this operator only replays")
         self._loop = asyncio.get_running_loop()
-        endpoint = self.endpoint
         try:
-            while True:
-                t = self.now()
-                with self._lock:
-                    frame = self.master.next_poll(t)
-                    events = self.master.take_events()
-                self._on_events(events, t)
-                self._check_requests(t)
-                if frame is not None:
-                    endpoint.send(frame)
-                with self._lock:
-                    deadline = self.master.deadline()
-                wait = 0.05 if deadline is None else max(0.0, deadline - self.now())
-                try:
-                    async with asyncio.timeout(wait):
-                        data = await endpoint.recv()
-                except TimeoutError:
-                    continue
-                while data is not None:
-                    t = self.now()
-                    self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
-                    self.history.link_events.append((t, "rx", len(data)))
-                    with self._lock:
-                        events = self.master.receive_bytes(data, t)
-                        crc = self.master.decoder.crc_errors
-                    if crc != self._crc_seen:
-                        self.history.link_events.append((t, "crc", crc - self._crc_seen))
-                        self._crc_seen = crc
-                    self._on_events(events, t)
-                    data = endpoint.recv_nowait()
+            await run_master(self.master, self.endpoint, self._on_link_events, clock=self.now, lock=self._lock,
+                             on_bytes=self._bytes_received, on_turn=self._check_requests)
         finally:
             self._decoder.shutdown()
+
+    def _bytes_received(self, data: bytes, t: float) -> None:
+        self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
+        self.history.link_events.append((t, "rx", len(data)))
+
+    def _on_link_events(self, events: list, t: float) -> None:
+        with self._lock:
+            crc = self.master.decoder.crc_errors
+        if crc != self._crc_seen:
+            self.history.link_events.append((t, "crc", crc - self._crc_seen))
+            self._crc_seen = crc
+        self._on_events(events, t)
 
     def authenticate(self, key: bytes) -> None:
         """Protocol version 2 (docs/PROTOCOL.md §8): every frame authenticated with

@@ -12,6 +12,7 @@ on (a bug in a display must not stop the vehicle's commands).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from typing import Callable
 
@@ -43,13 +44,18 @@ async def _recv(endpoint: Endpoint, timeout_s: float | None) -> bytes | None:
         return None
 
 
-def _hand(on_events: EventSink | None, events: list, now: float) -> None:
-    if on_events is None or not events:
+def _safely(fn: Callable | None, *args) -> None:
+    if fn is None:
         return
     try:
-        on_events(events, now)
+        fn(*args)
     except Exception:
         log.exception("event handler failed; the link goes on")
+
+
+def _hand(on_events: EventSink | None, events: list, now: float) -> None:
+    if events:
+        _safely(on_events, events, now)
 
 
 async def run_master(
@@ -58,24 +64,41 @@ async def run_master(
     on_events: EventSink | None = None,
     *,
     idle_poll_s: float = 0.05,
+    clock: Callable[[], float] | None = None,
+    lock: contextlib.AbstractContextManager | None = None,
+    on_bytes: Callable[[bytes, float], None] | None = None,
+    on_turn: Callable[[float], None] | None = None,
 ) -> None:
-    """Poll, wait for the reply or its timeout, repeat.  Cancel to stop."""
+    """Poll, wait for the reply or its timeout, repeat.  Cancel to stop.
+
+    The one master loop (the console's operator runs it too).  `clock`: the
+    time the master is fed (default the event loop's); `lock`: held around every
+    call into the master (other threads order through it); `on_bytes(data,
+    now)`: bytes received, before the master sees them (a recording);
+    `on_turn(now)`: once per turn of the loop (timers of the caller's own)."""
+    clock = clock or _now
+    guard = lock if lock is not None else contextlib.nullcontext()
     while True:
-        now = _now()
-        frame = master.next_poll(now)
-        _hand(on_events, master.take_events(), now)
+        now = clock()
+        with guard:
+            frame = master.next_poll(now)
+            events = master.take_events()
+        _hand(on_events, events, now)
+        _safely(on_turn, now)
         if frame is not None:
             endpoint.send(frame)
-        deadline = master.deadline()
-        wait = idle_poll_s if deadline is None else max(0.0, deadline - _now())
+        with guard:
+            deadline = master.deadline()
+        wait = idle_poll_s if deadline is None else max(0.0, deadline - clock())
         data = await _recv(endpoint, wait)
-        if data is None:
-            continue
-        now = _now()
-        _hand(on_events, master.receive_bytes(data, now), now)
-        # Drain whatever else already arrived before polling again.
-        while (more := endpoint.recv_nowait()) is not None:
-            _hand(on_events, master.receive_bytes(more, now), now)
+        # Whatever else already arrived too, before polling again.
+        while data is not None:
+            now = clock()
+            _safely(on_bytes, data, now)
+            with guard:
+                events = master.receive_bytes(data, now)
+            _hand(on_events, events, now)
+            data = endpoint.recv_nowait()
 
 
 async def run_slave(

@@ -29,7 +29,7 @@ from rovlink.link.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, get_json, needs_chromium, wait_until_up
 
-pytestmark = [pytest.mark.slow]
+pytestmark = [pytest.mark.slow, pytest.mark.processes]
 M = mavutil.mavlink
 ROOT = Path(__file__).resolve().parents[2]
 

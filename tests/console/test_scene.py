@@ -333,11 +333,12 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
 
     # The gizmo's callback: the pilot drags and turns it (a little roll too,
     # which a POSITION order cannot carry); on release it is squared up.
-    scene.gizmo.position = frames.ned_to_world(*target_ned)
-    scene.gizmo.wxyz = frames.body_wxyz(10.0, 0.0, 30.0)
-    scene._on_gizmo(SimpleNamespace(phase="end", target=scene.gizmo, client=None))
+    # (The handle as the pilot's drag left it: a stand-in, since the scene's own thread
+    # keeps the shared handle on the vehicle while there is no target.)
+    dragged = SimpleNamespace(position=frames.ned_to_world(*target_ned), wxyz=frames.body_wxyz(10.0, 0.0, 30.0))
+    scene._on_gizmo(SimpleNamespace(phase="end", target=dragged, client=None))
     assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)
-    assert np.allclose(scene.gizmo.wxyz, frames.body_wxyz(0.0, 0.0, 30.0))
+    assert np.allclose(dragged.wxyz, frames.body_wxyz(0.0, 0.0, 30.0))
 
     path = scene.move_target(frames.ned_to_world(*target_ned), frames.body_wxyz(0.0, 0.0, 30.0))
     assert scene.target == pytest.approx((*target_ned, 30.0), abs=1e-6)

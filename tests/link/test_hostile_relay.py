@@ -21,10 +21,13 @@ import time
 import urllib.request
 from pathlib import Path
 
+import pytest
+
 from ..helpers import free_tcp_port, get_json, wait_until_up
 
 ROOT = Path(__file__).resolve().parents[2]
 STOP = 4
+pytestmark = [pytest.mark.slow, pytest.mark.processes]
 
 
 def _free_udp_port() -> int:
