@@ -448,8 +448,10 @@ def test_frustum_is_drawn_at_the_pictures_capture_pose(live, monkeypatch):
     capture = {"pose": pose, "wall": time.time() - 3.0, "t": op.now() - 3.0}
     monkeypatch.setattr(op, "image_state", lambda: {**real(), "capture": capture})
     position, wxyz = frames.pose_to_world(Pose(**pose))
-    assert wait_for(lambda: scene.capture_node.visible and np.allclose(scene.capture_node.position, position), 3.0)
-    assert np.allclose(scene.capture_node.wxyz, wxyz, atol=1e-9) or np.allclose(scene.capture_node.wxyz, -wxyz)
+    # Position and orientation are set one after the other by the scene's thread: wait for both.
+    assert wait_for(lambda: scene.capture_node.visible and np.allclose(scene.capture_node.position, position)
+                    and (np.allclose(scene.capture_node.wxyz, wxyz, atol=1e-9)
+                         or np.allclose(scene.capture_node.wxyz, -wxyz, atol=1e-9)), 3.0), scene.capture_node.wxyz
     assert np.allclose(scene.capture_frustum_node.position, CAMERA_IN_BODY_FLU)
     assert scene.capture_frustum_node.aspect == pytest.approx(scene.image_px[0] / scene.image_px[1])
     # No capture known: nothing drawn.
