@@ -288,3 +288,24 @@ def test_typing_in_a_text_field_never_sends_stop_and_escape_is_stop_from_there(o
     page.keyboard.press("Escape")  # STOP from inside the field
     assert wait_for(lambda: stops() == before + 1, 3), "Escape in a field is not STOP"
     page.click("#disarm")
+
+
+def test_the_mode_selector_shows_the_vehicles_mode_unless_the_pilot_is_choosing(open_page, live):
+    """Issue 20 of the pilot's page: the selector read MANUAL on load while the vehicle held
+    in POS_HOLD, and "Set mode" then sent a mode the pilot had not chosen."""
+    pilot = open_page()
+    take_control(pilot)
+    pilot.select_option("#mode-select", "DEPTH_HOLD")
+    pilot.click("#set-mode")
+    assert wait_for(lambda: live.operator.state()["pose"]["mode"] == "DEPTH_HOLD", 15)
+    watcher = open_page()  # a page opened now: its selector follows the vehicle
+    watcher.wait_for_function("document.getElementById('mode-select').value === 'DEPTH_HOLD'")
+    # The pilot choosing is not overwritten by the vehicle's mode meanwhile.
+    pilot.select_option("#mode-select", "STABILIZE")
+    pilot.wait_for_timeout(1500)  # several pose updates arrive meanwhile (they come every ~0.1 s)
+    assert pilot.input_value("#mode-select") == "STABILIZE"
+    # No picture element without a picture: never a broken-image icon.
+    for page in (pilot, watcher):
+        assert page.evaluate("[...document.querySelectorAll('#image, #image-done')]"
+                             ".every((img) => img.hidden || !!img.getAttribute('src'))")
+    pilot.click("#release")

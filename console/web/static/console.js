@@ -160,6 +160,15 @@ function showError(text) {
 // The console's one mode list and key map (GET /api/config)
 // ---------------------------------------------------------------------------
 
+// The mode selector shows the vehicle's mode, unless the pilot is choosing one: it has
+// the focus, or was changed and not yet sent (Set mode), for a few seconds.
+function followVehicleMode(mode) {
+  const select = $("mode-select");
+  const choosing = document.activeElement === select || Date.now() - (page.modeChosenAt || 0) < 5000;
+  if (choosing || ![...select.options].some((o) => o.value === mode)) return;
+  select.value = mode;
+}
+
 function setupControls(config) {
   KEYMAP = {};
   for (const [key, [axis, sign]] of Object.entries(config.keys)) KEYMAP[`Key${key}`] = [axis, sign];
@@ -345,6 +354,7 @@ function render(s) {
   if (pose.received) {
     setBadge($("armed"), pose.armed ? "ARMED" : "DISARMED", pose.armed ? "warn" : "");
     setBadge($("mode"), pose.mode, "");
+    followVehicleMode(pose.mode);
   }
   renderWish(s.velocity_wish);
   renderTarget(s.target);
@@ -724,6 +734,7 @@ function renderShownPicture() {
   $("image-save").disabled = !e;
   $("image-latest").hidden = page.shownPast === null;
   $("no-image-done").hidden = !!e;
+  img.hidden = !e;  // no broken-image icon before the first picture
   if (!e) { img.removeAttribute("src"); $("image-done-meta").textContent = "—"; return; }
   const src = `/api/images/${e.n}.png`;
   if (img.dataset.n !== String(e.n)) {
@@ -782,6 +793,7 @@ function showImage(im) {
   next.onload = () => {
     const img = $("image");
     img.src = next.src;
+    img.hidden = false;
     img.dataset.key = key;
     page.shownImage = key;
     $("no-image").hidden = true;
@@ -901,7 +913,8 @@ function wire() {
   $("cancel-stop").onclick = () => api("/api/orders/stop/cancel");
   $("arm").onclick = () => api("/api/orders/arm", { armed: true });
   $("disarm").onclick = () => api("/api/orders/arm", { armed: false });
-  $("set-mode").onclick = () => api("/api/orders/mode", { mode: $("mode-select").value });
+  $("set-mode").onclick = () => { page.modeChosenAt = 0; api("/api/orders/mode", { mode: $("mode-select").value }); };
+  $("mode-select").onchange = () => { page.modeChosenAt = Date.now(); };
   $("apply-image").onclick = () => api("/api/image/settings", {
     roi: page.roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked,
     budget_bytes: parseInt($("budget").value, 10),
