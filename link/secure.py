@@ -46,6 +46,7 @@ from .auth import (
 )
 from .frame import MAX_FRAME, OVERHEAD
 from .master import PollSent
+from .messages import Poll, ProtocolError
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
@@ -58,8 +59,6 @@ MAX_POLL_LEN = 3 + 9 + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15
 def poll_sent_from_frame(frame: bytes, at: float, *, version: str) -> PollSent | None:
     """A recorded poll frame as the master said it sent it (a replay has frames,
     not events; no order ids); None for bytes that are no poll."""
-    from .messages import Poll, ProtocolError
-
     contents = frame[2:-2]
     if version == "2":
         if contents and contents[0] & HELLO_BIT:

@@ -22,6 +22,16 @@ needs_chromium = pytest.mark.skipif(
            "the browser tests drive it and download no browser")
 
 
+class FakeClock:
+    """A clock a test sets by hand (`clock.t += 2.0`); callable like time.monotonic."""
+
+    def __init__(self, t: float = 0.0) -> None:
+        self.t = t
+
+    def __call__(self) -> float:
+        return self.t
+
+
 def free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

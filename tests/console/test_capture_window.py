@@ -12,17 +12,11 @@ from rovlink.link.frame import encode_frame
 from rovlink.link.master import ImageComplete, ImageProgress, PollSent, PoseReceived
 from rovlink.link.messages import Mode, Poll, Reply, Velocity
 
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
+from ..helpers import FakeClock
 
 
 def test_a_lost_last_trunk_widens_the_window_back_to_the_first_poll_that_could_end_the_picture():
-    clock = Clock()
+    clock = FakeClock()
     op = Operator(None, clock=clock)
     stream = bytes(298)  # an object of 300 bytes: SIZE 3's trunk (239) from OFFSET 100 ends it
 

@@ -19,7 +19,7 @@ from rovlink.link.frame import encode_frame
 from rovlink.link.master import PollSent, PoseReceived, ReplyLost
 from rovlink.link.messages import Mode, Poll, Reply, Velocity
 
-from ..helpers import local_test_client
+from ..helpers import FakeClock, local_test_client
 
 HEADER = "X-Rovlink-Client"
 KEY = "k" * 32
@@ -30,17 +30,9 @@ EXAMPLES = [control.Arm(True), control.SetMode("DEPTH_HOLD"), control.Drive(0.3)
             control.ChangeImage(budget_bytes=1500), control.NextImage(), control.CancelStop(), control.Stop()]
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 @pytest.fixture
 def clock():
-    return Clock()
+    return FakeClock(100.0)
 
 
 @pytest.fixture

@@ -13,17 +13,11 @@ from rovlink.link.frame import encode_frame
 from rovlink.link.master import PollSent, PoseReceived
 from rovlink.link.messages import Mode, Poll, Reply, Stop, Velocity
 
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
+from ..helpers import FakeClock
 
 
 def _operator():
-    clock = Clock()
+    clock = FakeClock()
     op = Operator(None, clock=clock)
     return op, clock
 

@@ -24,23 +24,15 @@ from rovlink.console.control import ControlDesk
 from rovlink.console.operator import Operator
 from rovlink.console.scene.app import scene_key_from_path
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, FakeClock, needs_chromium
 from .conftest import running_console, wait_for
 
 KEY_A = "a" * 32
 KEY_B = "b" * 32
 
 
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
 def test_desk_lets_only_the_holders_scene_order():
-    desk = ControlDesk(Operator(None), clock=Clock())  # no link: the desk only notes and sets wishes
+    desk = ControlDesk(Operator(None), clock=FakeClock())  # no link: the desk only notes and sets wishes
     assert "nobody holds control" in desk.scene_refusal(KEY_A)
     pilot = desk.connect("pilot", scene_key=KEY_A)
     watcher = desk.connect("watcher", scene_key=KEY_B)
@@ -56,7 +48,7 @@ def test_desk_lets_only_the_holders_scene_order():
 
 @pytest.mark.parametrize("key", ["", "short", "x" * 65, "has space" + "x" * 20, "../../" + "x" * 20])
 def test_a_malformed_scene_key_is_ignored(key):
-    desk = ControlDesk(Operator(None), clock=Clock())
+    desk = ControlDesk(Operator(None), clock=FakeClock())
     client = desk.connect("page", scene_key=key)
     desk.take(client.id)
     assert client.scene_key is None
