@@ -155,7 +155,10 @@ class ReplayController:
 
     @property
     def position(self) -> float:
-        return self.clock()
+        """Where the replay stands: after a seek or a feed in progress, never in
+        the middle of one (the clock reads each record's time while it is fed)."""
+        with self._cond:
+            return self.clock()
 
     @property
     def paused(self) -> bool:
@@ -170,6 +173,10 @@ class ReplayController:
         return self._ended
 
     def state(self) -> dict:
+        with self._cond:
+            return self._state_locked()
+
+    def _state_locked(self) -> dict:
         return {"available": True, "file": self.path.name, "t": round(self.clock(), 3),
                 "duration": round(self.duration, 3), "paused": self._paused, "ended": self._ended,
                 "speed": self._speed, "speeds": list(SPEEDS), "min_speed": MIN_SPEED, "max_speed": MAX_SPEED,
