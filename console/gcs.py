@@ -59,7 +59,6 @@ from dataclasses import dataclass
 
 log = logging.getLogger("rovlink.console.gcs")
 
-LINK_LOST_S = 3.0  # no reply for this long: the link is lost (the ROV's failsafe time)
 EARTH_RADIUS_M = 6_378_137.0
 ORDER_TIMEOUT_S = 15.0  # no fate by then: FAILED (the console gives arm/mode theirs within 3 s)
 MANUAL_CONTROL_NEUTRAL_Z = 500
@@ -287,8 +286,9 @@ class GcsLink:
     # -- what the replies say ---------------------------------------------
 
     def _link_lost(self) -> bool:
-        age = self.operator.odometry_age_s()
-        return age is None or age > LINK_LOST_S
+        """The session's own definition (console.session.health), as the page shows it;
+        before the first reply nothing is known of the vehicle either."""
+        return self.operator.link_condition()[0] in ("lost", "starting")
 
     def _on_event(self, topic: str, payload) -> None:  # operator's thread
         m = _mavlink()

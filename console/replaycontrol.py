@@ -50,12 +50,6 @@ MIN_SPEED = 0.1
 MAX_SPEED = 64.0
 SPEEDS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)  # what the page offers
 
-# Operator attributes a reset keeps: who it is (lock, subscribers, decoder
-# thread), the clock this controller gives it, and settings made by whoever
-# serves it (create_app sets the failsafe time).
-_KEPT = frozenset({"endpoint", "_clock", "_t0", "wall0", "_lock", "_subscribers", "_loop", "_decoder",
-                   "recorder", "replaying", "lost_after_s", "rov_failsafe_s", "bitrate_bps", "delay_s"})
-
 # operator -> weak reference to its controller (the operator's clock, a bound
 # method of the controller, keeps the controller alive as long as the operator).
 _controllers: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -276,16 +270,9 @@ class ReplayController:
         self.operator.note(f"replay: at {_clock_text(t)} of {_clock_text(self.duration)}")
 
     def _fast_feed_until(self, t: float) -> None:
-        op = self.operator
         # One state published at the end, not every event of the way.
-        op._publish = lambda topic, payload: None
-        try:
+        with self.operator.quiet():
             self._feed_until(t)
-        finally:
-            del op._publish
-        op.publish("pose", op.pose_state())
-        op.publish("image", op.image_state())
-        op.publish("wish", op.wish_state())
 
     def _feed_until(self, t: float) -> None:
         records, times = self._records, self._times
@@ -309,18 +296,18 @@ class ReplayController:
         if kind == "rx":
             data = bytes.fromhex(record["hex"])
             counts["rx"] += 1
-            op.history.link_events.append((now, "rx", len(data)))
+            op.bytes_received(data, now)
             if not self._authenticated:
-                op._on_events(self._replayer.feed(data, now), now)
+                op.handle_events(self._replayer.feed(data, now), now)
         elif kind == "reply":
             counts["replies"] += 1
             events = self._replayer.feed_payload(bytes.fromhex(record["hex"]), now, sync=bool(record.get("sync")))
-            op._on_events(events, now)
+            op.handle_events(events, now)
         elif kind == "tx":
             counts["tx"] += 1
             sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version)
             if sent is not None:
-                op._on_events([sent], now)
+                op.handle_events([sent], now)
         elif kind == "wish":
             counts["wish"] += 1
             op.replayed_wish(tuple(v / 127 for v in record["v"]))
@@ -338,29 +325,13 @@ class ReplayController:
         """Make `op` show this recording: its clock, its link's rate and delay."""
         op.bitrate_bps = self.meta.get("bitrate_bps", op.bitrate_bps)
         op.delay_s = self.meta.get("delay_s", op.delay_s)
+        op.use_clock(self.clock, wall0=_wall0(self.meta))
         op.replaying = True
-        op._clock = self.clock
-        op._t0 = 0.0
-        wall0 = _wall0(self.meta)
-        if wall0 is not None:
-            op.wall0 = wall0
+        op.reset()
 
     def _reset(self) -> None:
-        """The Operator as a new one, in place (see the module's docstring)."""
-        from .operator import Operator
-
-        op = self.operator
-        # Let a decode of the old state finish first: it would land on the new one.
-        try:
-            op._decoder.submit(lambda: None).result(timeout=10)
-        except Exception:  # shut down, or slow: nothing more to wait for
-            pass
-        fresh = Operator(None, clock=self.clock)
-        fresh._decoder.shutdown()
-        with op._lock:
-            for name, value in vars(fresh).items():
-                if name not in _KEPT:
-                    setattr(op, name, value)
+        """The Operator's state as a new one's, in place (see the module's docstring)."""
+        self.operator.reset()
         self._replayer = ReplyReplayer()
         self._index = 0
         self.counts = _zero_counts()

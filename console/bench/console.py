@@ -64,7 +64,7 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
     operator.set_pilot_in_force(True)  # the random pilot below holds control
 
     def on_master(event, now):
-        operator._on_events([event], now)
+        operator.handle_events([event], now)
 
     sim = SimLink(master, slave, channel, on_master_event=on_master)
     # The operator's loop records the bytes received; the simulated link does the
@@ -72,8 +72,7 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
     receive_bytes = master.receive_bytes
 
     def tapped_receive(data, now):
-        operator.recorder.write({"k": "rx", "t": round(now, 4), "hex": data.hex()})
-        operator.history.link_events.append((now, "rx", len(data)))
+        operator.bytes_received(data, now)
         return receive_bytes(data, now)
 
     master.receive_bytes = tapped_receive  # type: ignore[method-assign]

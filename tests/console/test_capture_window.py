@@ -23,7 +23,7 @@ def test_a_lost_last_trunk_widens_the_window_back_to_the_first_poll_that_could_e
     def poll(t, img, offset, size=3):
         clock.t = t
         sent = Poll(seq=0, size=size, order=Velocity(), img=img, offset=offset)
-        op._on_events([PollSent(t, encode_frame(sent.encode()), sent)], t)
+        op.handle_events([PollSent(t, encode_frame(sent.encode()), sent)], t)
 
     poll(5.0, 2, 0)
     poll(8.0, 2, 100, size=0)  # 100 + 24 does not reach the end: not a possible last trunk
@@ -31,11 +31,11 @@ def test_a_lost_last_trunk_widens_the_window_back_to_the_first_poll_that_could_e
     poll(11.5, 2, 100)  # asked again
     clock.t = 12.7
     reply = Reply(mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
-    op._on_events([PoseReceived(reply, 12.7, 1.2),
+    op.handle_events([PoseReceived(reply, 12.7, 1.2),
                    ImageComplete(2, stream, 5.0, 12.7)], 12.7)
     poll(12.7, 3, 0)
     clock.t = 14.0
-    op._on_events([PoseReceived(reply, 14.0, 1.3), ImageProgress(3, 200, 300, bytes(198))], 14.0)
+    op.handle_events([PoseReceived(reply, 14.0, 1.3), ImageProgress(3, 200, 300, bytes(198))], 14.0)
     capture = op.image.capture
     assert capture["not_before_wall"] <= op.wall(10.0) + 1e-3  # the grab (~10.1) is inside
     assert capture["not_before_wall"] >= op.wall(8.0)  # and no wider than it must be

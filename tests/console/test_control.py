@@ -51,7 +51,7 @@ def take_centred(desk, client_id):
 
 def reply_at(operator, clock, **fields) -> None:
     """A reply arrives now, as the link loop hands it over."""
-    operator._on_events([PoseReceived(Reply(autopilot=True, position_valid=True, **fields), operator.now(), 0.1)],
+    operator.handle_events([PoseReceived(Reply(autopilot=True, position_valid=True, **fields), operator.now(), 0.1)],
                         operator.now())
 
 
@@ -164,7 +164,7 @@ def test_link_state_comes_from_replies(operator, clock):
         reply_at(operator, clock)
         link = http.get("/api/link").json()
         assert link["state"] == "up" and link["since_reply_s"] == pytest.approx(0.0)
-        operator._on_events([ReplyLost(operator.now(), operator.now())], operator.now())
+        operator.handle_events([ReplyLost(operator.now(), operator.now())], operator.now())
         clock.t += 1.0
         link = http.get("/api/link").json()
         assert link["state"] == "degraded" and link["since_reply_s"] == pytest.approx(1.0)
@@ -191,7 +191,7 @@ def test_the_prediction_stops_at_the_rovs_failsafe_time(operator, clock):
     operator.set_velocity(1.0, 0.0, 0.0, 0.0)
     # The wish goes out (the prediction runs the wishes as they were sent).
     poll = Poll(seq=0, size=0, order=Velocity(127, 0, 0, 0), img=0, offset=8191)
-    operator._on_events([PollSent(operator.now(), encode_frame(poll.encode()), poll)], operator.now())
+    operator.handle_events([PollSent(operator.now(), encode_frame(poll.encode()), poll)], operator.now())
     clock.t += 2.0
     early = operator.predicted_pose()
     clock.t += 2.0
@@ -242,7 +242,7 @@ def test_the_recording_holds_stop_as_a_neutral_wish_and_each_orders_outcome(oper
     operator.set_velocity(0.3, 0.0, 0.0, 0.0)
     clock.t += 1.0
     stop = operator.stop()
-    operator._order_state(max(operator._by_master_id), "acknowledged", operator.now())
+    operator._settled(operator.orders.last_master_id(), "acknowledged", operator.now())
     operator.close()
     s = series(operator.recorder.path)
     # Fig. 5: the commanded surge drops to 0 at STOP (it used to stay at 0.3).
@@ -257,7 +257,7 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
     from rovlink.link.secure import InauthenticFrame, LateReply
 
     for _ in range(4):
-        operator._on_events([InauthenticFrame("reply"), LateReply(False)], operator.now())
+        operator.handle_events([InauthenticFrame("reply"), LateReply(False)], operator.now())
         clock.t += 1.0
     link = operator.link_state()
     assert link["inauthentic_frames"] == 4 and link["late_replies"] == 4 and link["auth_alert"]

@@ -25,14 +25,14 @@ def _operator():
 def _poll(op, clock, t, order) -> None:
     clock.t = t
     poll = Poll(seq=0, size=0, order=order, img=0, offset=8191)
-    op._on_events([PollSent(t, encode_frame(poll.encode()), poll)], t)
+    op.handle_events([PollSent(t, encode_frame(poll.encode()), poll)], t)
 
 
 def _reply(op, clock, t, **kw) -> None:
     clock.t = t
     reply = Reply(armed=True, mode=Mode.DEPTH_HOLD, autopilot=True, position_valid=True, attitude_valid=True,
                   yaw_cdeg=-490, z_cm=300, **kw)
-    op._on_events([PoseReceived(reply, t, 0.3)], t)
+    op.handle_events([PoseReceived(reply, t, 0.3)], t)
 
 
 def test_a_stick_moved_now_does_not_move_the_ghost_before_its_poll_can_arrive():

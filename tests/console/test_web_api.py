@@ -125,7 +125,7 @@ def test_a_kept_picture_that_cannot_be_decoded_is_422_saying_why(client, operato
     # A picture kept from an ROV of an older rovlink (DEBT format 1).
     data = debt.encode(np.full((24, 32), 90, dtype=np.uint8), 200)
     with operator._lock:
-        operator._image_history.append({"n": 7, "img": 1, "capture": None, "bytes": len(data),
+        operator.images._history.append({"n": 7, "img": 1, "capture": None, "bytes": len(data),
                                         "total_bytes": len(data), "partial": False, "received_wall": 0.0,
                                         "seconds": 1.0, "settings": None,
                                         "stream": bytes([0xB0 | (data[0] & 0x0F)]) + data[1:]})
