@@ -1,10 +1,10 @@
 """Recorded sessions: reading them, playing them back, plotting them.
 
-A recording (written by `console.operator.Recorder`) is JSON lines, each with
+A recording (written by `console.session.recorder.Recorder`) is JSON lines, each with
 `k` (kind) and `t` (session seconds): "meta" first, then "tx"/"rx" frames as
 hex, "wish" velocity changes, "order" and "order_state", "pose", "image".
 
-Playback does not need a ROV (`replaycontrol` gives it a timeline: pause, seek, speed): the received bytes are parsed again with the
+Playback (`replaycontrol`: a timeline to pause, seek and change speed) needs no ROV: the received bytes are parsed again with the
 link's own FrameDecoder and Reply, image trunks reassembled by (IMG, OFFSET)
 exactly as the master did, and the resulting events handed to an Operator,
 which shows them as if live (its scene and web page work unchanged).
@@ -17,7 +17,6 @@ velocity the ROV received (carried by polls that were answered).
 
 from __future__ import annotations
 
-import asyncio
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -111,22 +110,6 @@ class ReplyReplayer:
                 events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
             self.image = _Assembly()
         return events
-
-
-async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None) -> dict:
-    """Play a recording into `operator` in (scaled) real time, to its end; returns
-    counts.  A timeline to pause, seek and change speed: `replaycontrol`."""
-    from .replaycontrol import ReplayController
-
-    if not speed > 0:
-        raise ValueError("speed must be positive")
-    controller = ReplayController(operator, path, speed=speed, on_done=on_done).start()
-    try:
-        while not controller.ended:
-            await asyncio.sleep(0.02)
-    finally:
-        controller.close()
-    return dict(controller.counts)
 
 
 # ---------------------------------------------------------------------------

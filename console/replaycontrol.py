@@ -32,6 +32,7 @@ controller of its Operator with `controller_of`.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import threading
@@ -348,3 +349,17 @@ def _check_speed(speed) -> None:
 
 def _clock_text(t: float) -> str:
     return f"{int(t // 60)}:{t % 60:04.1f}"
+
+
+async def replay(operator, path: str | Path, *, speed: float = 1.0, on_done=None) -> dict:
+    """Play a recording into `operator` in (scaled) real time, to its end; returns
+    counts (`ReplayController` for a timeline to pause, seek and change speed)."""
+    if not speed > 0:
+        raise ValueError("speed must be positive")
+    controller = ReplayController(operator, path, speed=speed, on_done=on_done).start()
+    try:
+        while not controller.ended:
+            await asyncio.sleep(0.02)
+    finally:
+        controller.close()
+    return dict(controller.counts)

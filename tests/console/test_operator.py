@@ -14,7 +14,8 @@ import pytest
 
 from rovlink import debt
 from rovlink.console.operator import Operator, OrderError
-from rovlink.console.recording import RecordingError, plot, replay, series
+from rovlink.console.recording import RecordingError, plot, series
+from rovlink.console.replaycontrol import replay
 from rovlink.console.stack import Stack, StackConfig
 
 

@@ -8,7 +8,8 @@ from __future__ import annotations
 import asyncio
 
 from rovlink.console.operator import Operator
-from rovlink.console.recording import read_records, replay, series
+from rovlink.console.recording import read_records, series
+from rovlink.console.replaycontrol import replay
 from rovlink.console.stack import Stack, StackConfig
 
 from .conftest import wait_for
