@@ -68,7 +68,8 @@ from rovlink.console.operator import MAX_SPEED_MPS, Operator, OrderError, Pose
 
 from . import chase, frames
 from .chase import SCREEN_WIDTH_M, ViewerView
-from .panel import ControlPanel
+from .colours import CAPTURE_RGB, FRUSTUM_RGB, GHOST_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
+from .panel import ControlPanel, PanelCallbacks
 from .roi import draw_roi, roi_from_world, roi_outline
 from .rov_model import load_rov_mesh
 
@@ -116,14 +117,6 @@ START_POSITION = (0.0, 0.0, -2.0)  # where the screen waits for the first odomet
 
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
-
-ROV_RGB = (232, 96, 30)
-GHOST_RGB = (120, 200, 255)
-TARGET_RGB = (80, 230, 120)
-UNCERTAINTY_RGB = (255, 80, 80)
-FRUSTUM_RGB = (255, 230, 120)
-CAPTURE_RGB = (230, 120, 255)
-
 
 @dataclass(frozen=True)
 class SeabedAsset:
@@ -439,8 +432,11 @@ class ConsoleScene:
 
         with self._lock:
             self.views[client.client_id] = ViewerView()
-        panel = ControlPanel(client.gui, self, lambda order: self.desk.submit(order, caller), notify,
-                             client_id=client.client_id)
+        client_id = client.client_id
+        panel = ControlPanel(client.gui, self.operator, PanelCallbacks(
+            submit=lambda order: self.desk.submit(order, caller), notify=notify, refused=self.note_refusal,
+            set_view=lambda mode: self.set_view(client_id, mode), centre_view=lambda: self.centre_view(client_id)),
+            image_px=self.image_px, target=self.target_state())
         panel.set_permitted(self._may_order(caller))
         if caller.scene_key is not None:
             self._minimize_panel(client)

@@ -8,9 +8,10 @@ Goals
   figures (commanded against received velocity, Fig. 5; a time-lapse of the link's
   traffic and losses, Fig. 4).
 - A thin adapter over the command layer (`rovlink.console.control`), as
-  nerfstudio's control panel is over its viewer: every control builds one typed
-  order and hands it to `submit` (the scene's desk, with this viewer's caller);
-  it holds no order of its own.  What a control shows comes from the operator's
+  nerfstudio's control panel is over its viewer: it is handed its callbacks
+  (`PanelCallbacks`) and never imports the scene.  Every control builds one
+  typed order and hands it to `submit` (the scene's desk, with this viewer's
+  caller); it holds no order of its own.  What a control shows comes from the operator's
   events (`render_*`), never from an earlier touch, so that no widget can resend
   an old value.
 - Built per viewer on its own `client.gui` (viser's camera-poses example): a
@@ -33,6 +34,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from viser import uplot
@@ -41,6 +43,14 @@ from rovlink.console import control
 from rovlink.console.control import AXES, KEY_GAIN, KEYS, LIMITS, MODES, NotHolder
 from rovlink.console.operator import OrderError
 from rovlink.console.scene import chase
+from rovlink.console.scene.colours import (
+    CAPTURE_RGB,
+    FRUSTUM_RGB,
+    GHOST_RGB,
+    ROV_RGB,
+    TARGET_RGB,
+    UNCERTAINTY_RGB,
+)
 
 log = logging.getLogger("rovlink.console.scene.panel")
 
@@ -92,7 +102,6 @@ def link_summary(s: dict) -> str:
 
 def legend_html() -> str:
     """What each thing drawn in the scene is, in its colour."""
-    from rovlink.console.scene import app  # the colours live with the nodes
 
     def swatch(rgb, text: str, opacity: float = 1.0) -> str:
         r, g, b = rgb
@@ -101,29 +110,38 @@ def legend_html() -> str:
                 f'background:rgba({r},{g},{b},{opacity})"></span><span>{text}</span></div>')
 
     return ('<div style="font-size:0.75em;line-height:1.25">'
-            + swatch(app.ROV_RGB, "vehicle: last pose received")
-            + swatch(app.GHOST_RGB, "ghost: pose predicted now", 0.8)
-            + swatch(app.UNCERTAINTY_RGB, "ring: how far off it may be")
-            + swatch(app.TARGET_RGB, "target and path (sent on Send)", 0.6)
-            + swatch(app.ROV_RGB, "line: trail of poses received")
-            + swatch(app.FRUSTUM_RGB, "camera now, its seabed footprint")
-            + swatch(app.CAPTURE_RGB, "camera at the picture's capture")
+            + swatch(ROV_RGB, "vehicle: last pose received")
+            + swatch(GHOST_RGB, "ghost: pose predicted now", 0.8)
+            + swatch(UNCERTAINTY_RGB, "ring: how far off it may be")
+            + swatch(TARGET_RGB, "target and path (sent on Send)", 0.6)
+            + swatch(ROV_RGB, "line: trail of poses received")
+            + swatch(FRUSTUM_RGB, "camera now, its seabed footprint")
+            + swatch(CAPTURE_RGB, "camera at the picture's capture")
             + "</div>")
 
 
-class ControlPanel:
-    """One viewer's panel.  `submit(order)` carries an order out for this
-    viewer (raising NotHolder or OrderError); `notify(title, text)` tells
-    the viewer why not."""
+@dataclass(frozen=True)
+class PanelCallbacks:
+    """What a panel may do beyond showing the session: handed in by whoever
+    builds it (the scene, per viewer), as nerfstudio's control panel is."""
 
-    def __init__(self, gui, scene, submit: Callable, notify: Callable[[str, str], None] | None = None, *,
-                 client_id: int | None = None) -> None:
+    submit: Callable[[object], object]  # carry an order out for this viewer (raises NotHolder or OrderError)
+    notify: Callable[[str, str], None] | None = None  # tell the viewer why not (title, text)
+    refused: Callable[[], None] | None = None  # an order was refused (the scene counts them)
+    set_view: Callable[[str], None] | None = None  # this viewer's camera: follow, top or free
+    centre_view: Callable[[], None] | None = None  # this viewer's camera onto the vehicle
+
+
+class ControlPanel:
+    """One viewer's panel over `session` (the Operator: read, never ordered
+    directly).  Orders leave through `callbacks.submit` only."""
+
+    def __init__(self, gui, session, callbacks: PanelCallbacks, *, image_px: tuple[int, int],
+                 target: dict | None = None) -> None:
         self.gui = gui
-        self.client_id = client_id  # the viewer whose camera this panel's View window sets
-        self.scene = scene
-        self.operator = scene.operator
-        self._submit_order = submit
-        self._notify = notify
+        self.operator = session
+        self.callbacks = callbacks
+        self.image_px = image_px
         self._refused_at = -1e9
         # Renders assign values, and viser calls our callbacks for them (client
         # None, this thread): `_rendering` tells them not to order.
@@ -139,7 +157,7 @@ class ControlPanel:
         self._build_link()
         self._build_plots()
         self.render_wish(self.operator.wish_state())
-        self.render_target(scene.target_state())
+        self.render_target(target)
         self.render_image_settings()
 
     # ------------------------------------------------------------------
@@ -148,14 +166,16 @@ class ControlPanel:
 
     def submit(self, order):
         """Hand `order` to the command layer; a refusal is shown, not raised."""
+        callbacks = self.callbacks
         try:
-            return self._submit_order(order)
+            return callbacks.submit(order)
         except (NotHolder, OrderError) as exc:
             now = time.monotonic()
-            if self._notify is not None and now - self._refused_at >= REFUSAL_NOTICE_S:
+            if callbacks.notify is not None and now - self._refused_at >= REFUSAL_NOTICE_S:
                 self._refused_at = now
-                self._notify("Not sent", str(exc))
-            self.scene.note_refusal()
+                callbacks.notify("Not sent", str(exc))
+            if callbacks.refused is not None:
+                callbacks.refused()
             return None
 
     def _on(self, handle, make_order: Callable) -> None:
@@ -194,7 +214,7 @@ class ControlPanel:
     def _build_view(self) -> None:
         add_panel = getattr(self.gui, "add_panel", None)  # viser >= 1.1
         self.view_panel = None
-        if self.client_id is not None and add_panel is not None:
+        if self.callbacks.set_view is not None and add_panel is not None:
             self.view_panel = add_panel()
             container = self.view_panel.add_tab("View")
         else:  # an older viser, or a panel for the whole server: a folder in the main panel
@@ -206,8 +226,11 @@ class ControlPanel:
             self.legend = self.gui.add_html(legend_html())
         if self.view_panel is not None:
             self.view_panel.float(x=10, y=-10, width=VIEW_PANEL_WIDTH_PX)  # the lower left corner
-        self.view.on_update(lambda _event: self.scene.set_view(self.client_id, self.view.value))
-        self.centre_button.on_click(lambda _event: self.scene.centre_view(self.client_id))
+        set_view, centre_view = self.callbacks.set_view, self.callbacks.centre_view
+        if set_view is not None:
+            self.view.on_update(lambda _event: set_view(self.view.value))
+        if centre_view is not None:
+            self.centre_button.on_click(lambda _event: centre_view())
 
     # ------------------------------------------------------------------
     # Vehicle: arm, mode, state
@@ -330,7 +353,7 @@ class ControlPanel:
     def _build_image(self) -> None:
         settings = self.operator.requested_settings
         with self.gui.add_folder("Image"):
-            w, h = self.scene.image_px
+            w, h = self.image_px
             self.picture = self.gui.add_image(np.full((h, w, 3), 30, np.uint8), label="Latest image",
                                               format="jpeg", jpeg_quality=90)
             self.progress = self.gui.add_progress_bar(0.0, color="cyan")

@@ -37,7 +37,7 @@ from rovlink.console.scene.app import (
     SeabedAsset,
     as_rgb,
 )
-from rovlink.console.scene.panel import ControlPanel, link_bins, step_values
+from rovlink.console.scene.panel import ControlPanel, PanelCallbacks, link_bins, step_values
 from rovlink.console.scene.roi import draw_roi, roi_from_pixels
 from rovlink.console.scene.rov_model import ASSET_PATH, build_rov_mesh, load_rov_mesh
 from rovlink.console.stack import Stack, StackConfig
@@ -370,7 +370,8 @@ def test_panel_controls_reach_the_operator(live):
     op, scene = live.operator, live.scene
     # A panel ordering for a script holding control (nobody in control: neutral).
     holder = scene.desk.take(None, "test script")
-    panel = ControlPanel(scene.server.gui, scene, lambda order: scene.desk.submit(order, control.Caller(holder.id)))
+    panel = ControlPanel(scene.server.gui, op, PanelCallbacks(
+        submit=lambda order: scene.desk.submit(order, control.Caller(holder.id))), image_px=scene.image_px)
     orders_before = len(op.orders_state())
 
     # Mode: the dropdown chooses, the button requests; the order is followed.
