@@ -7,8 +7,9 @@ range, a string where a number belongs) is refused with 422 before it
 reaches the Operator.
 
 Plan: request models forbid unknown fields and take numbers strictly (no
-"0.5" strings, no booleans as numbers, no NaN); response models mirror the
-dicts of `Operator.state()` and its parts.  Orders keep their kind-specific
+"0.5" strings, no booleans as numbers, no NaN); the session's state
+types are console/session/state.py's (the getters' dicts are checked against
+them), reused here as they are.  Orders keep their kind-specific
 details as extra fields, so `OrderInfo` allows them.
 """
 
@@ -19,6 +20,14 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
 
 from rovlink.console.control import MODES
+from rovlink.console.session.state import (
+    ImageState,
+    LinkState,
+    LogEntry,
+    OrderInfo,
+    PoseState,
+    VelocityWish,
+)
 from rovlink.link.messages import MAX_BUDGET
 
 # The one mode list (the protocol's), as a type for the schema.
@@ -103,154 +112,6 @@ class TakeControl(Request):
 class ErrorBody(BaseModel):
     detail: object = Field(description="FastAPI's detail: a string, or a list of field errors for a 422")
     message: str = Field(description="one line saying what is wrong")
-
-
-class Pose(BaseModel):
-    x_m: float
-    y_m: float
-    z_m: float
-    roll_deg: float
-    pitch_deg: float
-    yaw_deg: float
-
-
-class MeasuredVelocity(BaseModel):
-    forward_mps: float
-    right_mps: float
-    down_mps: float
-    yaw_dps: float
-
-
-class PoseState(BaseModel):
-    t: float = Field(description="session time, seconds")
-    received: Pose | None = Field(description="the last odometry the ROV sent")
-    predicted: Pose | None = Field(description="dead reckoning from it to now, under the velocity wish")
-    armed: bool | None = None
-    mode: str | None = None
-    failsafe: bool | None = None
-    autopilot: bool | None = None
-    position_valid: bool | None = None
-    odometry_age_s: float | None = None
-    hold: bool | None = Field(None, description="the ROV holds position after a STOP or failsafe (protocol 1.1)")
-    attitude_valid: bool | None = Field(None, description="roll, pitch and yaw are measured (protocol 1.1)")
-    stopping: bool | None = Field(None, description="a STOP goes out until the ROV confirms it (no wish meanwhile)")
-    stale: bool | None = Field(None, description="the link is lost: the received pose is old news")
-    uncertainty_m: float | None = Field(None, description="how far the vehicle may be from the prediction")
-    velocity: MeasuredVelocity | None = Field(None, description="speeds from successive received poses")
-
-
-class ImageSettingsState(BaseModel):
-    roi: list[int] | None
-    shift: int
-    mono: bool
-    budget_bytes: int
-
-
-class CapturePose(BaseModel):
-    x_m: float
-    y_m: float
-    z_m: float
-    roll_deg: float
-    pitch_deg: float
-    yaw_deg: float
-
-
-class Capture(BaseModel):
-    t: float = Field(description="session seconds of the best estimate")
-    wall: float = Field(description="clock time of the best estimate, Unix seconds")
-    not_before_wall: float | None = Field(description="the capture was not earlier (null: any age)")
-    not_after_wall: float = Field(description="the capture was not later (its first trunk arrived)")
-    how: Literal["prefetch", "request", "unknown"]
-    pose: CapturePose | None = Field(description="odometry at capture (null: position not valid)")
-
-
-class PastImage(BaseModel):
-    n: int = Field(description="the image's serial (GET /api/images/{n}.png)")
-    img: int | None
-    capture: Capture | None
-    bytes: int = Field(description="bytes of DEBT stream received")
-    total_bytes: int | None
-    partial: bool = Field(description="abandoned before it was complete")
-    received_wall: float
-    seconds: float | None = Field(description="from its first trunk to its last")
-    settings: ImageSettingsState | None
-
-
-class ImageState(BaseModel):
-    img: int | None = Field(description="image object number on the link")
-    received_bytes: int
-    total_bytes: int | None
-    complete: bool
-    decoded_bytes: int = Field(description="length of the prefix the latest picture was decoded from")
-    started_at: float | None
-    decoded_at: float | None
-    images_completed: int
-    serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
-    capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
-    settings: ImageSettingsState | None
-
-
-class LinkState(BaseModel):
-    state: Literal["starting", "up", "degraded", "lost", "replay"] = Field(
-        description="from replies: lost after lost_after_s without one, degraded on recent losses or CRC errors")
-    since_reply_s: float | None = Field(description="seconds since the last reply")
-    lost_after_s: float
-    rov_failsafe_s: float
-    failsafe_inferred: bool = Field(description="no poll reached the ROV for its failsafe time: it is in FAILSAFE")
-    failsafe_inferred_at: float | None = Field(description="when it went into FAILSAFE, Unix time")
-    failsafe_inferred_since: str | None = Field(description="the same, HH:MM:SS local time")
-    t: float
-    poll_rate_hz: float
-    reply_rate_hz: float
-    round_trip_s: float | None = Field(description="median of recent round trips")
-    last_round_trip_s: float | None
-    polls_sent: int
-    replies: int
-    replies_lost: int
-    crc_errors: int
-    protocol_errors: int
-    bytes_per_s: float = Field(description="both directions, last 10 s")
-    bytes_sent: int
-    bytes_received: int
-    odometry_age_s: float | None
-    failsafe: bool
-    autopilot: bool
-    estimated_ber: float | None
-    images_completed: int
-    images_abandoned: int
-    version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated')
-    inauthentic_frames: int = Field(0, description="forged or replayed frames dropped (protocol 2)")
-    late_replies: int = Field(0, description="authentic replies that came too late (protocol 2)")
-    auth_alert: bool = Field(False, description="more than 3 inauthentic frames in the last 10 s")
-    link_up: bool = Field(description="replies arrive (state up or degraded)")
-    transport_up: bool
-
-
-class VelocityWish(BaseModel):
-    vx: float
-    vy: float
-    vz: float
-    vyaw: float
-
-
-class OrderInfo(BaseModel):
-    """An order's progress; its kind-specific details ride along as extra fields."""
-
-    model_config = ConfigDict(extra="allow")
-
-    id: int
-    kind: str
-    state: str = Field(description="queued or requested, sent, acknowledged (one-shot) or followed (arm, mode), "
-                                   "'rejected: <reason>', 'refused: <reason>', 'cancelled: <reason>'")
-    t_queued: float
-
-
-class LogEntry(BaseModel):
-    t: float = Field(description="session seconds")
-    wall: float = Field(description="clock time, Unix seconds")
-    text: str
-    level: Literal["alert", "warn", "info"] = Field(
-        description="alert: the pilot must see it (link lost, failsafe, an order refused); info: routine")
 
 
 class ControlStatus(BaseModel):

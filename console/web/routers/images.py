@@ -17,8 +17,9 @@ from fastapi import APIRouter, HTTPException, Query, Request, Response
 
 from rovlink.console.operator import IMAGE_HISTORY
 
+from ...session.state import PastImage
 from ..deps import OperatorDep
-from ..models import ErrorBody, PastImage
+from ..models import ErrorBody
 
 router = APIRouter(prefix="/api/images", tags=["image"])
 
