@@ -92,13 +92,10 @@ class Stack:
         self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
                                log=self._channel_log)
         self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
-                            default_settings=c.image_settings)
+                            default_settings=c.image_settings, key=c.key)
         self.operator = Operator(op_end, bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, record=c.record,
                                  image_settings=c.image_settings)
         if c.key is not None:
-            from rovlink.link.secure import SecureSlave
-
-            self.node.slave = SecureSlave(self.node.slave, c.key)
             self.operator.authenticate(c.key)
         loop = asyncio.get_running_loop()
         self._tasks = [

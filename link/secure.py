@@ -5,11 +5,13 @@ decides (orders, ACK, images, failsafe); version 2 only decides which frames
 exist for them.  A frame that is not authentic, is replayed, or arrives late
 never reaches them.
 
-Plan: `SecureSlave` and `SecureMaster` have the interface of `Slave` and
-`Master` that the drivers and `SimLink` use (`receive_bytes`, `next_poll`,
-`take_events`, `deadline`, `tick`, ...; everything else is passed through),
-and put `link.auth`'s chain and framing between the bytes and the machine
-they wrap:
+Plan: `SecureSlave` and `SecureMaster` hold the `Slave` or `Master` they
+wrap (`.slave`, `.master`) and put `link.auth`'s chain and framing between
+the bytes and that machine.  Each has the methods the drivers and `SimLink`
+call (`receive_bytes`, `next_poll`, `take_events`, `deadline`, `tick`, ...);
+`SecureMaster` also passes the operator's wishes, orders and the figures it
+shows to its master, each by a method of its own.  Anything else is read on
+the machine itself:
 
 - ROV: an authentic HELLO is answered with a SYNC (the slave's status and
   ACK, no trunk) and touches nothing else; an authentic, fresh poll goes to
@@ -45,8 +47,9 @@ from .auth import (
     RovChain,
 )
 from .frame import MAX_FRAME, OVERHEAD
-from .master import PollSent
-from .messages import Poll, ProtocolError
+from .master import Master, MasterStats, PollSent
+from .messages import ImageSettings, Mode, Poll, Position, ProtocolError, Reply, ReservedOrder, Stop
+from .slave import Slave, SlaveOutput
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
@@ -102,26 +105,12 @@ class SecureStats:
     restarts_seen: int = 0
 
 
-class _Wrapper:
-    """Reads and writes of anything but the wrapper's own attributes go to the wrapped machine."""
+class SecureSlave:
+    """Version 2 in front of a `Slave`.  The drivers call `receive_bytes`,
+    `tick`, `order_outcome` (SimLink's autopilot) and `failsafe_at`; the ROV
+    node keeps the slave itself (`.slave`) for the rest."""
 
-    _own: frozenset = frozenset()
-
-    def __getattr__(self, name):
-        return getattr(self.__dict__["_inner"], name)
-
-    def __setattr__(self, name, value) -> None:
-        if name in self._own or "_inner" not in self.__dict__:
-            object.__setattr__(self, name, value)
-        else:
-            setattr(self._inner, name, value)
-
-
-class SecureSlave(_Wrapper):
-    _own = frozenset({"slave", "chain", "decoder"})
-
-    def __init__(self, slave, key: bytes, *, boot: bytes | None = None) -> None:
-        object.__setattr__(self, "_inner", slave)
+    def __init__(self, slave: Slave, key: bytes, *, boot: bytes | None = None) -> None:
         self.slave = slave
         # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2,
         # and a link's maximum frame size counts the tag).
@@ -130,9 +119,19 @@ class SecureSlave(_Wrapper):
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=MAX_POLL_LEN)
 
-    def _sync_payload(self) -> bytes:
-        from .messages import Reply
+    # -- what the drivers call besides receive_bytes ------------------------
 
+    def tick(self, now: float) -> list[object]:
+        return self.slave.tick(now)
+
+    def order_outcome(self, token: int, accepted: bool, reason: int | None = None, now: float = 0.0) -> list[object]:
+        return self.slave.order_outcome(token, accepted, reason, now)
+
+    @property
+    def failsafe_at(self) -> float | None:
+        return self.slave.failsafe_at
+
+    def _sync_payload(self) -> bytes:
         status = self.slave.status
         reply = Reply(**{k: getattr(status, k) for k in status.__dataclass_fields__}, ack=self.slave.ack,
                       failsafe=self.slave.failsafe, hold=self.slave.hold, rejected=self.slave.rejected,
@@ -141,9 +140,7 @@ class SecureSlave(_Wrapper):
         payload[13] |= SYNC_BIT
         return bytes(payload)
 
-    def receive_bytes(self, data: bytes, now: float):
-        from .slave import SlaveOutput
-
+    def receive_bytes(self, data: bytes, now: float) -> SlaveOutput:
         out = SlaveOutput(events=self.slave.tick(now))
         replies = []
         before = self.decoder.counters.inauthentic
@@ -167,12 +164,13 @@ class SecureSlave(_Wrapper):
         return out
 
 
-class SecureMaster(_Wrapper):
-    _own = frozenset({"master", "chain", "decoder", "stats2", "_hello_deadline", "_last_was_hello", "_events",
-                      "_last_size", "_boot", "next_poll", "on_reply"})
+class SecureMaster:
+    """Version 2 in front of a `Master`.  The drivers call `next_poll`,
+    `take_events`, `deadline` and `receive_bytes`; the operator's wishes and
+    orders, and the figures it shows, go to the master by the methods below
+    of the same names; anything else is read on the master itself (`.master`)."""
 
-    def __init__(self, master, key: bytes) -> None:
-        object.__setattr__(self, "_inner", master)
+    def __init__(self, master: Master, key: bytes) -> None:
         self.master = master
         master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
         # §8: the link's maximum frame size counts the tag, so the trunks the
@@ -190,6 +188,50 @@ class SecureMaster(_Wrapper):
         # Called with (payload, sync, now) for every authentic, timely reply
         # handed to the master: what a recording must keep to be replayed.
         self.on_reply = None
+
+    # -- the operator's wishes and orders, and what it shows: the master's --
+
+    def set_velocity(self, vx: int, vy: int, vz: int, vyaw: int, now: float) -> None:
+        self.master.set_velocity(vx, vy, vz, vyaw, now)
+
+    def set_pilot_in_force(self, in_force: bool) -> None:
+        self.master.set_pilot_in_force(in_force)
+
+    def set_attended(self, attended: bool) -> None:
+        self.master.set_attended(attended)
+
+    def recentred(self) -> None:
+        self.master.recentred()
+
+    def request_arm(self, arm: bool, now: float) -> None:
+        self.master.request_arm(arm, now)
+
+    def request_mode(self, mode: Mode | int, now: float) -> None:
+        self.master.request_mode(mode, now)
+
+    def send_order(self, order: Position | ImageSettings | Stop | ReservedOrder) -> int:
+        return self.master.send_order(order)
+
+    def cancel_stop(self) -> bool:
+        return self.master.cancel_stop()
+
+    def abandon_image(self) -> None:
+        self.master.abandon_image()
+
+    @property
+    def stopping(self) -> bool:
+        return self.master.stopping
+
+    @property
+    def stats(self) -> MasterStats:
+        """The master's counters (version 2's own: `stats2`)."""
+        return self.master.stats
+
+    def estimated_ber(self) -> float:
+        return self.master.estimated_ber()
+
+    def reply_frame_bytes(self, size: int) -> int:
+        return self.master.reply_frame_bytes(size)
 
     # -- timing -------------------------------------------------------------
 

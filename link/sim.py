@@ -109,8 +109,9 @@ class SimLink:
             if not self.master_down:
                 dl = self.master.deadline()
                 candidates.append(dl if dl is not None else self._master_ready_at)
-            if not self.slave_down and not self.slave.failsafe:
-                candidates.append(self.slave._last_poll_at + self.slave.failsafe_s)
+            failsafe_at = self.slave.failsafe_at
+            if not self.slave_down and failsafe_at is not None:
+                candidates.append(failsafe_at)
             nxt = min(c for c in candidates if c is not None)
             # Never stand still: a candidate in the past means "now".
             self.now = max(now, nxt) if nxt > now else _next_after(now, nxt)

@@ -321,6 +321,11 @@ class Slave:
         return self._failsafe
 
     @property
+    def failsafe_at(self) -> float | None:
+        """When the failsafe starts unless a valid poll comes first; None while in it."""
+        return None if self._failsafe else self._last_poll_at + self.failsafe_s
+
+    @property
     def held_img(self) -> int | None:
         return self._held_img
 

@@ -129,11 +129,7 @@ def run_rov(args) -> int:
             await endpoint.start()
         except TransportError as exc:
             raise CommandError(str(exc)) from None
-        node = RovNode(endpoint, bridge, camera.capture, failsafe_s=args.failsafe, default_settings=settings)
-        if key is not None:
-            from rovlink.link.secure import SecureSlave
-
-            node.slave = SecureSlave(node.slave, key)
+        node = RovNode(endpoint, bridge, camera.capture, failsafe_s=args.failsafe, default_settings=settings, key=key)
         version = ("link version 2, every frame authenticated" if key is not None else
                    "INSECURE: link version 1.1, frames not authenticated")
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "

@@ -52,6 +52,7 @@ import numpy as np
 
 from rovlink.link.aio import run_slave
 from rovlink.link.messages import ImageSettings, Mode, Position
+from rovlink.link.secure import SecureSlave
 from rovlink.link.slave import (
     ArmRequested,
     BrakeRequested,
@@ -122,6 +123,7 @@ class RovNode:
         prefetch: bool = True,
         prefetch_max_age_s: float = 5.0,
         encode: Callable[..., bytes] | None = None,
+        key: bytes | None = None,
     ) -> None:
         self.endpoint = endpoint
         self.bridge = bridge
@@ -143,6 +145,9 @@ class RovNode:
             default_settings=default_settings,
             now=time.monotonic(),
         )
+        # What the link drives: the slave itself (version 1.1), or, with a key,
+        # version 2 in front of it (docs/PROTOCOL.md §8).
+        self.link_end = self.slave if key is None else SecureSlave(self.slave, key)
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-encoder")
         # DEBT's coder compiles on first use (tens of seconds when its cache
         # is cold): do it now, while the link comes up, not at the first image,
@@ -169,7 +174,7 @@ class RovNode:
         self._loop = asyncio.get_running_loop()
         status_task = asyncio.create_task(self._status_loop())
         try:
-            await run_slave(self.slave, self.endpoint, self._on_events)
+            await run_slave(self.link_end, self.endpoint, self._on_events)
         finally:
             status_task.cancel()
             self._worker.shutdown(wait=False, cancel_futures=True)

@@ -67,11 +67,12 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
     else:
         master = Master(bitrate_bps=bitrate, delay_s=delay_s, rng=random.Random(seed))
         slave = Slave(image_source=lambda img, s: stream)
+    master_end, slave_end = master, slave  # what the link drives
     if mode == "rovlink v2":
         from rovlink.link.secure import SecureMaster, SecureSlave
 
         key = random.Random(seed).randbytes(32)
-        master, slave = SecureMaster(master, key), SecureSlave(slave, key)
+        master_end, slave_end = SecureMaster(master, key), SecureSlave(slave, key)
     channel = Channel(LinkParams(bitrate_bps=bitrate, delay_s=delay_s, ber=ber), seed=seed)
     result = Session()
     pending_wish: list[tuple[float, tuple[int, int, int, int]]] = []
@@ -95,8 +96,8 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
                     del pending_wish[: i + 1]
                     break
 
-    sim = SimLink(master, slave, channel, on_master_event=on_master, on_slave_event=on_slave)
-    original_next_poll = master.next_poll
+    sim = SimLink(master_end, slave_end, channel, on_master_event=on_master, on_slave_event=on_slave)
+    original_next_poll = master_end.next_poll
 
     def next_poll(now):
         frame = original_next_poll(now)
@@ -104,7 +105,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
             result.poll_times.append(now)
         return frame
 
-    master.next_poll = next_poll  # type: ignore[method-assign]
+    master_end.next_poll = next_poll  # type: ignore[method-assign]
 
     if steering:
         def change(now):

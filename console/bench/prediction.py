@@ -53,7 +53,7 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
         r = random.Random(img * 7919 + settings.budget_bytes)
         return bytes(r.randrange(256) for _ in range(settings.budget_bytes))
 
-    slave = SecureSlave(Slave(image_source=source), key)
+    slave = Slave(image_source=source)
     truth = VehicleModel(state=VehicleState(z_m=3.0), floor_depth_m=None)
     applied = {"pilot": PilotInput()}
     first_wish: list[float] = []
@@ -73,7 +73,7 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
         operator._on_events([event], t)
 
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=ber), seed=seed)
-    sim = SimLink(master, slave, channel, on_master_event=on_master, on_slave_event=on_slave)
+    sim = SimLink(master, SecureSlave(slave, key), channel, on_master_event=on_master, on_slave_event=on_slave)
 
     def step_truth(t):
         s = truth.step(0.02, Controls(pilot=applied["pilot"], mode=SubMode.ALT_HOLD, armed=True))
@@ -116,7 +116,7 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
             def yaw_err(a):
                 return abs((a - truth_yaw + 180.0) % 360.0 - 180.0)
 
-            samples.append((age, master.steering(t),
+            samples.append((age, master.master.steering(t),
                             math.hypot(rx - s.x_m, ry - s.y_m), math.hypot(predicted.x_m - s.x_m, predicted.y_m - s.y_m),
                             yaw_err(ryaw), yaw_err(predicted.yaw_deg)))
         sim.at(t + 0.1, sample)

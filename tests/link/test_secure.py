@@ -24,7 +24,7 @@ def _session(duration_s=60.0, seed=1, ber=0.0, order_at=None):
     master = SecureMaster(Master(rng=random.Random(seed)), K)
     slave = SecureSlave(Slave(image_source=_source), K)
     # An armed vehicle with a position estimate: a POSITION can be carried out.
-    slave.update_status(Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True,
+    slave.slave.update_status(Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True,
                                attitude_valid=True))
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=ber), seed=seed)
     master_events, slave_events, polls = [], [], []
@@ -129,7 +129,7 @@ def test_after_a_rov_restart_an_unanswered_order_is_of_unknown_fate_and_not_rese
     master = SecureMaster(Master(rng=random.Random(5)), K)
     armed = Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
     slave = SecureSlave(Slave(image_source=_source), K)
-    slave.update_status(armed)
+    slave.slave.update_status(armed)
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085), seed=5)
     events, executed = [], []
     # The autopilot never answers: the order stays in progress (ACK not flipped).
@@ -141,7 +141,7 @@ def test_after_a_rov_restart_an_unanswered_order_is_of_unknown_fate_and_not_rese
 
     def restart(t):
         new = SecureSlave(Slave(image_source=_source, now=t), K)
-        new.update_status(armed)
+        new.slave.update_status(armed)
         link.slave = new
 
     link.at(10.0, restart)

@@ -90,7 +90,7 @@ def _braking_rov(slave: Slave):
 def _link(seed: int = 1, *, mtu: int = 259, autopilot="at once"):
     master = SecureMaster(Master(rng=random.Random(seed), max_frame=mtu), K)
     slave = SecureSlave(Slave(image_source=_source, max_frame=mtu), K)
-    slave.update_status(ARMED)
+    slave.slave.update_status(ARMED)
     master_events: list[tuple[float, object]] = []
     slave_events: list[tuple[float, object]] = []
     on_rov = _braking_rov(slave.slave)
@@ -132,7 +132,7 @@ def test_a_reply_held_back_past_the_resend_confirms_nothing():
     master, slave, link, mev, sev = _link(2)
     link.run_until(6.0)
     master.set_velocity(60, 0, 0, 0, 6.0)
-    slave.update_status(dataclasses.replace(slave.status, mode=Mode.POS_HOLD))
+    slave.slave.update_status(dataclasses.replace(slave.slave.status, mode=Mode.POS_HOLD))
     slave.slave.hold = True  # as after a STOP or failsafe the pilot has not re-centred from
     held: list[float] = []
 
@@ -252,7 +252,7 @@ def test_a_new_boot_keeps_arm_and_mode_requests_back_until_a_velocity_reply():
 
     def restart(t):
         new = SecureSlave(Slave(image_source=_source, now=t), K)
-        new.update_status(ARMED)
+        new.slave.update_status(ARMED)
         link.slave = new
         real = new.slave.receive
 
