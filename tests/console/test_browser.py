@@ -14,6 +14,7 @@ import pytest
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, get_json, needs_chromium
 from .conftest import wait_for
+from .pages import after_updates, take_control, wish
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -66,17 +67,8 @@ def open_page(browser, live):
     assert not errors, errors
 
 
-def wish(live) -> dict:
-    return live.operator.state()["velocity_wish"]
-
-
 def x_m(live) -> float:
     return live.operator.state()["pose"]["received"]["x_m"]
-
-
-def take_control(page) -> None:
-    page.click("#take")
-    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
 
 
 def test_page_renders_with_link_health_that_updates(open_page, live):
@@ -171,7 +163,7 @@ def test_control_passes_between_pages_only_when_taken_and_leaves_with_its_page(o
     take_control(watcher)
     assert wait_for(lambda: wish(live) == NEUTRAL, 3)
     pilot.wait_for_function("document.getElementById('control-text').textContent.startsWith('Watching')")
-    pilot.wait_for_timeout(300)  # the pilot still holds D: its page must not send it any more
+    after_updates(pilot)  # the pilot still holds D: its page must not send it any more
     assert wish(live) == NEUTRAL
     pilot.keyboard.up("KeyD")
 
@@ -283,7 +275,7 @@ def test_typing_in_a_text_field_never_sends_stop_and_escape_is_stop_from_there(o
     page.click("#log-filter")
     page.keyboard.type("link lost")
     assert page.input_value("#log-filter") == "link lost"
-    page.wait_for_timeout(300)  # a STOP would be on its way by now (the page sends at once)
+    after_updates(page)  # a STOP would be on its way by now (the page sends at once)
     assert stops() == before, "typing a space in the filter sent STOP"
     page.keyboard.press("Escape")  # STOP from inside the field
     assert wait_for(lambda: stops() == before + 1, 3), "Escape in a field is not STOP"
@@ -302,7 +294,7 @@ def test_the_mode_selector_shows_the_vehicles_mode_unless_the_pilot_is_choosing(
     watcher.wait_for_function("document.getElementById('mode-select').value === 'DEPTH_HOLD'")
     # The pilot choosing is not overwritten by the vehicle's mode meanwhile.
     pilot.select_option("#mode-select", "STABILIZE")
-    pilot.wait_for_timeout(1500)  # several pose updates arrive meanwhile (they come every ~0.1 s)
+    after_updates(pilot, 15)  # pose updates arrive meanwhile: none overwrites the choice
     assert pilot.input_value("#mode-select") == "STABILIZE"
     # No picture element without a picture: never a broken-image icon.
     for page in (pilot, watcher):

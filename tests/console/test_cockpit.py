@@ -29,6 +29,7 @@ from rovlink.rov.vehicle import BlueRovParams
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
+from .pages import take_control
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -91,11 +92,6 @@ def open_page(browser, live):
     assert not errors, errors
 
 
-def take_control(page) -> None:
-    page.click("#take")
-    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
-
-
 def complete_pictures(live, n: int, timeout_s: float = 60) -> list[dict]:
     import httpx
 
@@ -152,18 +148,16 @@ def test_everything_a_pilot_acts_on_is_on_screen_without_scrolling(open_page, li
     stops = sum(o["kind"] == "STOP" for o in live.operator.orders_state())
     page.click("#stop")
     assert wait_for(lambda: sum(o["kind"] == "STOP" for o in live.operator.orders_state()) == stops + 1, 5)
-    page.wait_for_timeout(1500)  # let the scene draw before the picture is taken
     if os.environ.get("ROVLINK_DOCS_SHOTS"):
-        # viser's notice that WebGL runs in software (true here, not on a pilot's
-        # laptop) closed, as a pilot would, for the README's pictures.
+        # The README's pictures: the scene drawn, and viser's notice that WebGL
+        # runs in software (true here, not on a pilot's laptop) closed, as a pilot would.
+        page.wait_for_timeout(1500)
         notice = page.frame_locator("#scene").get_by_text("Software WebGL rendering detected")
         if notice.count():
             notice.locator("xpath=ancestor::div[contains(@class, 'Notification-root')][1]//button").first.click()
             page.wait_for_timeout(800)
-    shot = page.screenshot()
-    if os.environ.get("ROVLINK_DOCS_SHOTS"):
         DOCS.mkdir(exist_ok=True)
-        (DOCS / f"cockpit-{width}x{height}.png").write_bytes(shot)
+        (DOCS / f"cockpit-{width}x{height}.png").write_bytes(page.screenshot())
 
 
 def test_instruments_follow_the_replies_and_go_grey_on_a_cut_link(open_page, live):
@@ -180,12 +174,15 @@ def test_instruments_follow_the_replies_and_go_grey_on_a_cut_link(open_page, liv
     page.wait_for_function("document.getElementById('speed-yaw').textContent !== '0 °/s'", timeout=10000)
     page.keyboard.up("KeyE")
     assert wait_for(lambda: live.operator.state()["velocity_wish"]["vyaw"] == 0, 3)
-    time.sleep(1.0)
-    yaw = live.operator.pose_state()["received"]["yaw_deg"] % 360
-    page.wait_for_function(
-        f"Math.abs(parseFloat(document.getElementById('heading-text').textContent.slice(8)) - {yaw:.1f}) <= 1.5"
-        f" || Math.abs(parseFloat(document.getElementById('heading-text').textContent.slice(8)) - {yaw:.1f}) >= 358.5",
-        timeout=5000)
+
+    def heading_shown_is_the_replys() -> bool:
+        # (The vehicle may still be slowing its turn: the reply's heading is read each time.)
+        yaw = live.operator.pose_state()["received"]["yaw_deg"] % 360
+        shown = float(page.text_content("#heading-text")[len("heading "):].split("°")[0])
+        return abs((shown - yaw + 180) % 360 - 180) <= 1.5
+
+    assert wait_for(heading_shown_is_the_replys, 10), (page.text_content("#heading-text"),
+                                                       live.operator.pose_state()["received"])
     try:
         live.set_link_loss(1.0)
         page.wait_for_function("document.body.dataset.link === 'lost'", timeout=15000)

@@ -71,13 +71,14 @@ def test_demo_in_the_browser(demo, tmp_path):
         page.wait_for_selector("#scene", state="visible", timeout=30000)
         frame = page.frame_locator("#scene")
         frame.locator("canvas").first.wait_for(timeout=60000)
-        time.sleep(3)
         shot = tmp_path / "demo.png"
-        page.locator("#scene").screenshot(path=str(shot))
         from PIL import Image
 
-        pixels = np.asarray(Image.open(shot).convert("L"), dtype=float)
-        assert pixels.std() > 10, "the 3D view is blank"
+        def drawn() -> bool:
+            page.locator("#scene").screenshot(path=str(shot))
+            return np.asarray(Image.open(shot).convert("L"), dtype=float).std() > 10
+
+        assert wait_for(drawn, 60, 0.5), "the 3D view is blank"
 
         # An image arrives and visibly refines.
         page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=90000)
@@ -92,9 +93,9 @@ def test_demo_in_the_browser(demo, tmp_path):
         x0 = get(base + "/api/state")["pose"]["received"]["x_m"]
         page.locator("body").focus()
         page.keyboard.down("w")
-        time.sleep(3)
+        moved = wait_for(lambda: get(base + "/api/state")["pose"]["received"]["x_m"] > x0 + 0.3, 30)
         page.keyboard.up("w")
-        assert wait_for(lambda: get(base + "/api/state")["pose"]["received"]["x_m"] > x0 + 0.3, 15)
+        assert moved, "a held key did not move the ROV"
 
         # An ROI dragged on the image is acknowledged by the ROV; the next image honours it.
         box = page.locator("#image").bounding_box()

@@ -19,6 +19,7 @@ from rovlink import debt
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
+from .pages import after_updates, take_control, wish
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -62,15 +63,6 @@ def open_page(browser, live):
         context.close()
     # Nobody holds control between tests.
     wait_for(lambda: not live.app.state.desk.status()["held"], 10)
-
-
-def wish(live) -> dict:
-    return live.operator.state()["velocity_wish"]
-
-
-def take_control(page) -> None:
-    page.click("#take")
-    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
 
 
 def scene_ready(page, live):
@@ -153,7 +145,7 @@ def test_a_watchers_scene_has_its_order_controls_disabled_and_stop_works_from_in
         "Space in the scene is not STOP"
     # The watcher's scene keys do not drive.
     watcher.keyboard.press("w")
-    watcher.wait_for_timeout(300)
+    after_updates(watcher)
     assert wish(live) == NEUTRAL
 
     # Control passes: the watcher's scene is enabled, the old pilot's disabled.

@@ -98,6 +98,8 @@ function onMessage(msg) {
       break;
     case "telemetry":
       render(msg);
+      // Telemetry messages rendered so far: a page that acted on none is not yet current.
+      document.body.dataset.telemetry = String((+document.body.dataset.telemetry || 0) + 1);
       break;
     case "control":
       renderControl(msg.control);

@@ -1,0 +1,26 @@
+"""What the browser tests do on an operator page, written once."""
+
+from __future__ import annotations
+
+
+def wish(live) -> dict:
+    """The velocity wish the console holds now."""
+    return live.operator.state()["velocity_wish"]
+
+
+def take_control(page) -> None:
+    page.click("#take")
+    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
+
+
+def telemetry_seen(page) -> int:
+    return int(page.evaluate("+document.body.dataset.telemetry || 0"))
+
+
+def after_updates(page, n: int = 3, timeout_ms: float = 30000) -> None:
+    """Until the page has rendered `n` more telemetry messages (each ~0.1 s apart):
+    long enough for anything the page would send on its own to have gone out,
+    measured in what the page did rather than in time, so a loaded machine only
+    makes it slower."""
+    seen = telemetry_seen(page)
+    page.wait_for_function(f"(+document.body.dataset.telemetry || 0) >= {seen + n}", timeout=timeout_ms)
