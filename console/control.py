@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from rovlink.link.messages import MAX_BUDGET, Mode
+from rovlink.rov.vehicle import BlueRovParams
 
 from .operator import Operator, OrderError
 
@@ -265,8 +266,6 @@ def wish_scale() -> dict:
     rate-controlled (climb rate, yaw rate proportional to the stick).  A model's
     figure, shown as approximate: the real vehicle's speed depends on its tether
     and current; the received odometry gives the true speed beside it."""
-    from rovlink.rov.vehicle import BlueRovParams
-
     p = BlueRovParams()
     return {"vx": {"kind": "drag", "thrust_n": p.thrust_surge_n, "lin": p.drag_lin_surge, "quad": p.drag_quad_surge},
             "vy": {"kind": "drag", "thrust_n": p.thrust_sway_n, "lin": p.drag_lin_sway, "quad": p.drag_quad_sway},

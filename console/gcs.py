@@ -57,18 +57,19 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from pymavlink.dialects.v20 import ardupilotmega
+
+from rovlink.console.control import Arm, Caller, Drive, GoTo, SetMode, Stop
+from rovlink.link.messages import Mode
+from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SUB_TO_PROTOCOL, mode_name
+from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
+
 log = logging.getLogger("rovlink.console.gcs")
 
 EARTH_RADIUS_M = 6_378_137.0
 ORDER_TIMEOUT_S = 15.0  # no fate by then: FAILED (the console gives arm/mode theirs within 3 s)
 MANUAL_CONTROL_NEUTRAL_Z = 500
 
-
-
-def _mavlink():
-    from pymavlink.dialects.v20 import ardupilotmega
-
-    return ardupilotmega
 
 
 class CommandRefused(Exception):
@@ -98,9 +99,7 @@ class DeskCommands:
         self._lock = threading.Lock()
 
     def _caller(self, need_control: bool = True):
-        from rovlink.console.control import Caller
-
-        m = _mavlink()
+        m = ardupilotmega
         with self._lock:
             status = self.desk.status(self._client_id)
             if not need_control or status.get("you"):
@@ -130,28 +129,18 @@ class DeskCommands:
                 self._client_id = None
 
     def velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
-        from rovlink.console.control import Drive
-
         self.desk.submit(Drive(vx, vy, vz, vyaw, streamed=True), self._caller())
 
     def arm(self, armed: bool) -> int:
-        from rovlink.console.control import Arm
-
         return self.desk.submit(Arm(armed), self._caller())
 
     def mode(self, name: str) -> int:
-        from rovlink.console.control import SetMode
-
         return self.desk.submit(SetMode(name), self._caller())
 
     def goto(self, x_m: float, y_m: float, z_m: float, yaw_deg: float) -> int:
-        from rovlink.console.control import GoTo
-
         return self.desk.submit(GoTo(x_m, y_m, z_m, yaw_deg), self._caller())
 
     def stop(self) -> int:
-        from rovlink.console.control import Stop
-
         return self.desk.submit(Stop(), self._caller(need_control=False))  # open to everyone
 
     def order_state(self, order_id: int) -> str | None:
@@ -191,7 +180,6 @@ class GcsLink:
 
     def __init__(self, url: str, operator, commands, *, home: tuple[float, float] = (0.0, 0.0),
                  clock: Callable[[], float] = time.monotonic) -> None:
-        from rovlink.rov.mavurl import parse_mavlink_url
 
         self.url = parse_mavlink_url(url)
         self.operator = operator
@@ -219,11 +207,10 @@ class GcsLink:
     # -- life ---------------------------------------------------------------
 
     def start(self) -> "GcsLink":
-        from rovlink.rov.mavurl import open_mavlink
 
         conn = open_mavlink(self.url, source_system=1, source_component=1)
         # MAVLink 2 whatever pymavlink's process-wide default: ArduSub speaks it.
-        m = _mavlink()
+        m = ardupilotmega
         conn.mav = m.MAVLink(conn, srcSystem=1, srcComponent=1, use_native=False)
         conn.mav.robust_parsing = True
         self._conn = conn
@@ -247,7 +234,6 @@ class GcsLink:
 
     @property
     def port(self) -> int | None:
-        from rovlink.rov.mavurl import bound_port
 
         return bound_port(self._conn) if self._conn is not None else None
 
@@ -291,7 +277,7 @@ class GcsLink:
         return self.operator.link_condition()[0] in ("lost", "starting")
 
     def _on_event(self, topic: str, payload) -> None:  # operator's thread
-        m = _mavlink()
+        m = ardupilotmega
         try:
             if topic == "image" and payload.get("complete") and payload.get("img") != self._last_image:
                 self._last_image = payload.get("img")
@@ -380,9 +366,8 @@ class GcsLink:
         known: with the autopilot lost on the ROV (ArduSub's own heartbeat would be
         absent) or a mode the protocol cannot name, the custom mode flag is off
         (custom_mode 0 would read as STABILIZE) and the state says the rest."""
-        from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 
-        m = _mavlink()
+        m = ardupilotmega
         base = 0
         custom = 0
         if reply is None:
@@ -402,7 +387,7 @@ class GcsLink:
         self._send("HEARTBEAT", m.MAV_TYPE_SUBMARINE, m.MAV_AUTOPILOT_ARDUPILOTMEGA, base, custom, status)
 
     def _sys_status(self, reply, lost: bool) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         sensors = m.MAV_SYS_STATUS_SENSOR_3D_GYRO | m.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
         health = 0 if (reply is None or lost or not reply.autopilot) else sensors
         # No fence on a ROV: never breached (ground stations alarm on a fence bit going unhealthy).
@@ -414,7 +399,7 @@ class GcsLink:
                    int(link.get("crc_errors") or 0) & 0xFFFF, 0, 0, 0, 0)
 
     def _alerts(self, reply, lost: bool) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         if reply is None:
             return
         if lost != self._alerted["lost"]:
@@ -439,7 +424,7 @@ class GcsLink:
     # -- what the ground station says ------------------------------------
 
     def _handle(self, msg) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         kind = msg.get_type()
         if kind == "BAD_DATA":
             return
@@ -496,7 +481,7 @@ class GcsLink:
         """Run an order; answer IN_PROGRESS and await its outcome.  `command`
         None: a message with no COMMAND_ACK of its own (a position target):
         its outcome goes out as STATUSTEXT only."""
-        m = _mavlink()
+        m = ardupilotmega
         if self._link_lost() and command != m.MAV_CMD_DO_PAUSE_CONTINUE:
             self._ack(command, m.MAV_RESULT_TEMPORARILY_REJECTED)
             self.statustext(m.MAV_SEVERITY_WARNING, "rovlink: link to ROV lost; order not sent")
@@ -515,7 +500,7 @@ class GcsLink:
         self._awaited.append(awaited)
 
     def _check_awaited(self) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         t = self.now()
         for awaited in list(self._awaited):
             outcome = awaited.done()
@@ -534,7 +519,7 @@ class GcsLink:
             self._awaited.remove(awaited)
 
     def _command_long(self, msg) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         cmd = msg.command
         if cmd == m.MAV_CMD_COMPONENT_ARM_DISARM:
             self._do(cmd, lambda: self._arm(msg.param1 >= 0.5))
@@ -554,16 +539,14 @@ class GcsLink:
             self._ack(cmd, m.MAV_RESULT_UNSUPPORTED)
 
     def _arm(self, armed: bool) -> _Awaited:
-        m = _mavlink()
+        m = ardupilotmega
         order_id = self.commands.arm(armed)
         return _Awaited(m.MAV_CMD_COMPONENT_ARM_DISARM, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
                         "arm" if armed else "disarm")
 
     def _mode_by_number(self, custom_mode: int) -> _Awaited:
-        from rovlink.link.messages import Mode
-        from rovlink.rov.ardusub import SUB_TO_PROTOCOL, mode_name
 
-        m = _mavlink()
+        m = ardupilotmega
         sub_name = mode_name(custom_mode)
         if custom_mode not in SUB_TO_PROTOCOL:
             raise CommandRefused(m.MAV_RESULT_DENIED, f"mode {sub_name} not offered over the link")
@@ -586,7 +569,7 @@ class GcsLink:
         return done
 
     def _stop_order(self) -> _Awaited:
-        m = _mavlink()
+        m = ardupilotmega
         order_id = self.commands.stop()
         return _Awaited(m.MAV_CMD_DO_PAUSE_CONTINUE, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id), "STOP")
 
@@ -595,7 +578,7 @@ class GcsLink:
         return _Awaited(command, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id), "go to")
 
     def _position_target(self, msg) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         if msg.coordinate_frame != m.MAV_FRAME_LOCAL_NED or msg.type_mask & 0b111:
             self.statustext(m.MAV_SEVERITY_WARNING, "rovlink: only LOCAL_NED position targets")
             return
@@ -606,7 +589,7 @@ class GcsLink:
         self._do(None, lambda: self._goto(None, msg.x, msg.y, msg.z, yaw))
 
     def _guided_goto(self, msg) -> None:
-        m = _mavlink()
+        m = ardupilotmega
         north, east = self._ned_from_lat_lon(msg.x / 1e7, msg.y / 1e7)
         reply = self.operator.last_reply
         if msg.frame in (m.MAV_FRAME_GLOBAL_RELATIVE_ALT, m.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
@@ -620,7 +603,7 @@ class GcsLink:
         self._do(None, lambda: self._goto(None, north, east, depth, yaw))
 
     def _set_interval(self, message_id: int, interval_us: float) -> int:
-        m = _mavlink()
+        m = ardupilotmega
         names = {getattr(m, f"MAVLINK_MSG_ID_{name}"): name for name in STREAMS}
         if message_id == m.MAVLINK_MSG_ID_HEARTBEAT:
             return m.MAV_RESULT_ACCEPTED if interval_us in (0, 1_000_000) else m.MAV_RESULT_DENIED

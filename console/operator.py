@@ -66,13 +66,13 @@ from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synce
 from rovlink.link.transport import Endpoint
 
 from .session.health import LinkHealth
-from .session.images import IMAGE_HISTORY, DaemonWorker, ImageReceiver, ImageView
+from .session.images import DaemonWorker, ImageReceiver, ImageView
 from .session.odometry import LOG_KEPT, History, Odometry, Pose
 from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
 from .session.predictor import NEUTRAL_WISH, ROV_FAILSAFE_S, Predictor, preview_path
 from .session.recorder import Recorder
 
-__all__ = ["IMAGE_HISTORY", "MAX_SPEED_MPS", "MODE_NAMES", "Operator", "OrderError", "Pose"]
+__all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "Operator", "OrderError", "Pose"]
 
 log = logging.getLogger("rovlink.console.operator")
 

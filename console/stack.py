@@ -23,6 +23,11 @@ from rovlink.link.aio import run_channel
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.messages import ImageSettings
 from rovlink.link.transport import inproc_pair
+from rovlink.rov.autopilot import AutopilotBridge
+from rovlink.rov.camera import open_camera
+from rovlink.rov.node import RovNode
+from rovlink.rov.simulator import SimulatedVehicle
+from rovlink.rov.vehicle import VehicleState
 
 from .linkthread import LinkThread
 from .operator import Operator
@@ -71,12 +76,6 @@ class Stack:
         return self.operator
 
     async def _start_parts(self) -> None:
-        from rovlink.rov.autopilot import AutopilotBridge
-        from rovlink.rov.camera import open_camera
-        from rovlink.rov.node import RovNode
-        from rovlink.rov.simulator import SimulatedVehicle
-        from rovlink.rov.vehicle import VehicleState
-
         c = self.config
         self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
         self.bridge = AutopilotBridge(self.sim.bridge_url).start()

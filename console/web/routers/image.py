@@ -13,6 +13,7 @@ import io
 import threading
 
 from fastapi import APIRouter, HTTPException, Request, Response
+from PIL import Image
 
 from rovlink.console import control
 from rovlink.console.control import Caller
@@ -38,8 +39,6 @@ class PngCache:
         with self._lock:
             if picture is self._picture:
                 return self._png, self._state
-        from PIL import Image
-
         buf = io.BytesIO()
         Image.fromarray(picture).save(buf, format="PNG", compress_level=1)
         png = buf.getvalue()

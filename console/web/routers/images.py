@@ -14,8 +14,10 @@ import threading
 import time
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response
+from PIL import Image, PngImagePlugin
 
-from rovlink.console.operator import IMAGE_HISTORY
+from rovlink import debt
+from rovlink.console.session.images import IMAGE_HISTORY
 
 from ...session.state import PastImage
 from ..deps import OperatorDep
@@ -40,10 +42,6 @@ class HistoryPngs:
             if n in self._pngs:
                 self._pngs.move_to_end(n)
                 return self._pngs[n]
-        from PIL import Image, PngImagePlugin
-
-        from rovlink import debt
-
         try:
             picture = debt.decode(entry["stream"])
         except ValueError as exc:   # damaged, or another DEBT format (an old recording)
