@@ -50,7 +50,8 @@ import os
 from dataclasses import dataclass
 from typing import Callable
 
-from .frame import START, crc16
+from .frame import MAX_PAYLOAD, START, crc16, encode_frame
+from .messages import HELLO_BIT, ORDER_BITS, POLL_HEADER, REPLY_HEADER, is_sync
 
 KEY_BYTES = 32
 TAG_BYTES = 4
@@ -59,10 +60,8 @@ CHALLENGE_BYTES = 8
 NONCE_BYTES = 12  # BOOT (4) then 8 new bytes
 BOOT_BYTES = 4
 COUNT_BYTES = 1
-HELLO_BIT = 0x40  # poll byte 0, bit 6
-SYNC_BIT = 0x01  # reply byte 13, bit 0
-HELLO_PAYLOAD = 3
-SYNC_PAYLOAD = 14
+HELLO_PAYLOAD = POLL_HEADER  # a HELLO: a poll's header, HELLO set, no order (then its CHALLENGE)
+SYNC_PAYLOAD = REPLY_HEADER  # a SYNC: a reply without image data, SYNC set (then its NONCE)
 
 KIND_HELLO, KIND_SYNC, KIND_POLL, KIND_REPLY = b"H", b"S", b"P", b"R"
 
@@ -87,15 +86,6 @@ def _check_key(key: bytes) -> bytes:
     if not isinstance(key, (bytes, bytearray)) or len(key) != KEY_BYTES:
         raise KeyFileError(f"a link key is {KEY_BYTES} bytes")
     return bytes(key)
-
-
-def frame(contents: bytes) -> bytes:
-    """0x55 | LEN | contents | CRC, where contents = payload, extra and TAG."""
-    n = len(contents)
-    if not 1 <= n <= 255:
-        raise ValueError(f"frame contents must be 1..255 bytes, got {n}")
-    body = bytes((n,)) + contents
-    return bytes((START,)) + body + crc16(body).to_bytes(2, "big")
 
 
 def _tag_matches(key: bytes, kind: bytes, prev: bytes, signed: bytes, tag: bytes) -> bytes | None:
@@ -223,7 +213,7 @@ class RovChain:
         signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
         if contents[0] & HELLO_BIT and len(signed) == HELLO_PAYLOAD + CHALLENGE_BYTES:
             value = _tag_matches(self.key, KIND_HELLO, b"", signed, tag)
-            if value is not None and signed[0] & 0x0F:
+            if value is not None and signed[0] & ORDER_BITS:
                 self.counters.bad_hellos += 1  # §8: a HELLO carries no order
                 return None
             if value is not None:
@@ -242,12 +232,12 @@ class RovChain:
             self.counters.inauthentic += 1
             return None
         payload, count = signed[:-COUNT_BYTES], signed[-1]
-        for kept, is_sync in ((self._replies, False), (self._syncs, True)):
+        for kept, kept_syncs in ((self._replies, False), (self._syncs, True)):
             for prev, _ in reversed(kept):
                 value = _tag_matches(self.key, KIND_POLL, prev, signed, tag)
                 if value is None:
                     continue
-                on_sync = is_sync and prev in self._sync_unreferenced
+                on_sync = kept_syncs and prev in self._sync_unreferenced
                 if not on_sync:
                     ahead = (count - self._last_count) % 256 if self._last_count is not None else 0
                     if not 1 <= ahead <= COUNT_WINDOW:
@@ -279,17 +269,17 @@ class RovChain:
     def seal_reply(self, payload: bytes, poll: PollIn, now: float) -> bytes:
         value = mac(self.key, KIND_REPLY, poll.chain, payload)
         self._replies.append((value, now))
-        return frame(payload + value[:TAG_BYTES])
+        return encode_frame(payload + value[:TAG_BYTES])
 
     def seal_sync(self, payload: bytes, hello: HelloIn, now: float) -> bytes:
-        if len(payload) != SYNC_PAYLOAD or not payload[13] & SYNC_BIT:
+        if len(payload) != SYNC_PAYLOAD or not is_sync(payload):
             raise ValueError("a SYNC reply is a 14-byte reply payload with SYNC set")
         signed = payload + self.boot + self._random(NONCE_BYTES - BOOT_BYTES)
         value = mac(self.key, KIND_SYNC, hello.chain, signed)
         self._syncs.append((value, now))
         self._sync_unreferenced.add(value)
         self.counters.syncs += 1
-        return frame(signed + value[:TAG_BYTES])
+        return encode_frame(signed + value[:TAG_BYTES])
 
 
 # ---------------------------------------------------------------------------
@@ -347,7 +337,7 @@ class OperatorChain:
     def seal_hello(self, payload: bytes, now: float, *, deadline: float = math.inf,
                    challenge: bytes | None = None) -> bytes:
         """A HELLO frame; its SYNC is late after `deadline`."""
-        if len(payload) != HELLO_PAYLOAD or not payload[0] & HELLO_BIT or payload[0] & 0x0F:
+        if len(payload) != HELLO_PAYLOAD or not payload[0] & HELLO_BIT or payload[0] & ORDER_BITS:
             raise ValueError("a HELLO is a 3-byte poll payload with HELLO set and ORDER NONE")
         challenge = self._random(CHALLENGE_BYTES) if challenge is None else challenge
         signed = payload + challenge
@@ -355,7 +345,7 @@ class OperatorChain:
         self._hellos.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.hellos += 1
-        return frame(signed + value[:TAG_BYTES])
+        return encode_frame(signed + value[:TAG_BYTES])
 
     def seal_poll(self, payload: bytes, now: float, *, deadline: float = math.inf) -> bytes:
         """A poll frame chained to the last timely answer; its reply is late after `deadline`."""
@@ -367,7 +357,7 @@ class OperatorChain:
         self._polls.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.polls += 1
-        return frame(signed + value[:TAG_BYTES])
+        return encode_frame(signed + value[:TAG_BYTES])
 
     def is_authentic(self, contents: bytes) -> bool:
         """Whether a reply or SYNC carries a tag this end accepts (no state moves)."""
@@ -383,7 +373,7 @@ class OperatorChain:
         poll or HELLO sent, for the first time, by that frame's deadline."""
         if len(contents) > TAG_BYTES:
             signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
-            if len(signed) == SYNC_PAYLOAD + NONCE_BYTES and signed[13] & SYNC_BIT:
+            if len(signed) == SYNC_PAYLOAD + NONCE_BYTES and is_sync(signed):
                 for sent in reversed(self._hellos):
                     value = _tag_matches(self.key, KIND_SYNC, sent.value, signed, tag)
                     if value is not None:
@@ -434,7 +424,7 @@ class AuthFrameDecoder:
     `max_len`: the largest LEN this receiver expects (a callable, since the
     operator's depends on its last poll)."""
 
-    def __init__(self, authentic: Callable[[bytes], bool], max_len: Callable[[], int] | int = 255) -> None:
+    def __init__(self, authentic: Callable[[bytes], bool], max_len: Callable[[], int] | int = MAX_PAYLOAD) -> None:
         self._authentic = authentic
         self._max_len = max_len if callable(max_len) else (lambda: max_len)
         self._buf = bytearray()

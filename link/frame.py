@@ -46,6 +46,11 @@ def crc16(data: bytes, crc: int = 0xFFFF) -> int:
     return crc
 
 
+def frame_contents(frame: bytes) -> bytes:
+    """The bytes between a whole frame's LEN and its CRC (its payload; in version 2 with COUNT and TAG)."""
+    return frame[2:-2]
+
+
 def encode_frame(payload: bytes) -> bytes:
     """Wrap a payload of 1..255 bytes into a frame."""
     n = len(payload)

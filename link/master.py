@@ -71,11 +71,14 @@ import random
 from dataclasses import dataclass, field
 from typing import Deque
 
-from .frame import OVERHEAD, FrameDecoder, encode_frame
+from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
+    IMG_IDS,
     NO_IMAGE_DATA,
+    REASON_TEXT,
     REPLY_HEADER,
     REPLY_IMAGE_HEADER,
+    REQUESTABLE_MODES,
     SIZE_CLASS_BYTES,
     Arm,
     ImageSettings,
@@ -84,11 +87,16 @@ from .messages import (
     Poll,
     Position,
     ProtocolError,
+    Reason,
     Reply,
     ReservedOrder,
     Stop,
     Velocity,
+    next_img,
 )
+
+# The poll the SIZE choice reckons with: the wish, every other cycle at least.
+_VELOCITY_POLL_BYTES = OVERHEAD + len(Poll(order=Velocity()).encode())
 
 # ---------------------------------------------------------------------------
 # Events handed to the console
@@ -136,14 +144,7 @@ class OrderRejected:
 
     @property
     def reason_text(self) -> str:
-        return REASON_TEXT.get(self.reason, "unknown reason")
-
-
-REASON_TEXT = {
-    0: "invalid order",
-    1: "impossible now",
-    2: "refused by the autopilot",
-}
+        return REASON_TEXT[Reason(self.reason)]
 
 
 @dataclass(frozen=True)
@@ -282,7 +283,7 @@ class Master:
         steer_hold_s: float = 1.5,
         react_window_s: float = 10.0,
         attended_size: int = 2,
-        max_frame: int = 259,
+        max_frame: int = MAX_FRAME,
         retransmit: bool = True,
         images: bool = True,
         request_hold_s: float = 3.0,
@@ -308,7 +309,7 @@ class Master:
         # A pilot holds control (the console says so): cycles are sized for the
         # pilot's reaction, not only for picture throughput (see _choose_size).
         self.attended = False
-        self.max_frame = min(max_frame, 259)
+        self.max_frame = min(max_frame, MAX_FRAME)
         self.retransmit = retransmit
         self.images_enabled = images
         self.request_hold_s = request_hold_s
@@ -341,7 +342,7 @@ class Master:
         self._wish_turn = False  # while an order is pending, every other poll carries the wish
         self._awaiting: tuple[float, Poll, int] | None = None  # (sent at, poll, reply bytes expected)
         self._events: list[object] = []
-        first = self._rng.randrange(8) if first_img is None else first_img
+        first = self._rng.randrange(IMG_IDS) if first_img is None else first_img
         self._image = _Image(first)
         self._images_to_skip = 1 if skip_first_image else 0
         self._last_reply: Reply | None = None
@@ -392,7 +393,7 @@ class Master:
 
     def request_mode(self, mode: Mode | int, now: float) -> None:
         mode = Mode(mode)
-        if not 1 <= mode <= 6:
+        if mode not in REQUESTABLE_MODES:
             raise ProtocolError(f"mode {mode!r} cannot be requested")
         self._request("mode", mode, now)
 
@@ -612,7 +613,7 @@ class Master:
 
     def _best_size_for_error_rate(self) -> int:
         ber = self.estimated_ber()
-        poll_bytes = OVERHEAD + 3 + 5
+        poll_bytes = _VELOCITY_POLL_BYTES
         best, best_rate = 3, -1.0
         for size in range(4):
             reply = self.reply_frame_bytes(size)
@@ -805,14 +806,14 @@ class Master:
             # The first image after start may be any age the ROV still held: not shown.
             if image.complete:
                 self._images_to_skip -= 1
-                self._image = _Image((image.img + 1) % 8)
+                self._image = _Image(next_img(image.img))
             return events
         events.append(ImageProgress(image.img, received, total, bytes(image.data[2:])))
         if image.complete:
             self.stats.images_completed += 1
             started = image.started_at if image.started_at is not None else now
             events.append(ImageComplete(image.img, bytes(image.data[2:]), started, now))
-            self._image = _Image((image.img + 1) % 8)
+            self._image = _Image(next_img(image.img))
         return events
 
     def _reply_lost(self, now: float) -> None:
@@ -832,7 +833,7 @@ class Master:
         if image.started_at is not None and not image.complete:
             self.stats.images_abandoned += 1
             self._events.append(ImageAbandoned(image.img, len(image.data), reason))
-        self._image = _Image((image.img + 1) % 8)
+        self._image = _Image(next_img(image.img))
 
     def abandon_image(self) -> None:
         """The pilot has seen enough of this picture: ask for the next one."""

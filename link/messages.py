@@ -41,13 +41,34 @@ import struct
 from dataclasses import dataclass, field
 from typing import ClassVar, Union
 
+from .frame import MAX_PAYLOAD
+
 NO_IMAGE_DATA = 8191  # OFFSET that asks for no image data
 MAX_OBJECT = 8191  # bytes in an image object: [N:uint16][N bytes]
 MAX_BUDGET = MAX_OBJECT - 2
+IMG_IDS = 8  # IMG is 3 bits: images are numbered 0..7, then 0 again
 SIZE_CLASS_BYTES = (24, 48, 96, 239)
+POLL_HEADER = 3  # poll payload bytes before the order's body
+HELLO_BIT = 0x40  # poll byte 0, bit 6: a HELLO in version 2 (§8), a structural fault in 1.1
+ORDER_BITS = 0x0F  # poll byte 0: the ORDER code
 REPLY_HEADER = 14  # reply payload bytes without image data
 REPLY_IMAGE_HEADER = 16  # reply payload bytes before the trunk
-ATTITUDE_VALID_BIT = 0x10  # reply byte 13
+MAX_TRUNK = MAX_PAYLOAD - REPLY_IMAGE_HEADER
+REPLY_STATUS_BYTE = 13  # AUTOPILOT FAILSAFE POSITION_VALID ATTITUDE_VALID REJECTED REASON(2) SYNC
+ATTITUDE_VALID_BIT = 0x10
+SYNC_BIT = 0x01  # version 2 only (§8)
+XYZ_CM = (-32768, 32767)  # a position's range on the wire, both ways
+ANGLE_CDEG = (-18000, 18000)  # a yaw or an attitude angle's range
+
+
+def next_img(img: int) -> int:
+    """The IMG after `img` (they wrap)."""
+    return (img + 1) % IMG_IDS
+
+
+def is_sync(reply_payload: bytes) -> bool:
+    """Whether a reply payload has SYNC set (version 2's answer to a HELLO)."""
+    return len(reply_payload) > REPLY_STATUS_BYTE and bool(reply_payload[REPLY_STATUS_BYTE] & SYNC_BIT)
 
 
 class ProtocolError(ValueError):
@@ -76,6 +97,10 @@ class Mode(enum.IntEnum):
     OTHER = 7
 
     UNKNOWN = 0  # alias of KEEP, for replies
+
+
+# What a VELOCITY's MODE may ask for (KEEP is no request; OTHER only a reply says).
+REQUESTABLE_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.DEPTH_HOLD, Mode.POS_HOLD, Mode.GUIDED, Mode.SURFACE)
 
 
 class OrderCode(enum.IntEnum):
@@ -184,8 +209,8 @@ class Position:
 
     def __post_init__(self) -> None:
         for name in ("x_cm", "y_cm", "z_cm"):
-            _check_int(f"POSITION {name}", getattr(self, name), -32768, 32767)
-        _check_int("POSITION yaw_cdeg", self.yaw_cdeg, -18000, 18000)
+            _check_int(f"POSITION {name}", getattr(self, name), *XYZ_CM)
+        _check_int("POSITION yaw_cdeg", self.yaw_cdeg, *ANGLE_CDEG)
         _check_bool("POSITION relative", self.relative)
         _check_bool("POSITION body", self.body)
         if self.body and not self.relative:
@@ -273,6 +298,7 @@ class Stop:
 
 
 MAX_RESERVED_BODY = 9
+MAX_POLL_PAYLOAD = POLL_HEADER + MAX_RESERVED_BODY  # the largest poll: a POSITION (9) or a reserved order
 
 
 @dataclass(frozen=True)
@@ -368,7 +394,7 @@ class Poll:
     @classmethod
     def decode(cls, payload: bytes) -> "Poll":
         seq, size, code, img, offset = cls.decode_header(payload)
-        body = bytes(payload[3:])
+        body = bytes(payload[POLL_HEADER:])
         if code in _ORDER_CLASSES:
             order: Order = _ORDER_CLASSES[code].decode_body(body)
         else:
@@ -381,13 +407,13 @@ class Poll:
 
         Bit 6 (HELLO in version 2) is a structural fault in version 1.1.
         """
-        if len(payload) < 3:
-            raise ProtocolError(f"poll payload must be at least 3 bytes, got {len(payload)}")
+        if len(payload) < POLL_HEADER:
+            raise ProtocolError(f"poll payload must be at least {POLL_HEADER} bytes, got {len(payload)}")
         head = payload[0]
-        if head & 0x40:
+        if head & HELLO_BIT:
             raise ProtocolError("poll byte 0 bit 6 (HELLO) must be 0 in version 1.1")
         request = (payload[1] << 8) | payload[2]
-        return head >> 7, (head >> 4) & 0x3, head & 0xF, request >> 13, request & 0x1FFF
+        return head >> 7, (head >> 4) & 0x3, head & ORDER_BITS, request >> 13, request & 0x1FFF
 
 
 # --------------------------------------------------------------------------
@@ -402,6 +428,14 @@ class Reason(enum.IntEnum):
     IMPOSSIBLE = 1  # impossible now: no position estimate, no autopilot, disarmed; abandoned by STOP/failsafe
     REFUSED = 2  # the autopilot refused, or gave no answer within 2 s
     UNKNOWN = 3  # reserved: shown as unknown
+
+
+REASON_TEXT = {
+    Reason.INVALID: "invalid order",
+    Reason.IMPOSSIBLE: "impossible now",
+    Reason.REFUSED: "refused by the autopilot",
+    Reason.UNKNOWN: "unknown reason",
+}
 
 
 @dataclass(frozen=True)
@@ -435,9 +469,9 @@ class Reply:
         _check_bool("reply ARMED", self.armed)
         _check_int("reply MODE", self.mode, 0, 7)
         for name in ("x_cm", "y_cm", "z_cm"):
-            _check_int(f"reply {name}", getattr(self, name), -32768, 32767)
+            _check_int(f"reply {name}", getattr(self, name), *XYZ_CM)
         for name in ("roll_cdeg", "pitch_cdeg", "yaw_cdeg"):
-            _check_int(f"reply {name}", getattr(self, name), -18000, 18000)
+            _check_int(f"reply {name}", getattr(self, name), *ANGLE_CDEG)
         for name in ("autopilot", "failsafe", "position_valid", "last", "hold", "attitude_valid", "rejected", "sync"):
             _check_bool(f"reply {name}", getattr(self, name))
         _check_int("reply REASON", self.reason, 0, 3)
@@ -452,8 +486,8 @@ class Reply:
                     f"reply trunk of {len(self.trunk)} bytes at OFFSET {self.offset} runs past the "
                     f"object's last byte ({MAX_OBJECT - 1})"
                 )
-            if len(self.trunk) > 255 - REPLY_IMAGE_HEADER:
-                raise ProtocolError(f"reply trunk must be at most {255 - REPLY_IMAGE_HEADER} bytes")
+            if len(self.trunk) > MAX_TRUNK:
+                raise ProtocolError(f"reply trunk must be at most {MAX_TRUNK} bytes")
         else:
             if self.img is not None or self.offset is not None:
                 raise ProtocolError("reply IMG/OFFSET need a trunk of at least one byte")
@@ -505,19 +539,19 @@ class Reply:
         first, last, ack, armed, hold, mode = (
             head >> 7, (head >> 6) & 1, (head >> 5) & 1, (head >> 4) & 1, (head >> 3) & 1, head & 0x7
         )
-        x, y, z, roll, pitch, yaw, status = struct.unpack(">hhhhhhB", payload[1:14])
-        if any(abs(a) > 18000 for a in (roll, pitch, yaw)):
+        x, y, z, roll, pitch, yaw, status = struct.unpack(">hhhhhhB", payload[1:REPLY_HEADER])
+        if any(not ANGLE_CDEG[0] <= a <= ANGLE_CDEG[1] for a in (roll, pitch, yaw)):
             # §5: out of range is not a fault: the attitude is unknown, the rest stands.
             roll = pitch = yaw = 0
             status &= ~ATTITUDE_VALID_BIT & 0xFF
-        if status & 0x01 and not allow_sync:
+        if status & SYNC_BIT and not allow_sync:
             raise ProtocolError("reply SYNC must be 0 in version 1.1")
         img = offset = None
         trunk = b""
         if n > REPLY_HEADER:
-            request = (payload[14] << 8) | payload[15]
+            request = (payload[REPLY_HEADER] << 8) | payload[REPLY_HEADER + 1]
             img, offset = request >> 13, request & 0x1FFF
-            trunk = bytes(payload[16:])
+            trunk = bytes(payload[REPLY_IMAGE_HEADER:])
             if bool(first) != (offset == 0):
                 raise ProtocolError(f"reply FIRST={first} disagrees with OFFSET {offset}")
         elif first or last:
@@ -538,7 +572,7 @@ class Reply:
             attitude_valid=bool(status & 0x10),
             rejected=bool(status & 0x08),
             reason=(status >> 1) & 0x3,
-            sync=bool(status & 0x01),
+            sync=bool(status & SYNC_BIT),
             img=img,
             offset=offset,
             trunk=trunk,

@@ -37,8 +37,10 @@ import dataclasses
 from dataclasses import dataclass
 
 from .auth import (
-    HELLO_BIT,
-    SYNC_BIT,
+    CHALLENGE_BYTES,
+    HELLO_PAYLOAD,
+    NONCE_BYTES,
+    SYNC_PAYLOAD,
     TAG_BYTES,
     AuthFrameDecoder,
     HelloIn,
@@ -46,23 +48,35 @@ from .auth import (
     PollIn,
     RovChain,
 )
-from .frame import MAX_FRAME, OVERHEAD
+from .frame import MAX_FRAME, OVERHEAD, frame_contents
 from .master import Master, MasterStats, PollSent
-from .messages import ImageSettings, Mode, Poll, Position, ProtocolError, Reply, ReservedOrder, Stop
+from .messages import (
+    HELLO_BIT,
+    MAX_POLL_PAYLOAD,
+    ImageSettings,
+    Mode,
+    Poll,
+    Position,
+    ProtocolError,
+    Reply,
+    ReservedOrder,
+    Stop,
+)
 from .slave import Slave, SlaveOutput
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
-HELLO_PAYLOAD = bytes((HELLO_BIT, 0x1F, 0xFF))  # SEQ 0, SIZE 0, ORDER NONE, no image data
-HELLO_FRAME_BYTES = OVERHEAD + 3 + 8 + TAG_BYTES
-SYNC_FRAME_BYTES = OVERHEAD + 14 + 12 + TAG_BYTES
-MAX_POLL_LEN = 3 + 9 + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
+_NO_ORDER = Poll().encode()  # SEQ 0, SIZE 0, ORDER NONE, no image data
+HELLO_POLL = bytes((_NO_ORDER[0] | HELLO_BIT,)) + _NO_ORDER[1:]  # a HELLO before its CHALLENGE
+HELLO_FRAME_BYTES = OVERHEAD + HELLO_PAYLOAD + CHALLENGE_BYTES + TAG_BYTES
+SYNC_FRAME_BYTES = OVERHEAD + SYNC_PAYLOAD + NONCE_BYTES + TAG_BYTES
+MAX_POLL_LEN = MAX_POLL_PAYLOAD + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
 
 
 def poll_sent_from_frame(frame: bytes, at: float, *, version: str) -> PollSent | None:
     """A recorded poll frame as the master said it sent it (a replay has frames,
     not events; no order ids); None for bytes that are no poll."""
-    contents = frame[2:-2]
+    contents = frame_contents(frame)
     if version == "2":
         if contents and contents[0] & HELLO_BIT:
             return PollSent(at, frame, None)
@@ -135,10 +149,8 @@ class SecureSlave:
         status = self.slave.status
         reply = Reply(**{k: getattr(status, k) for k in status.__dataclass_fields__}, ack=self.slave.ack,
                       failsafe=self.slave.failsafe, hold=self.slave.hold, rejected=self.slave.rejected,
-                      reason=self.slave.reason)
-        payload = bytearray(reply.encode())
-        payload[13] |= SYNC_BIT
-        return bytes(payload)
+                      reason=self.slave.reason, sync=True)
+        return reply.encode()
 
     def receive_bytes(self, data: bytes, now: float) -> SlaveOutput:
         out = SlaveOutput(events=self.slave.tick(now))
@@ -156,7 +168,7 @@ class SecureSlave:
                 out.events.extend(one.events)
                 if one.reply:  # it parsed: the poll is taken
                     self.chain.take(got, now)
-                    replies.append(self.chain.seal_reply(one.reply[2:-2], got, now))
+                    replies.append(self.chain.seal_reply(frame_contents(one.reply), got, now))
             else:
                 out.events.append(InauthenticFrame("poll"))
         out.events.extend(InauthenticFrame("poll") for _ in range(self.decoder.counters.inauthentic - before))
@@ -241,7 +253,7 @@ class SecureMaster:
 
     def _poll_timeout(self) -> float:
         m = self.master
-        return m.timeout_for(OVERHEAD + 12 + POLL_EXTRA, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA)
+        return m.timeout_for(OVERHEAD + MAX_POLL_PAYLOAD + POLL_EXTRA, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA)
 
     def deadline(self) -> float | None:
         if self._hello_deadline is not None:
@@ -272,15 +284,15 @@ class SecureMaster:
             self._last_was_hello = True
             self._hello_deadline = now + self.hello_timeout()
             self.stats2.hellos_sent += 1
-            hello = self.chain.seal_hello(HELLO_PAYLOAD, now, deadline=self._hello_deadline)
+            hello = self.chain.seal_hello(HELLO_POLL, now, deadline=self._hello_deadline)
             self._events.append(PollSent(now, hello, None))
             return hello
         frame = self.master.next_poll(now)
         if frame is None:
             return None
         self._last_was_hello = False
-        payload = frame[2:-2]
-        self._last_size = (payload[0] >> 4) & 0x03
+        payload = frame_contents(frame)
+        self._last_size = Poll.decode_header(payload)[1]
         sealed = self.chain.seal_poll(payload, now, deadline=self.master.deadline())
         # The master said what it sent: the frame that left is the sealed one.
         self._events.extend(dataclasses.replace(e, frame=sealed) if isinstance(e, PollSent) else e

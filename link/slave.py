@@ -71,12 +71,15 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
-from .frame import OVERHEAD, FrameDecoder, encode_frame
+from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
+    ANGLE_CDEG,
     MAX_OBJECT,
+    MAX_POLL_PAYLOAD,
     NO_IMAGE_DATA,
     REPLY_IMAGE_HEADER,
     SIZE_CLASS_BYTES,
+    XYZ_CM,
     Arm,
     ImageSettings,
     InvalidOrder,
@@ -223,8 +226,6 @@ class _Running:
 
 ImageSource = Callable[[int, ImageSettings], Optional[bytes]]
 
-MAX_POLL_PAYLOAD = 3 + 9  # header + the largest body (POSITION, a reserved order)
-
 
 def clamp_int(value: float, lo: int, hi: int) -> int:
     return max(lo, min(hi, int(round(value))))
@@ -240,7 +241,7 @@ class Slave:
         failsafe_s: float = 3.0,
         velocity_lapse_s: float = 1.5,
         autopilot_wait_s: float = 2.0,
-        max_frame: int = 259,
+        max_frame: int = MAX_FRAME,
         trunk_cap: int | None = None,
         default_settings: ImageSettings | None = None,
         now: float = 0.0,
@@ -251,7 +252,7 @@ class Slave:
         self.failsafe_s = failsafe_s
         self.velocity_lapse_s = velocity_lapse_s
         self.autopilot_wait_s = autopilot_wait_s
-        self.max_frame = min(max_frame, 259)
+        self.max_frame = min(max_frame, MAX_FRAME)
         self.trunk_cap = trunk_cap
         self.settings = default_settings or ImageSettings(mono=True, budget_bytes=2000)
         self.ack = 0
@@ -600,12 +601,12 @@ def status_from_pose(
     return Status(
         armed=armed,
         mode=mode,
-        x_cm=clamp_int(x_m * 100, -32768, 32767),
-        y_cm=clamp_int(y_m * 100, -32768, 32767),
-        z_cm=clamp_int(z_m * 100, -32768, 32767),
-        roll_cdeg=clamp_int(wrap_deg(roll_deg) * 100, -18000, 18000),
-        pitch_cdeg=clamp_int(wrap_deg(pitch_deg) * 100, -18000, 18000),
-        yaw_cdeg=clamp_int(wrap_deg(yaw_deg) * 100, -18000, 18000),
+        x_cm=clamp_int(x_m * 100, *XYZ_CM),
+        y_cm=clamp_int(y_m * 100, *XYZ_CM),
+        z_cm=clamp_int(z_m * 100, *XYZ_CM),
+        roll_cdeg=clamp_int(wrap_deg(roll_deg) * 100, *ANGLE_CDEG),
+        pitch_cdeg=clamp_int(wrap_deg(pitch_deg) * 100, *ANGLE_CDEG),
+        yaw_cdeg=clamp_int(wrap_deg(yaw_deg) * 100, *ANGLE_CDEG),
         autopilot=autopilot,
         position_valid=position_valid,
         attitude_valid=attitude_valid,

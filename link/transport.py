@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 from urllib.parse import parse_qs, urlsplit
 
+from .frame import MAX_FRAME
+
 log = logging.getLogger("rovlink.link.transport")
 
 
@@ -398,8 +400,8 @@ def open_transport(url: str) -> Endpoint:
     common: dict = {}
     if "mtu" in query:
         mtu = query.pop("mtu")
-        if not mtu.isdigit() or not 20 <= int(mtu) <= 259:
-            raise TransportError(f"mtu must be a frame size of 20..259 bytes, got {mtu!r}")
+        if not mtu.isdigit() or not 20 <= int(mtu) <= MAX_FRAME:
+            raise TransportError(f"mtu must be a frame size of 20..{MAX_FRAME} bytes, got {mtu!r}")
         common["max_frame"] = int(mtu)
     if "crlf" in query:
         common["crlf"] = query.pop("crlf") in ("1", "true", "yes")

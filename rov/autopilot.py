@@ -81,6 +81,7 @@ import math
 import threading
 import time
 
+from rovlink.link.messages import Reason
 from rovlink.rov.ardusub import (  # noqa: F401  (PROTOCOL_TO_SUB ... re-exported for older callers)
     MAV_RESULT_NAMES,
     PROTOCOL_MODE_OTHER,
@@ -96,9 +97,6 @@ from rovlink.rov.ardusub import (  # noqa: F401  (PROTOCOL_TO_SUB ... re-exporte
     sub_mode,
 )
 from rovlink.rov.commands import (  # noqa: F401
-    REASON_IMPOSSIBLE,
-    REASON_INVALID,
-    REASON_REFUSED,
     CommandTracker,
     GotoTicket,
     Ticket,
@@ -110,7 +108,6 @@ from rovlink.rov.vehicle import PilotInput
 
 __all__ = [  # the bridge, and what callers used to import from here
     "AutopilotBridge", "AutopilotSnapshot", "BrakeTicket", "GotoTicket", "Ticket",
-    "REASON_IMPOSSIBLE", "REASON_INVALID", "REASON_REFUSED",
     "PROTOCOL_MODE_OTHER", "PROTOCOL_MODE_UNKNOWN", "PROTOCOL_TO_SUB", "SUB_TO_PROTOCOL",
     "SubMode", "protocol_mode", "sub_mode",
 ]
@@ -238,13 +235,13 @@ class AutopilotBridge:
         except (TypeError, ValueError):
             values = [math.nan]
         if not all(math.isfinite(v) for v in values):
-            ticket.fail("target is not a finite number", REASON_INVALID)
+            ticket.fail("target is not a finite number", Reason.INVALID)
             return ticket
         # Impossible now: refuse at once, before anything is asked of the autopilot
         # (the I/O thread checks again when it takes the order).
         why = goto_refusal(self.snapshot())
         if why is not None:
-            ticket.fail(why, REASON_IMPOSSIBLE)
+            ticket.fail(why, Reason.IMPOSSIBLE)
             return ticket
         order = GotoOrder(float(x_m), float(y_m), float(z_m), None if yaw_rad is None else float(yaw_rad),
                           bool(relative), bool(body))

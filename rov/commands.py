@@ -27,12 +27,8 @@ import math
 import threading
 from dataclasses import dataclass
 
+from rovlink.link.messages import Reason
 from rovlink.rov.ardusub import MAV_RESULT_NAMES, mavlink
-
-# docs/PROTOCOL.md §3 REASON for a rejected order.
-REASON_INVALID = 0
-REASON_IMPOSSIBLE = 1  # impossible now: no position estimate, no autopilot, disarmed
-REASON_REFUSED = 2  # the autopilot refused, or gave no answer in time
 
 COMMAND_RESEND_S = 0.5
 COMMAND_DEADLINE_S = 2.0
@@ -47,7 +43,7 @@ class Ticket:
         self.kind = kind
         self._status = Ticket.PENDING
         self._reason = ""
-        self._reject_reason: int | None = None
+        self._reject_reason: Reason | None = None
         self._event = threading.Event()
 
     @property
@@ -60,8 +56,8 @@ class Ticket:
         return self._reason
 
     @property
-    def reject_reason(self) -> int | None:
-        """For a failed ticket, docs/PROTOCOL.md §3's REASON: 1 impossible now, 2 refused."""
+    def reject_reason(self) -> Reason | None:
+        """For a failed ticket, docs/PROTOCOL.md §3's REASON: IMPOSSIBLE (now) or REFUSED."""
         return self._reject_reason
 
     @property
@@ -77,18 +73,18 @@ class Ticket:
         self._event.wait(timeout_s)
         return self._status
 
-    def _resolve(self, status: str, reason: str = "", reject_reason: int | None = None) -> bool:
+    def _resolve(self, status: str, reason: str = "", reject_reason: Reason | None = None) -> bool:
         if self._status != Ticket.PENDING:
             return False
         if status == Ticket.FAILED and reject_reason is None:
-            reject_reason = REASON_REFUSED
+            reject_reason = Reason.REFUSED
         self._reason = reason
         self._reject_reason = reject_reason if status == Ticket.FAILED else None
         self._status = status
         self._event.set()
         return True
 
-    def fail(self, reason: str, reject_reason: int) -> bool:
+    def fail(self, reason: str, reject_reason: Reason) -> bool:
         return self._resolve(Ticket.FAILED, reason, reject_reason)
 
     def __repr__(self) -> str:
@@ -180,7 +176,7 @@ class CommandTracker:
                 request.acked = True
             else:
                 words = f"autopilot answered {MAV_RESULT_NAMES.get(result, result)}"
-                request.ticket.fail(f"{words}: {detail}" if detail else words, REASON_REFUSED)
+                request.ticket.fail(f"{words}: {detail}" if detail else words, Reason.REFUSED)
                 self.requests.remove(request)
             return request
         return None
@@ -206,10 +202,10 @@ class CommandTracker:
                 request.timed_out = True
                 if reachable:
                     request.ticket.fail(
-                        f"autopilot did not answer within {self.deadline_s:g} s", REASON_REFUSED
+                        f"autopilot did not answer within {self.deadline_s:g} s", Reason.REFUSED
                     )
                 else:
-                    request.ticket.fail("autopilot not reachable", REASON_IMPOSSIBLE)
+                    request.ticket.fail("autopilot not reachable", Reason.IMPOSSIBLE)
                 self.requests.remove(request)
                 expired.append(request)
         return expired

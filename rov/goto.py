@@ -30,8 +30,9 @@ import logging
 import math
 from dataclasses import dataclass
 
+from rovlink.link.messages import Reason
 from rovlink.rov.ardusub import SubMode
-from rovlink.rov.commands import REASON_IMPOSSIBLE, REASON_REFUSED, CommandTracker, GotoTicket, Request, Ticket
+from rovlink.rov.commands import CommandTracker, GotoTicket, Request, Ticket
 from rovlink.rov.telemetry import AutopilotSnapshot
 from rovlink.rov.vehicle import wrap_angle
 
@@ -96,7 +97,7 @@ class GotoDriver:
     def start(self, ticket: GotoTicket, order: GotoOrder, snap: AutopilotSnapshot, now: float) -> None:
         why = goto_refusal(snap)
         if why is not None:
-            ticket.fail(why, REASON_IMPOSSIBLE)
+            ticket.fail(why, Reason.IMPOSSIBLE)
             return
         self.cancel("replaced by a newer position order")
         self._late_until_s = -math.inf  # a newer POSITION: a late GUIDED is no longer ours to stop
@@ -130,9 +131,9 @@ class GotoDriver:
             return None
         if request is not None and request.ticket.status == Ticket.FAILED:
             self.active = None
-            reason = request.ticket.reject_reason or REASON_REFUSED
+            reason = request.ticket.reject_reason or Reason.REFUSED
             ticket.fail(f"autopilot refused GUIDED ({request.ticket.reason})", reason)
-            if request.timed_out and request.ticket.reject_reason == REASON_REFUSED:
+            if request.timed_out and request.ticket.reject_reason == Reason.REFUSED:
                 self._late_until_s = now + LATE_ANSWER_WATCH_S
             return None
         if snap.custom_mode == SubMode.GUIDED:

@@ -51,7 +51,8 @@ from typing import Callable
 import numpy as np
 
 from rovlink.link.aio import run_slave
-from rovlink.link.messages import ImageSettings, Mode, Position
+from rovlink.link.frame import MAX_FRAME
+from rovlink.link.messages import ImageSettings, Mode, Position, Reason, next_img
 from rovlink.link.secure import SecureSlave
 from rovlink.link.slave import (
     ArmRequested,
@@ -137,7 +138,7 @@ class RovNode:
 
             encode = debt.encode
         self._encode = encode
-        max_frame = endpoint.max_frame or 259
+        max_frame = endpoint.max_frame or MAX_FRAME
         self.slave = Slave(
             image_source=self._prefetched,
             failsafe_s=failsafe_s,
@@ -200,7 +201,7 @@ class RovNode:
                 reason = ticket.reject_reason
                 self._note(f"POSITION order failed: {ticket.reason}")
             elif ticket.status == "cancelled":
-                reason = 1
+                reason = Reason.IMPOSSIBLE
                 self._note(f"POSITION order cancelled: {ticket.reason}")
             self._on_events(self.slave.order_outcome(token, accepted, reason, now), now)
 
@@ -246,7 +247,7 @@ class RovNode:
                 self._start_encode(event.img, event.settings, deliver=True)
             elif isinstance(event, ImageDelivered):
                 if self.prefetch:
-                    self._start_encode((event.img + 1) % 8, self.slave.settings, deliver=False)
+                    self._start_encode(next_img(event.img), self.slave.settings, deliver=False)
             elif isinstance(event, FailsafeEntered):
                 self._brake_stands = False  # the bridge brakes on its own: a STOP after brakes again
                 self.stats.failsafes += 1

@@ -269,9 +269,9 @@ def test_an_authentic_frame_behind_an_incomplete_candidate_is_delivered_at_once(
 
 
 def test_a_crc_valid_frame_with_a_wrong_tag_is_dropped_like_a_crc_failure():
-    from rovlink.link.auth import frame
+    from rovlink.link.frame import encode_frame
 
     decoder = AuthFrameDecoder(lambda c: False)
-    forged = frame(REPLY_PAYLOAD + b"\0\0\0\0")
+    forged = encode_frame(REPLY_PAYLOAD + b"\0\0\0\0")
     assert decoder.feed(forged) == []
     assert decoder.counters.rejected >= 1

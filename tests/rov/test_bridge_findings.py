@@ -16,7 +16,8 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from rovlink.rov.autopilot import REASON_IMPOSSIBLE, REASON_REFUSED, AutopilotBridge, Ticket
+from rovlink.link.messages import Reason
+from rovlink.rov.autopilot import AutopilotBridge, Ticket
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import PilotInput, SubMode, VehicleState
 
@@ -93,7 +94,7 @@ def test_a_position_order_while_disarmed_is_refused_as_impossible(sim, bridge):
     assert not bridge.snapshot().armed
     ticket = bridge.goto(2.0, 0.0, 3.0, None)
     assert ticket.wait(1.0) == Ticket.FAILED
-    assert ticket.reject_reason == REASON_IMPOSSIBLE and "disarmed" in ticket.reason
+    assert ticket.reject_reason == Reason.IMPOSSIBLE and "disarmed" in ticket.reason
     time.sleep(0.5)
     assert sim.truth().mode == SubMode.MANUAL  # the vehicle did not go GUIDED to sit there
 
@@ -106,7 +107,7 @@ def test_a_position_order_without_a_position_estimate_is_refused_as_impossible()
             for relative in (False, True):
                 ticket = bridge.goto(1.0, 0.0, 2.0, None, relative=relative)
                 assert ticket.status == Ticket.FAILED  # at once: the ROV rejects it itself
-                assert ticket.reject_reason == REASON_IMPOSSIBLE and "position" in ticket.reason
+                assert ticket.reject_reason == Reason.IMPOSSIBLE and "position" in ticket.reason
             time.sleep(0.5)
             assert sim.truth().mode == SubMode.MANUAL
 
@@ -141,7 +142,7 @@ def test_the_position_estimate_comes_after_a_delay_and_then_position_orders_work
             assert bridge.request_arm(True).wait(3) == Ticket.ACCEPTED
             if not bridge.snapshot().position_valid:
                 early = bridge.goto(1.0, 0.0, 2.0, None)
-                assert early.status == Ticket.FAILED and early.reject_reason == REASON_IMPOSSIBLE
+                assert early.status == Ticket.FAILED and early.reject_reason == Reason.IMPOSSIBLE
             assert wait_for(lambda: bridge.snapshot().position_valid, 5.0)
             later = bridge.goto(1.0, 0.0, 2.0, None)
             assert later.wait(3) == Ticket.ACCEPTED
@@ -153,7 +154,7 @@ def test_guided_refused_by_the_autopilot_is_reason_2_with_its_words(sim, bridge)
     sim.position_available = False  # the estimate is lost; the bridge's last one is still fresh
     ticket = bridge.goto(2.0, 0.0, 3.0, None)
     assert ticket.wait(3) == Ticket.FAILED
-    assert ticket.reject_reason == REASON_REFUSED
+    assert ticket.reject_reason == Reason.REFUSED
     assert "GUIDED requires position" in ticket.reason
     assert sim.truth().mode == SubMode.MANUAL
 

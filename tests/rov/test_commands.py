@@ -8,14 +8,9 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from rovlink.link.messages import Reason
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SubMode, protocol_mode, sub_mode
-from rovlink.rov.commands import (
-    REASON_IMPOSSIBLE,
-    REASON_REFUSED,
-    CommandTracker,
-    GotoTicket,
-    Ticket,
-)
+from rovlink.rov.commands import CommandTracker, GotoTicket, Ticket
 from rovlink.rov.goto import GotoDriver, GotoOrder
 from rovlink.rov.telemetry import AutopilotSnapshot, Telemetry
 
@@ -46,7 +41,7 @@ def test_a_refusal_fails_the_request_as_reason_2_with_the_autopilots_words():
     tracker.mode(ticket, SubMode.GUIDED, now=0.0)
     tracker.due(0.0)
     tracker.on_ack(SET_MODE, FAILED, 0.05, "GUIDED requires position")
-    assert ticket.status == Ticket.FAILED and ticket.reject_reason == REASON_REFUSED
+    assert ticket.status == Ticket.FAILED and ticket.reject_reason == Reason.REFUSED
     assert "GUIDED requires position" in ticket.reason
 
 
@@ -60,11 +55,11 @@ def test_no_answer_within_2_s_is_reason_2_and_no_autopilot_is_reason_1():
     assert silent.status == Ticket.PENDING
     # Both past the deadline while the autopilot is there: it did not answer.
     tracker.expire(2.0, reachable=True)
-    assert silent.reject_reason == REASON_REFUSED and other.reject_reason == REASON_REFUSED
+    assert silent.reject_reason == Reason.REFUSED and other.reject_reason == Reason.REFUSED
     later = Ticket("arm")
     tracker.arm(later, False, now=5.0)
     tracker.expire(7.0, reachable=False)
-    assert later.status == Ticket.FAILED and later.reject_reason == REASON_IMPOSSIBLE
+    assert later.status == Ticket.FAILED and later.reject_reason == Reason.IMPOSSIBLE
 
 
 def test_in_progress_stops_the_resends_and_a_later_answer_still_counts():
@@ -195,7 +190,7 @@ def test_a_goto_that_cannot_work_is_refused_at_once_as_reason_1(snap, words):
     driver = GotoDriver(tracker)
     ticket = GotoTicket()
     driver.start(ticket, GotoOrder(1.0, 0.0, 3.0), snap, 0.0)
-    assert ticket.status == Ticket.FAILED and ticket.reject_reason == REASON_IMPOSSIBLE and words in ticket.reason
+    assert ticket.status == Ticket.FAILED and ticket.reject_reason == Reason.IMPOSSIBLE and words in ticket.reason
     assert tracker.requests == [] and driver.active is None
 
 
@@ -225,7 +220,7 @@ def test_guided_refused_fails_the_goto_as_reason_2():
     tracker.due(0.0)
     tracker.on_ack(SET_MODE, FAILED, 0.05, "GUIDED requires position")
     driver.step(_ready(), 0.05)
-    assert ticket.status == Ticket.FAILED and ticket.reject_reason == REASON_REFUSED
+    assert ticket.status == Ticket.FAILED and ticket.reject_reason == Reason.REFUSED
     assert "GUIDED requires position" in ticket.reason
 
 
@@ -237,7 +232,7 @@ def test_a_guided_accepted_after_the_2_s_makes_the_driver_ask_for_a_brake():
     tracker.due(0.0)
     tracker.expire(2.0, reachable=True)
     driver.step(_ready(), 2.0)
-    assert ticket.status == Ticket.FAILED and ticket.reject_reason == REASON_REFUSED
+    assert ticket.status == Ticket.FAILED and ticket.reject_reason == Reason.REFUSED
     assert not driver.brake_wanted
     driver.step(_ready(custom_mode=int(SubMode.GUIDED)), 2.5)  # the late answer: nobody flies it
     assert driver.brake_wanted
