@@ -279,9 +279,9 @@ class GcsLink:
     def _on_event(self, topic: str, payload) -> None:  # operator's thread
         m = ardupilotmega
         try:
-            if topic == "image" and payload.get("complete") and payload.get("img") != self._last_image:
-                self._last_image = payload.get("img")
-                self.statustext(m.MAV_SEVERITY_INFO, f"rovlink: image {payload.get('img')} complete")
+            if topic == "image" and payload.get("complete") and payload.get("serial") != self._last_image:
+                self._last_image = payload.get("serial")  # the picture's number, as the page and log say it
+                self.statustext(m.MAV_SEVERITY_INFO, f"rovlink: picture #{payload.get('serial')} complete")
             elif topic == "control":
                 centre = bool(payload.get("centre_to_drive")) and payload.get("holder") == getattr(self.commands, "name", None)
                 if centre and not self._alerted["centre"]:

@@ -170,16 +170,21 @@ class ImageReceiver:
             self._keep(t, partial=False)
             self._mark_capture_window(t, "prefetch", img=event.img, total=2 + len(event.data),
                                       since=event.started_at)
-        self._record({"k": "image", "t": round(t, 4), "img": event.img, "bytes": len(event.data),
+            serial = self.view.serial
+        self._record({"k": "image", "t": round(t, 4), "img": event.img, "n": serial, "bytes": len(event.data),
                       "seconds": round(event.at - event.started_at, 3)})
-        self._note(f"image {event.img} complete: {len(event.data)} bytes in {event.at - event.started_at:.1f} s")
+        # The picture's own number (the page's card, strip and saved file say it too); IMG wraps at 8.
+        self._note(f"picture #{serial} complete: {len(event.data)} bytes in {event.at - event.started_at:.1f} s "
+                   f"(IMG {event.img})")
 
     def _abandoned(self, event: ImageAbandoned, t: float) -> None:
         with self._lock:
-            if self.view.img == event.img and not self.view.complete and self.view.stream:
+            shown = self.view.img == event.img and not self.view.complete and self.view.stream
+            if shown:
                 self._keep(t, partial=True)
             self._mark_capture_window(t, "request")
-        self._note(f"image {event.img} abandoned after {event.received_bytes} bytes: {event.reason}")
+            what = f"picture #{self.view.serial}" if shown else f"a picture not yet shown (IMG {event.img})"
+        self._note(f"{what} abandoned after {event.received_bytes} bytes: {event.reason}")
 
     # -- the capture window (see the module's docstring) ------------------
 

@@ -255,6 +255,14 @@ def test_pictures_keep_their_capture_and_can_be_looked_back_at_and_saved(open_pa
     assert set(files) == {".png", ".json"}, files
     meta = json.loads(files[".json"].read_text())
     assert str(meta["n"]) == oldest and meta["picture"] == files[".png"].name
+    # One picture number everywhere: the page says which went, the file is named by it,
+    # its thumbnail shows it, and the log's line for it says it.
+    assert page.get_attribute("#image-saved", "data-n") == oldest
+    assert page.text_content("#image-saved").startswith(f"#{oldest} saved")
+    assert f"-{oldest}-" in files[".png"].name
+    assert page.text_content(f'#image-strip button[data-n="{oldest}"] .n') == f"#{oldest}"
+    assert any(e["text"].startswith(f"picture #{oldest} complete") for e in live.operator.log_entries()), \
+        [e["text"] for e in live.operator.log_entries() if "picture" in e["text"]][-5:]
     assert meta["bytes"] > 0 and "capture" in meta and "stream" not in meta
     with Image.open(files[".png"]) as im:
         assert im.size == (meta["width"], meta["height"]) == (320, 240)

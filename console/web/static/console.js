@@ -714,7 +714,10 @@ function renderStrip() {
       const img = document.createElement("img");
       img.alt = `picture ${e.n}`;
       img.src = `/api/images/${e.n}.png`;
-      b.append(img);
+      const label = document.createElement("span");
+      label.className = "n";
+      label.textContent = `#${e.n}`;  // the number the card, the log and the saved file say
+      b.append(img, label);
       thumbs.set(e.n, b);
     }
     b.className = (e.partial ? "partial " : "") + (shown && e.n === shown.n ? "shown" : "");
@@ -762,6 +765,9 @@ function renderShownMeta() {
 function savePicture() {
   const e = shownEntry();
   if (!e) return;
+  // Said on the page: a browser may save without asking, and the pilot must know which picture went.
+  $("image-saved").textContent = `#${e.n} saved (PNG and JSON, see your downloads)`;
+  $("image-saved").dataset.n = e.n;
   for (const ext of ["png", "json"]) {
     const a = document.createElement("a");
     a.href = `/api/images/${e.n}.${ext}?download=1`;
