@@ -67,7 +67,7 @@ from rovlink.link.transport import Endpoint
 
 from .session.health import LinkHealth
 from .session.images import DaemonWorker, ImageReceiver, ImageView
-from .session.odometry import LOG_KEPT, History, Odometry, Pose
+from .session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
 from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
 from .session.predictor import NEUTRAL_WISH, ROV_FAILSAFE_S, Predictor, preview_path
 from .session.recorder import Recorder
@@ -123,7 +123,7 @@ class Operator:
     def _new_parts(self, *, replaying: bool, lost_after_s: float | None) -> None:
         """The session's state, as at its start (caller holds the lock, or nobody else has the operator yet)."""
         self.history = History()
-        self.health = LinkHealth(history=self.history, note=self.note)
+        self.health = LinkHealth(history=self.history, note=self.note, clear=self.clear_alerts)
         self.health.replaying = replaying
         if lost_after_s is not None:
             self.health.lost_after_s = lost_after_s
@@ -207,18 +207,32 @@ class Operator:
         """Clock time (Unix seconds) of session time `t`."""
         return self.wall0 + t
 
-    def note(self, text: str, level: str = "info") -> None:
+    def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
         """A log line. `level`: "alert" (the pilot must see it: link lost, failsafe,
-        forged frames, an order refused), "warn", or "info" (routine: an image complete)."""
-        t = self.now()
-        self.history.log.append((t, text, level))
-        self._publish("log", self._log_entry(t, text, level))
+        forged frames, an order refused), "warn", or "info" (routine: an image complete).
+        `cause`: the condition an alert is about ("link", "failsafe"), so that
+        `clear_alerts` can mark it cleared when the condition ends."""
+        line = LogLine(self.now(), text, level, cause)
+        self.history.log.append(line)
+        self._publish("log", self._log_entry(line))
 
-    def _log_entry(self, t: float, text: str, level: str) -> dict:
-        return {"t": t, "wall": round(self.wall(t), 3), "text": text, "level": level}
+    def clear_alerts(self, cause: str) -> None:
+        """The condition `cause` has ended: its alerts still standing are marked
+        cleared (and published again, so that every page greys them)."""
+        t = self.now()
+        with self._lock:
+            cleared = [line for line in list(self.history.log) if line.cause == cause and line.cleared is None]
+            for line in cleared:
+                line.cleared = t
+        for line in cleared:
+            self._publish("log", self._log_entry(line))
+
+    def _log_entry(self, line: LogLine) -> dict:
+        return {"t": line.t, "wall": round(self.wall(line.t), 3), "text": line.text, "level": line.level,
+                "cause": line.cause, "cleared_wall": None if line.cleared is None else round(self.wall(line.cleared), 3)}
 
     def log_entries(self, last: int = LOG_KEPT) -> list[dict]:
-        return [self._log_entry(*e) for e in list(self.history.log)[-last:]]
+        return [self._log_entry(line) for line in list(self.history.log)[-last:]]
 
     # ------------------------------------------------------------------
     # The link driver
@@ -356,6 +370,7 @@ class Operator:
         with self._lock:
             previous = self.odometry.take(reply, t, round_trip_s)
             entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.reply.failsafe)
+            left_failsafe = not reply.failsafe and previous is not None and bool(previous.reply.failsafe)
             self.health.reply(t, round_trip_s)
             self.history.trail.append((t, pose.x_m, pose.y_m, pose.z_m))
             # A reply proves its poll arrived intact: the velocity it carried
@@ -369,7 +384,11 @@ class Operator:
         if entered_failsafe and previous is None:
             self.note("ROV in FAILSAFE at link start (it had no poll yet)", "warn")
         elif entered_failsafe:
-            self.note("ROV reports FAILSAFE: it had no poll for its failsafe time, braked and holds", "alert")
+            self.note("ROV reports FAILSAFE: it had no poll for its failsafe time, braked and holds", "alert",
+                      cause="failsafe")
+        elif left_failsafe:
+            self.clear_alerts("failsafe")
+            self.note("ROV out of FAILSAFE: polls reach it again", "warn")
         self.health.watch(t)
         self._publish("pose", self.pose_state())
         self.orders.check_requests(self.odometry.fix, t)

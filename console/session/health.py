@@ -7,7 +7,8 @@ the scene and the ground-station gateway all read `condition`.
 
 Alerts are raised where the change happens: the link driver calls `watch`
 once per turn of its loop (and after every reply), so "LINK LOST" reaches the
-log whether or not anybody reads the state; reading never logs.
+log whether or not anybody reads the state, and is marked cleared when the
+link is back; reading never logs.
 """
 
 from __future__ import annotations
@@ -27,9 +28,10 @@ class LinkHealth:
     """Link events and counters of a session.  `history` holds the series it
     appends to (link events, round trips); `note` is the session's log."""
 
-    def __init__(self, *, history: History, note: Callable[..., None]) -> None:
+    def __init__(self, *, history: History, note: Callable[..., None], clear: Callable[[str], None]) -> None:
         self._history = history
         self._note = note
+        self._clear = clear
         self.lost_after_s = LOST_AFTER_S
         self.replaying = False
         self.reply_at: float | None = None   # when the last reply arrived
@@ -98,8 +100,10 @@ class LinkHealth:
         if was == state or state in ("starting", "replay"):
             return
         if state == "lost":
-            self._note("LINK LOST: no reply from the ROV" + (f" for {silent:.0f} s" if silent else ""), "alert")
+            self._note("LINK LOST: no reply from the ROV" + (f" for {silent:.0f} s" if silent else ""), "alert",
+                       cause="link")
         elif was == "lost":
+            self._clear("link")
             self._note("link back: replies arrive again", "warn")
 
     def state(self, t: float, rov_failsafe_s: float) -> dict:

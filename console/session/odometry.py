@@ -43,6 +43,18 @@ def _series() -> collections.deque:
 
 
 @dataclass
+class LogLine:
+    """A line of the session's log; an alert about a condition (`cause`) is
+    marked `cleared` (session time) when the condition ends."""
+
+    t: float
+    text: str
+    level: str
+    cause: str | None = None
+    cleared: float | None = None
+
+
+@dataclass
 class History:
     """Bounded series for the live plots and the session summary."""
 
@@ -50,7 +62,7 @@ class History:
     commanded: collections.deque = field(default_factory=_series)  # (t, vx..vyaw)
     received: collections.deque = field(default_factory=_series)  # (t, vx..vyaw)
     link_events: collections.deque = field(default_factory=_series)  # (t, kind, n)
-    log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LOG_KEPT))  # (t, text, level)
+    log: collections.deque = field(default_factory=lambda: collections.deque(maxlen=LOG_KEPT))  # LogLine
     round_trips: collections.deque = field(default_factory=lambda: collections.deque(maxlen=50))
 
 

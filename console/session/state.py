@@ -154,3 +154,7 @@ class LogEntry(BaseModel):
     text: str
     level: Literal["alert", "warn", "info"] = Field(
         description="alert: the pilot must see it (link lost, failsafe, an order refused); info: routine")
+    cause: Literal["link", "failsafe"] | None = Field(
+        None, description="a condition the alert is about; it is cleared when the condition ends")
+    cleared_wall: float | None = Field(None, description="when its cause ended (clock time); null: still on, "
+                                                         "or an event that has no end")

@@ -195,7 +195,8 @@ def test_instruments_follow_the_replies_and_go_grey_on_a_cut_link(open_page, liv
         page.wait_for_function("[...document.querySelectorAll('#alerts li')].some((li) => li.textContent.includes('LINK LOST'))")
         page.select_option("#log-level", "alert")
         classes = page.eval_on_selector_all("#log li", "lis => lis.map((li) => li.className)")
-        assert classes and set(classes) == {"alert"}, classes
+        assert classes and all(c.split()[0] == "alert" for c in classes), classes
+        assert "alert" in classes  # the loss: not cleared while it lasts
         # Clock times, not session seconds.
         first = page.text_content("#log li")
         assert first[2] == ":" and first[5] == ":", first
@@ -208,6 +209,13 @@ def test_instruments_follow_the_replies_and_go_grey_on_a_cut_link(open_page, liv
     lines = page.eval_on_selector_all("#log li", "lis => lis.map((li) => li.textContent)")
     assert lines and all("link" in line.lower() for line in lines), lines
     assert any("link back" in line for line in lines), lines
+    # The loss's alert, still at the top, is marked cleared with the time it ended.
+    page.wait_for_function("[...document.querySelectorAll('#alerts li')].some((li) => li.textContent.includes('LINK LOST')"
+                           " && li.classList.contains('cleared') && li.textContent.includes('cleared'))")
+    assert not page.evaluate("[...document.querySelectorAll('#alerts li')].some((li) => li.textContent.includes('LINK LOST')"
+                             " && !li.classList.contains('cleared'))")
+    cleared = [e for e in live.operator.log_entries() if e["cause"] == "link"]
+    assert cleared and all(e["cleared_wall"] is not None and e["cleared_wall"] >= e["wall"] for e in cleared), cleared
 
 
 def test_pictures_keep_their_capture_and_can_be_looked_back_at_and_saved(open_page, live, tmp_path):

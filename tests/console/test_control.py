@@ -186,6 +186,32 @@ def test_link_state_comes_from_replies(operator, clock):
         assert http.get("/api/link").json()["state"] == "replay"
 
 
+def test_link_lost_is_raised_by_the_link_driver_not_by_reading_and_cleared_when_back(operator, clock):
+    def alerts():
+        return [e for e in operator.log_entries() if e["level"] == "alert"]
+
+    reply_at(operator, clock)
+    operator._turn(operator.now())
+    clock.t += 4.0
+    for _ in range(3):
+        operator.link_state()  # reading says "lost" and logs nothing
+    assert operator.link_state()["state"] == "lost" and not alerts()
+    operator._turn(operator.now())  # the link loop's next turn
+    operator._turn(operator.now())
+    lost = alerts()
+    assert [e["cause"] for e in lost] == ["link"] and "LINK LOST" in lost[0]["text"] and lost[0]["cleared_wall"] is None
+    clock.t += 1.0
+    reply_at(operator, clock, failsafe=True)  # back; the ROV had failed safe meanwhile
+    link_alert, failsafe_alert = alerts()
+    assert link_alert["cleared_wall"] == pytest.approx(operator.wall(operator.now()))
+    assert failsafe_alert["cause"] == "failsafe" and failsafe_alert["cleared_wall"] is None
+    assert any(e["text"].startswith("link back") for e in operator.log_entries())
+    clock.t += 0.5
+    reply_at(operator, clock, failsafe=False)  # polls reach it again: out of FAILSAFE
+    assert alerts()[1]["cleared_wall"] == pytest.approx(operator.wall(operator.now()))
+    assert operator.log_entries()[-1]["text"].startswith("ROV out of FAILSAFE")
+
+
 def test_the_prediction_stops_at_the_rovs_failsafe_time(operator, clock):
     reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
     operator.set_velocity(1.0, 0.0, 0.0, 0.0)
@@ -261,7 +287,7 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
         clock.t += 1.0
     link = operator.link_state()
     assert link["inauthentic_frames"] == 4 and link["late_replies"] == 4 and link["auth_alert"]
-    assert any("ALERT" in text and level == "alert" for _, text, level in operator.history.log)
+    assert any("ALERT" in line.text and line.level == "alert" for line in operator.history.log)
     clock.t += 20.0
     assert not operator.link_state()["auth_alert"]
 

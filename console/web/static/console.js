@@ -36,7 +36,7 @@ const page = {
   audio: null,
   orderStates: {},       // id -> last state shown
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
-  logKeys: new Set(),
+  logKeys: new Map(),    // "t|text" -> its entry (a line comes again when its alert is cleared)
   history: [],           // kept pictures' metadata (GET /api/images)
   historyKey: "",        // serial and count the history was fetched for
   shownPast: null,       // n of the kept picture shown large, or null: the latest complete one
@@ -475,8 +475,13 @@ function addLog(entries) {
   let added = false;
   for (const e of entries || []) {
     const key = `${e.t}|${e.text}`;
-    if (page.logKeys.has(key)) continue;
-    page.logKeys.add(key);
+    const known = page.logKeys.get(key);
+    if (known) {
+      // The same line again: its alert's cause may have ended meanwhile.
+      if (known.cleared_wall !== e.cleared_wall) { known.cleared_wall = e.cleared_wall; added = true; }
+      continue;
+    }
+    page.logKeys.set(key, e);
     page.logEntries.push(e);
     added = true;
   }
@@ -496,8 +501,8 @@ function renderLog() {
     && (!words || e.text.toLowerCase().includes(words));
   const line = (e) => {
     const li = document.createElement("li");
-    li.textContent = `${clockTime(e.wall)} ${e.text}`;
-    li.className = e.level || "info";
+    li.textContent = `${clockTime(e.wall)} ${e.text}` + (e.cleared_wall ? ` — cleared ${clockTime(e.cleared_wall)}` : "");
+    li.className = (e.level || "info") + (e.cleared_wall ? " cleared" : "");
     return li;
   };
   const shown = page.logEntries.filter(wanted).slice(-100).reverse();
