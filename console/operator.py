@@ -65,6 +65,7 @@ from rovlink.link.messages import (
 from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synced
 from rovlink.link.transport import Endpoint
 
+from .session.goto import GoToWatch, resolve_target
 from .session.health import LinkHealth
 from .session.images import DaemonWorker, ImageReceiver, ImageView
 from .session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
@@ -133,6 +134,7 @@ class Operator:
                                     record=self.recorder.write, publish=self._publish, note=self.note,
                                     decoder=self._decoder, settings=self._initial_settings)
         self.orders = OrderBook(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
+        self.goto = GoToWatch(self.orders)
         # The settings the pilot last asked for: the base for the pilot's edits.
         self.requested_settings = self._initial_settings or ImageSettings(mono=True, budget_bytes=2000)
         self._wish = NEUTRAL_WISH  # fractions -1..1
@@ -391,7 +393,10 @@ class Operator:
             self.note("ROV out of FAILSAFE: polls reach it again", "warn")
         self.health.watch(t)
         self._publish("pose", self.pose_state())
-        self.orders.check_requests(self.odometry.fix, t)
+        fix = self.odometry.fix
+        self.orders.check_requests(fix, t)
+        with self._lock:
+            self.goto.on_reply(fix, t)
 
     # ------------------------------------------------------------------
     # Commands (any thread)
@@ -482,12 +487,18 @@ class Operator:
         except ProtocolError as exc:
             raise OrderError(str(exc)) from None
         # The ROV flies a position order in GUIDED: the pilot is told before it goes.
-        return self._queue(order, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
-                                               "relative": relative, "body": body, "mode": "GUIDED"})
+        order_id = self._queue(order, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
+                                                   "relative": relative, "body": body, "mode": "GUIDED"})
+        with self._lock:
+            target = resolve_target(x_m, y_m, z_m, yaw, relative=relative, body=body, fix=self.odometry.fix)
+            self.goto.started(order_id, target, self.now())
+        return order_id
 
     def stop(self) -> int:
         """STOP: neutral velocity now, cancel queued targets, hold depth."""
         self.set_velocity(0.0, 0.0, 0.0, 0.0)
+        with self._lock:
+            self.goto.abort("STOP", self.now())
         return self._queue(Stop(), "STOP", {})
 
     def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,

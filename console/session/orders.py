@@ -125,6 +125,21 @@ class OrderBook:
             self._note(f"{info['kind']} order {order_id} {state}", "alert")
         return info
 
+    def get(self, order_id: int) -> dict | None:
+        with self._lock:
+            info = self._orders.get(order_id)
+            return None if info is None else dict(info)
+
+    def update(self, order_id: int, **fields) -> None:
+        """Details of an order that change without its state (a Go-to's distance left)."""
+        with self._lock:
+            info = self._orders.get(order_id)
+            if info is None:
+                return
+            info.update(fields)
+            info = dict(info)
+        self._publish("order", info)
+
     def check_requests(self, fix: Fix | None, t: float) -> None:
         """Arm and mode requests the vehicle followed, or did not in time."""
         if not self._requests:

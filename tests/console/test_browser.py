@@ -301,3 +301,55 @@ def test_the_mode_selector_shows_the_vehicles_mode_unless_the_pilot_is_choosing(
         assert page.evaluate("[...document.querySelectorAll('#image, #image-done')]"
                              ".every((img) => img.hidden || !!img.getAttribute('src'))")
     pilot.click("#release")
+
+
+def test_every_orders_fate_shows_beside_its_control_with_its_time(open_page, live):
+    """Issue 25 of the pilot's page: arming..., the mode followed, a Go-to's distance left,
+    its arrival and its abort, image settings in force; the orders list with times."""
+    page = open_page()
+    take_control(page)
+    page.click("#arm")
+    # Arming: said at once beside Arm, then followed when the vehicle reports it.
+    page.wait_for_function("['requested', 'sent', 'followed'].includes(document.getElementById('arm-fate').dataset.state)")
+    page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=15000)
+    text = page.text_content("#arm-fate")
+    assert text.startswith("arm: followed") and text[-3] == ":" and text[-6] == ":", text  # ... HH:MM:SS
+    page.select_option("#mode-select", "DEPTH_HOLD")
+    page.click("#set-mode")
+    page.wait_for_function("document.getElementById('mode-fate').dataset.state === 'followed'", timeout=15000)
+    assert page.text_content("#mode-fate").startswith("mode DEPTH_HOLD: followed")
+
+    # A Go-to a little way off: its preview's length and time stay while the target shows.
+    here = live.operator.pose_state()["received"]
+    for field, value in zip(("#goto-x", "#goto-y", "#goto-z", "#goto-yaw"),
+                            (here["x_m"] + 1.5, here["y_m"], max(here["z_m"], 1.0), here["yaw_deg"])):
+        page.fill(field, f"{value:.2f}")
+    page.click("#goto-preview")
+    page.wait_for_function("document.getElementById('goto-plan').textContent.startsWith('preview: ')")
+    after_updates(page)  # the target event and telemetry came meanwhile
+    assert page.text_content("#goto-plan").startswith("preview: ") and " m in about " in page.text_content("#goto-plan")
+    page.click("#goto-go")
+    page.wait_for_function("/m to go/.test(document.getElementById('goto-fate').textContent)", timeout=15000)
+    page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=60000)
+    assert page.text_content("#goto-fate").startswith("go-to #") and "arrived" in page.text_content("#goto-fate")
+    assert "done" in page.get_attribute("#goto-fate", "class")
+
+    # Another, given up by STOP: aborted, not left "acknowledged" for good.
+    page.fill("#goto-x", f"{here['x_m'] - 6:.2f}")
+    page.click("#goto-go")
+    page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'acknowledged'", timeout=15000)
+    page.click("#stop")
+    page.wait_for_function("document.getElementById('goto-fate').textContent.includes('aborted: STOP')", timeout=10000)
+
+    # Image settings: in force from the next picture once the ROV acknowledged them.
+    page.fill("#budget", "1500")
+    page.click("#apply-image")
+    page.wait_for_function("document.getElementById('image-fate').dataset.state === 'acknowledged'", timeout=15000)
+    assert "in force from the next picture" in page.text_content("#image-fate")
+
+    # The orders list: more than four, each with the time of its state.
+    lines = page.eval_on_selector_all("#orders li", "lis => lis.map((li) => li.textContent)")
+    assert len(lines) > 4, lines
+    assert all(line[2] == ":" and line[5] == ":" for line in lines), lines
+    assert any("POSITION (GUIDED): arrived" in line for line in lines), lines
+    page.click("#disarm")

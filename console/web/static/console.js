@@ -35,6 +35,7 @@ const page = {
   alerts: 0,             // alarm sounds started (the tests read it)
   audio: null,
   orderStates: {},       // id -> last state shown
+  wallOffset: null,      // clock time minus session time (from telemetry)
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
   logKeys: new Map(),    // "t|text" -> its entry (a line comes again when its alert is cleared)
   history: [],           // kept pictures' metadata (GET /api/images)
@@ -331,6 +332,8 @@ function setBadge(el, text, cls) {
 }
 
 function render(s) {
+  // Session seconds to clock time (a replay's own clock).
+  if (s.wall && s.pose) page.wallOffset = s.wall - s.pose.t;
   renderControl(s.control);
   const pose = s.pose;
   page.lastPose = pose.received;
@@ -385,7 +388,7 @@ function render(s) {
 
   renderImageProgress(s.image);
   for (const o of s.orders) renderOrder(o, true);
-  renderList($("orders"), s.orders.slice(-4).reverse(), orderText);
+  renderList($("orders"), s.orders.slice(-8).reverse(), orderText);
   addLog(s.log);
 }
 
@@ -513,13 +516,54 @@ function renderLog() {
   $("alerts").replaceChildren(...alerts.map(line));
 }
 
+// When an order reached its state: its t_<state> (session seconds) as clock time.
+function orderClock(o) {
+  const t = o[`t_${o.state.split(":")[0]}`] ?? o.t_queued;
+  return page.wallOffset === null || t === undefined ? "" : clockTime(t + page.wallOffset);
+}
+
 function orderText(o) {
   const guided = o.kind === "POSITION" ? " (GUIDED)" : "";
-  return `#${o.id} ${o.kind}${guided}: ${o.state}`;
+  const left = distanceLeft(o);
+  return `${orderClock(o)} #${o.id} ${o.kind}${guided}: ${o.state}${left}`;
+}
+
+function distanceLeft(o) {
+  const open = !/^(arrived|aborted|rejected|refused|cancelled|unknown|not carried out)/.test(o.state);
+  return o.kind === "POSITION" && open && o.distance_left_m !== null && o.distance_left_m !== undefined
+    ? `, ${fmt(o.distance_left_m, 1)} m to go` : "";
+}
+
+// Each order's fate beside the control that gave it: the newest of its kind.
+const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate" };
+
+function fateClass(state) {
+  if (/^(queued|requested|sent)/.test(state)) return "pending";
+  if (/^(acknowledged|followed|arrived)/.test(state)) return "done";
+  if (/^(rejected|refused|not carried out|unknown)/.test(state)) return "bad";
+  return "";  // cancelled, aborted: ended by someone's choice
+}
+
+function renderFate(o) {
+  const el = $(FATE_OF[o.kind] || "");
+  if (!el || +(el.dataset.id || 0) > o.id) return;  // late news of an older order
+  const what = { ARM: "arm", DISARM: "disarm", MODE: `mode ${o.mode}`, POSITION: `go-to #${o.id}`,
+                 IMAGE: `image settings #${o.id}` }[o.kind];
+  let state = o.state;
+  if (o.kind === "IMAGE" && state === "acknowledged") state = "in force from the next picture";
+  if ((o.kind === "ARM" || o.kind === "DISARM") && /^(requested|sent)/.test(state)) {
+    state = o.kind === "ARM" ? "arming…" : "disarming…";
+  }
+  el.textContent = `${what}: ${state}${distanceLeft(o)} ${orderClock(o)}`;
+  el.title = `#${o.id} ${o.kind}: ${o.state}`;
+  el.className = `fate ${fateClass(o.state)}`;
+  el.dataset.id = o.id;
+  el.dataset.state = o.state.split(":")[0];
 }
 
 // Every order's fate is shown; a refusal or rejection also pops up once.
 function renderOrder(o, quiet) {
+  renderFate(o);
   const before = page.orderStates[o.id];
   page.orderStates[o.id] = o.state;
   const bad = /^(rejected|refused|not carried out)/.test(o.state);
@@ -543,6 +587,9 @@ function renderTarget(t) {
   if (box.dataset.target === key) return;
   box.dataset.target = key;
   box.hidden = false;
+  // The preview's own words (length, time) stay until the target is sent or changed.
+  if (!t.sent && box.dataset.previewed === "1") return;
+  box.dataset.previewed = "";
   box.textContent = t.sent
     ? `target x ${fmt(t.x_m)} y ${fmt(t.y_m)} z ${fmt(t.z_m)}: sent as order #${t.order_id} (the vehicle flies it in GUIDED)`
     : `target x ${fmt(t.x_m)} y ${fmt(t.y_m)} z ${fmt(t.z_m)} previewed: not sent; Go to switches the vehicle to GUIDED`;
@@ -955,8 +1002,12 @@ function wire() {
       `ends ${miss.toFixed(2)} m from the target; not sent. Go to switches the vehicle to GUIDED.`;
     box.dataset.target = "";
     box.dataset.points = pts.length;
+    box.dataset.previewed = "1";
     box.hidden = false;
   };
+  for (const id of ["goto-x", "goto-y", "goto-z", "goto-yaw"]) {
+    $(id).addEventListener("input", () => { $("goto-plan").dataset.previewed = ""; });
+  }
   $("goto").onsubmit = async (ev) => {
     ev.preventDefault();
     const sent = await api("/api/orders/position", gotoTarget());

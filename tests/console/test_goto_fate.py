@@ -1,0 +1,94 @@
+"""A position order's fate after the ROV took it (issue 25 of the pilot's page): it
+arrives, or is aborted by a STOP, a newer order, the ROV's FAILSAFE, a disarm or
+the vehicle leaving GUIDED, and says how far it has left meanwhile.  A fake
+clock, the operator fed as its link loop feeds it."""
+
+from __future__ import annotations
+
+from rovlink.console.operator import Operator
+from rovlink.link.master import PoseReceived
+from rovlink.link.messages import Mode, Reply
+
+from ..helpers import FakeClock
+
+
+def _session():
+    clock = FakeClock()
+    clock.t = 10.0
+    op = Operator(None, clock=clock)
+    return op, clock
+
+
+def _reply(op, clock, dt=0.5, *, x=0.0, y=0.0, z=2.0, yaw=0.0, mode=Mode.GUIDED, **kw):
+    clock.t += dt
+    reply = Reply(armed=kw.pop("armed", True), mode=mode, autopilot=True, position_valid=True, attitude_valid=True,
+                  x_cm=round(x * 100), y_cm=round(y * 100), z_cm=round(z * 100), yaw_cdeg=round(yaw * 100), **kw)
+    op.handle_events([PoseReceived(reply, op.now(), 0.3)], op.now())
+
+
+def _acknowledge(op, order_id):
+    op._settled(op.orders.last_master_id(), "acknowledged", op.now())
+    assert op.orders.get(order_id)["state"] == "acknowledged"
+
+
+def _state(op, order_id):
+    return op.orders.get(order_id)["state"]
+
+
+def test_a_goto_says_its_distance_left_and_arrives():
+    op, clock = _session()
+    _reply(op, clock, mode=Mode.POS_HOLD)
+    order_id = op.send_position(4.0, 3.0, 2.0, 90.0)
+    _reply(op, clock, mode=Mode.POS_HOLD)
+    assert op.orders.get(order_id)["distance_left_m"] == 5.0  # told before it is even taken
+    _acknowledge(op, order_id)
+    _reply(op, clock, x=2.0, y=1.5, yaw=45.0)
+    info = op.orders.get(order_id)
+    assert info["state"] == "acknowledged" and info["distance_left_m"] == 2.5
+    _reply(op, clock, x=3.9, y=2.9, yaw=60.0)  # there, but not yet turned
+    assert _state(op, order_id) == "acknowledged"
+    _reply(op, clock, x=3.9, y=2.9, yaw=88.0)
+    info = op.orders.get(order_id)
+    assert info["state"] == "arrived" and info["t_arrived"] == op.now() and info["distance_left_m"] == 0.1
+    assert [o for o in op.orders_state() if o["id"] == order_id][0]["state"] == "arrived"
+
+
+def test_a_goto_is_aborted_by_stop_a_newer_order_failsafe_disarm_or_leaving_guided():
+    op, clock = _session()
+    _reply(op, clock)
+
+    def acknowledged_goto():
+        order_id = op.send_position(10.0, 0.0, 2.0)
+        _acknowledge(op, order_id)
+        _reply(op, clock, x=1.0)
+        return order_id
+
+    first = acknowledged_goto()
+    op.stop()
+    assert _state(op, first) == "aborted: STOP"
+
+    second = acknowledged_goto()
+    third = op.send_position(0.0, 10.0, 2.0)
+    assert _state(op, second) == f"aborted: replaced by position order #{third}"
+    _acknowledge(op, third)
+    _reply(op, clock, x=1.0, failsafe=True)
+    assert _state(op, third).startswith("aborted: the ROV went into FAILSAFE")
+
+    fourth = acknowledged_goto()
+    _reply(op, clock, x=1.5, armed=False)
+    assert _state(op, fourth) == "aborted: the vehicle is disarmed"
+
+    fifth = acknowledged_goto()  # its replies show GUIDED
+    _reply(op, clock, x=2.0, mode=Mode.POS_HOLD)
+    assert _state(op, fifth) == "aborted: the vehicle left GUIDED for POS_HOLD"
+    # None of these is an alert: the pilot or the ROV's own failsafe (alerted on its own) ended it.
+    assert not [e for e in op.log_entries() if e["level"] == "alert" and "POSITION" in e["text"]]
+
+
+def test_a_relative_goto_goes_from_the_pose_it_was_given_at():
+    op, clock = _session()
+    _reply(op, clock, x=5.0, y=5.0, yaw=90.0)
+    order_id = op.send_position(2.0, 0.0, 0.0, 0.0, relative=True, body=True)  # 2 m ahead, facing east
+    _acknowledge(op, order_id)
+    _reply(op, clock, x=5.0, y=7.0, yaw=90.0)
+    assert _state(op, order_id) == "arrived"
