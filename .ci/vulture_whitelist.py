@@ -9,8 +9,7 @@ stats dataclasses the link and the node expose).  Made with `vulture
 needs the same reason.
 """
 # ruff: noqa
-_.required  # unused attribute (console/cli.py:44)
-_.required  # unused attribute (console/commands/bench.py:25)
+_.required  # unused attribute (rovlink/cli.py:74)
 _.robust_parsing  # unused attribute (console/gcs.py:228)
 _.seabed_node  # unused attribute (console/scene/app.py:296)
 _.rov_mesh_node  # unused attribute (console/scene/app.py:312)

@@ -2,6 +2,6 @@
 
 import sys
 
-from rovlink.console.cli import main
+from rovlink.cli import main
 
 sys.exit(main())

@@ -63,16 +63,16 @@ def test_the_wheel_adds_one_top_level_name(wheel):
     tops = {n.split("/")[0] for n in names}
     assert {t for t in tops if not t.endswith(".dist-info")} == {"rovlink"}
     # Every folder is there under the one name, with its data.
-    for expected in ("rovlink/__main__.py", "rovlink/command.py", "rovlink/link/frame.py",
+    for expected in ("rovlink/__main__.py", "rovlink/cli.py", "rovlink/command.py", "rovlink/link/frame.py",
                      "rovlink/link/cli.py", "rovlink/debt/cli.py", "rovlink/rov/cli.py",
-                     "rovlink/console/cli.py", "rovlink/console/web/routers/ws.py",
+                     "rovlink/console/commands/demo.py", "rovlink/console/web/routers/ws.py",
                      "rovlink/console/scene/app.py", "rovlink/console/web/static/index.html",
                      "rovlink/assets/rov.glb", "rovlink/assets/seabed.json",
                      "rovlink/assets/images/seabed.png"):
         assert expected in names, expected
     with zipfile.ZipFile(wheel) as z:
         top_level = [n for n in names if n.endswith("entry_points.txt")]
-        assert "rovlink = rovlink.console.cli:main" in z.read(top_level[0]).decode()
+        assert "rovlink = rovlink.cli:main" in z.read(top_level[0]).decode()
 
 
 def test_the_base_requirements_leave_the_console_extra_out(wheel):
@@ -192,7 +192,7 @@ def test_the_checkout_does_not_shadow_other_distributions():
     out = subprocess.run([sys.executable, "-c", "import console"], capture_output=True, text=True,
                          cwd="/", timeout=60)
     assert out.returncode != 0
-    out = subprocess.run([sys.executable, "-c", "import rovlink.console.cli, rovlink.link.frame as f; print(f.__name__)"],
+    out = subprocess.run([sys.executable, "-c", "import rovlink.console.commands.demo, rovlink.link.frame as f; print(f.__name__)"],
                          capture_output=True, text=True, cwd="/", timeout=60)
     assert out.stdout.strip() == "rovlink.link.frame", out.stderr
 
@@ -204,7 +204,7 @@ ALLOWED_IMPORTS = {
     "link": {"rovlink.link", "rovlink.command"},
     "debt": {"rovlink.debt", "rovlink.command"},
     "rov": {"rovlink.rov", "rovlink.link", "rovlink.debt", "rovlink.assets", "rovlink.command"},
-    "rovlink": {"rovlink.command", "rovlink.console.cli", "rovlink.link"},  # link_key reads key files
+    "rovlink": {"rovlink.command", "rovlink.cli", "rovlink.link"},  # link_key reads key files
 }
 
 

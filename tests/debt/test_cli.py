@@ -11,7 +11,7 @@ from PIL import Image
 
 from rovlink import debt
 from rovlink.assets import ASSETS_DIR
-from rovlink.console.cli import main
+from rovlink.cli import main
 
 ASSETS = ASSETS_DIR / "images"
 
