@@ -185,7 +185,10 @@ def test_a_region_dragged_on_the_image_and_a_goto_become_orders(open_page, live)
     page.mouse.down()
     page.mouse.move(box["x"] + box["width"] * 0.75, box["y"] + box["height"] * 0.5, steps=5)
     page.mouse.up()
-    assert page.is_visible("#roi-box")
+    # Drafted, not sent: drawn dashed, never as the ROI the picture was coded with.
+    assert page.get_attribute("#roi-text", "data-state") == "drafted"
+    assert "not sent" in page.text_content("#roi-text")
+    assert page.is_visible("#roi-draft") and not page.is_visible("#roi-box")
     page.fill("#shift", "4")
     page.click("#apply-image")
     assert wait_for(lambda: live.operator.requested_settings.roi is not None, 5), "no ROI order"
@@ -193,6 +196,14 @@ def test_a_region_dragged_on_the_image_and_a_goto_become_orders(open_page, live)
     assert settings.shift == 4
     expected = (width * 0.25, height * 0.25, width * 0.75, height * 0.5)
     assert all(abs(got - want) <= 2 for got, want in zip(settings.roi, expected)), (settings.roi, expected)
+    # Sent, then acknowledged, then in force once a picture coded with it arrives: only
+    # then is it drawn solid on that picture (and the dashed draft gone from it).
+    page.wait_for_function("['sent', 'acknowledged', 'in-force'].includes(document.getElementById('roi-text').dataset.state)")
+    page.wait_for_function("document.getElementById('roi-text').dataset.state === 'in-force'", timeout=FIRST_IMAGE_MS)
+    assert page.is_visible("#roi-box") and not page.is_visible("#roi-draft")
+    coded = live.operator.image_state()["settings"]["roi"]
+    assert coded == list(settings.roi), (coded, settings.roi)
+    assert "in force (picture #" in page.text_content("#roi-text")
 
     page.click("#roi-clear")
     page.click("#apply-image")

@@ -36,6 +36,7 @@ const page = {
   audio: null,
   orderStates: {},       // id -> last state shown
   wallOffset: null,      // clock time minus session time (from telemetry)
+  roiSent: null,         // {id, roi}: the pilot's ROI as sent in IMAGE order id
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
   logKeys: new Map(),    // "t|text" -> its entry (a line comes again when its alert is cleared)
   history: [],           // kept pictures' metadata (GET /api/images)
@@ -566,6 +567,7 @@ function renderOrder(o, quiet) {
   renderFate(o);
   const before = page.orderStates[o.id];
   page.orderStates[o.id] = o.state;
+  if (page.roiSent && page.roiSent.id === o.id && before !== o.state) renderRoiStatus();
   const bad = /^(rejected|refused|not carried out)/.test(o.state);
   if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.state}`);
   if (!quiet) {
@@ -862,6 +864,7 @@ function showImage(im) {
     img.dataset.decodedBytes = bytes;
     $("image-decoded").textContent = `showing ${bytes} bytes`;
     drawRoi();
+    renderRoiStatus();
     done();
   };
   next.onerror = done;
@@ -873,7 +876,7 @@ let lastImageState = null;
 // Region of interest: dragged on the picture, in the picture's own pixels
 // ---------------------------------------------------------------------------
 
-const PICTURES = [["image", "roi-box"], ["image-done", "roi-box-done"]];
+const PICTURES = [["image", "roi-box", "roi-draft"], ["image-done", "roi-box-done", "roi-draft-done"]];
 
 function picturePoint(ev, img = page.dragImg || $("image")) {
   const r = img.getBoundingClientRect();
@@ -886,27 +889,70 @@ function roiFrom(a, b) {
   return [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[0], b[0]), Math.max(a[1], b[1])];
 }
 
-function drawRoi(roi = page.roi) {
-  for (const [imgId, boxId] of PICTURES) {
-    const box = $(boxId);
+// The ROI a picture is coded with (its own settings, never the pilot's latest wish):
+// the arriving picture's from the image state, a kept one's from its entry.
+function codedRoi(imgId) {
+  if (imgId === "image") return lastImageState && lastImageState.settings ? lastImageState.settings.roi : null;
+  const e = shownEntry();
+  return e && e.settings ? e.settings.roi : null;
+}
+
+function placeBox(box, img, roi) {
+  if (!roi) { box.hidden = true; return; }
+  const sx = img.clientWidth / img.naturalWidth;
+  const sy = img.clientHeight / img.naturalHeight;
+  Object.assign(box.style, {
+    left: `${img.offsetLeft + roi[0] * sx}px`, top: `${img.offsetTop + roi[1] * sy}px`,
+    width: `${(roi[2] - roi[0]) * sx}px`, height: `${(roi[3] - roi[1]) * sy}px`,
+  });
+  box.hidden = false;
+}
+
+const sameRoi = (a, b) => !!a && !!b && a.every((v, i) => v === b[i]);
+
+// Solid: the ROI the picture was coded with.  Dashed: the pilot's own (drafted or
+// sent), on a picture not coded with it.
+function drawRoi(draft = page.roi) {
+  for (const [imgId, boxId, draftId] of PICTURES) {
     const img = $(imgId);
-    if (!roi || !img.naturalWidth || !img.getAttribute("src")) { box.hidden = true; continue; }
-    const sx = img.clientWidth / img.naturalWidth;
-    const sy = img.clientHeight / img.naturalHeight;
-    Object.assign(box.style, {
-      left: `${img.offsetLeft + roi[0] * sx}px`, top: `${img.offsetTop + roi[1] * sy}px`,
-      width: `${(roi[2] - roi[0]) * sx}px`, height: `${(roi[3] - roi[1]) * sy}px`,
-    });
-    box.hidden = false;
+    const ready = img.naturalWidth && img.getAttribute("src");
+    const coded = ready ? codedRoi(imgId) : null;
+    placeBox($(boxId), img, coded);
+    placeBox($(draftId), img, ready && draft && !sameRoi(draft, coded) ? draft : null);
   }
 }
 
 function setRoi(roi) {
   page.roi = roi;
-  $("roi-text").textContent = roi ? `ROI ${roi[0]},${roi[1]} – ${roi[2]},${roi[3]} px (Apply sends it)`
-    : "Drag on the image to choose a region of interest.";
+  page.roiSent = null;
   $("roi-clear").hidden = !roi;
+  renderRoiStatus();
   drawRoi();
+}
+
+// Where the pilot's ROI stands: drafted (not sent), sent (order #n), acknowledged
+// (from the next picture), in force (a picture coded with it arrived); said once each.
+function renderRoiStatus() {
+  const roi = page.roi;
+  const el = $("roi-text");
+  const text = (r) => `${r[0]},${r[1]} – ${r[2]},${r[3]} px`;
+  let state = "none";
+  if (!roi) {
+    el.textContent = "Drag on a picture to choose a region of interest.";
+  } else if (sameRoi(roi, codedRoi("image"))) {
+    state = "in-force";
+    el.textContent = `ROI ${text(roi)}: in force (picture #${lastImageState.serial} on)`;
+  } else if (page.roiSent && sameRoi(page.roiSent.roi, roi)) {
+    const st = page.orderStates[page.roiSent.id] || "sent";
+    state = st.startsWith("acknowledged") ? "acknowledged" : /^(rejected|cancelled|unknown)/.test(st) ? "failed" : "sent";
+    el.textContent = state === "acknowledged" ? `ROI ${text(roi)}: acknowledged, in force from the next picture`
+      : state === "failed" ? `ROI ${text(roi)}: order #${page.roiSent.id} ${st}`
+        : `ROI ${text(roi)}: sent as order #${page.roiSent.id}, waiting for the ROV`;
+  } else {
+    state = "drafted";
+    el.textContent = `ROI ${text(roi)} drafted: not sent (Apply sends it)`;
+  }
+  el.dataset.state = state;
 }
 
 function wireRoi() {
@@ -975,10 +1021,13 @@ function wire() {
   $("disarm").onclick = () => api("/api/orders/arm", { armed: false });
   $("set-mode").onclick = () => { page.modeChosenAt = 0; api("/api/orders/mode", { mode: $("mode-select").value }); };
   $("mode-select").onchange = () => { page.modeChosenAt = Date.now(); };
-  $("apply-image").onclick = () => api("/api/image/settings", {
-    roi: page.roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked,
-    budget_bytes: parseInt($("budget").value, 10),
-  });
+  $("apply-image").onclick = async () => {
+    const roi = page.roi;
+    const sent = await api("/api/image/settings", {
+      roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked, budget_bytes: parseInt($("budget").value, 10),
+    });
+    if (sent && roi) { page.roiSent = { id: sent.id, roi }; renderRoiStatus(); }
+  };
   const gotoTarget = () => ({
     x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
     z_m: parseFloat($("goto-z").value), yaw_deg: parseFloat($("goto-yaw").value),
