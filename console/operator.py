@@ -101,6 +101,8 @@ class Operator:
         self._t0 = self._clock()
         max_frame = (endpoint.max_frame if endpoint is not None else None) or MAX_FRAME
         self.master = master or Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame)
+        # The protocol machine itself (in version 2 `master` is the SecureMaster around it).
+        self.protocol_master = self.master
         # Nobody's input is in force until the command layer says a pilot's is: a
         # console that starts releases no HOLD (docs/PROTOCOL.md §5, decided).
         self.master.set_pilot_in_force(False)
@@ -628,7 +630,29 @@ class Operator:
         return out
 
     def image_state(self) -> dict:
-        return self.images.state()
+        return {**self.images.state(), "waiting": self.picture_wait()}
+
+    def picture_wait(self) -> str | None:
+        """Why there is no picture yet, in the pilot's words; None once there is one."""
+        if self.images.view.picture is not None or self.images.view.images_completed:
+            return None
+        if self.requested_settings.budget_bytes == 0:
+            return "pictures are off (budget 0 B): give them a budget to get some"
+        state, _ = self.link_condition()
+        if state == "replay":
+            return "no picture in the recording yet"
+        if state == "starting":
+            return "waiting for the ROV's first reply"
+        if state == "lost":
+            return "no picture: the link is lost"
+        if self.images.view.received_bytes:
+            return "decoding the first bytes (the console's codec compiles on first use)"
+        with self._lock:
+            arriving = self.protocol_master.image_received
+        if arriving:
+            return (f"a first picture of unknown age is arriving ({arriving} B): it is not shown, "
+                    f"the next one is (docs/PROTOCOL.md §4)")
+        return "the ROV has no picture ready yet (its codec compiles on first use: up to a minute on a first run)"
 
     def image_history(self) -> list[dict]:
         return self.images.history()

@@ -90,6 +90,7 @@ class ImageState(BaseModel):
     images_completed: int
     serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
     capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
+    waiting: str | None = Field(None, description="why there is no picture yet (null once there is one)")
     settings: ImageSettingsState | None
 
 

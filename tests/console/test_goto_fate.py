@@ -92,3 +92,21 @@ def test_a_relative_goto_goes_from_the_pose_it_was_given_at():
     _acknowledge(op, order_id)
     _reply(op, clock, x=5.0, y=7.0, yaw=90.0)
     assert _state(op, order_id) == "arrived"
+
+
+def test_without_a_picture_the_pilot_is_told_why():
+    from rovlink.link.master import ImageProgress
+
+    op, clock = _session()
+    clock.t += 1.0
+    assert op.image_state()["waiting"] == "waiting for the ROV's first reply"
+    clock.t += 9.0
+    assert op.image_state()["waiting"] == "no picture: the link is lost"
+    _reply(op, clock)
+    assert op.image_state()["waiting"].startswith("the ROV has no picture ready yet (its codec compiles")
+    op.protocol_master._image.data[:] = bytes(40)  # the master receives a first picture it will not show
+    assert op.image_state()["waiting"].startswith("a first picture of unknown age is arriving (40 B)")
+    op.handle_events([ImageProgress(1, 60, 300, bytes(58))], op.now())
+    assert op.image_state()["waiting"].startswith("decoding the first bytes")
+    op.set_image_settings(budget_bytes=0)
+    assert op.image_state()["waiting"].startswith("pictures are off")

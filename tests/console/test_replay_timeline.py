@@ -363,6 +363,10 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
 
                 assert page.get_attribute("#replay-bar", "data-state") == "paused"
                 assert page.text_content("#replay-time").startswith("0:00.0 / 0:0")
+                # No picture yet, and the page says why instead of showing an empty frame.
+                page.wait_for_function("document.getElementById('no-image-done').textContent === "
+                                       "'no picture in the recording yet'")
+                assert page.is_visible("#no-image-done") and page.is_hidden("#image-done")
                 page.evaluate("window.jumps = 0; addEventListener('rovlink:replay-jump', () => { window.jumps += 1; })")
 
                 # Playing: the time runs.

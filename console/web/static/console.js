@@ -388,6 +388,7 @@ function render(s) {
   setBadge($("link-up"), badge[0], badge[1]);
 
   renderImageProgress(s.image);
+  renderPictureWait(s.image.waiting);
   for (const o of s.orders) renderOrder(o, true);
   renderList($("orders"), s.orders.slice(-8).reverse(), orderText);
   addLog(s.log);
@@ -681,6 +682,15 @@ function renderList(ul, items, text) {
   if (ul.dataset.lines === JSON.stringify(lines)) return;
   ul.dataset.lines = JSON.stringify(lines);
   ul.replaceChildren(...lines.map((t) => Object.assign(document.createElement("li"), { textContent: t })));
+}
+
+// No picture yet: say why (the ROV's codec warming up, the link, pictures off).
+function renderPictureWait(why) {
+  const card = $("image-card");
+  if ((card.dataset.waiting || "") === (why || "")) return;
+  card.dataset.waiting = why || "";
+  $("no-image").textContent = why || "waiting for the next picture…";
+  $("no-image-done").textContent = why || "no complete picture yet";
 }
 
 function renderImageProgress(im) {
