@@ -44,11 +44,11 @@ COMMANDS = {
     BENCH: __name__,
 }
 
-# `rovlink bench NAME`: each benchmark and its module.
+# `rovlink bench NAME`: each benchmark and its module, beside what it measures.
 BENCHMARKS = {
-    "link": "rovlink.console.bench.link",
+    "link": "rovlink.link.bench",
     "console": "rovlink.console.bench.console",
-    "debt": "rovlink.console.bench.debt",
+    "debt": "rovlink.debt.bench",
 }
 
 

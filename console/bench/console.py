@@ -30,14 +30,13 @@ import tracemalloc
 from pathlib import Path
 
 from rovlink import debt
+from rovlink.bench import emit, format_table
 from rovlink.console.operator import Operator
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import Master
 from rovlink.link.sim import SimLink
 from rovlink.link.slave import Slave
 from rovlink.rov.camera import SimulatedCamera
-
-from .table import emit, format_table
 
 
 def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict:

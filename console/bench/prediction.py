@@ -177,7 +177,7 @@ def prediction_targets(result: dict, lossy: dict | None = None) -> dict:
 
 
 def prediction_lines(result: dict) -> list[str]:
-    from .table import format_table
+    from rovlink.bench import format_table
 
     def pair(p):
         return "—" if p[0] is None else f"{p[0]:.2f} / {p[1]:.2f}"

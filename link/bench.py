@@ -22,12 +22,11 @@ import random
 import statistics
 from dataclasses import dataclass, field
 
+from rovlink.bench import emit, format_table
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import ImageAbandoned, ImageComplete, Master
 from rovlink.link.sim import SimLink
 from rovlink.link.slave import Slave, VelocityCommanded
-
-from .table import emit, format_table
 
 BERS = (0.0, 7e-6, 1e-4, 1e-3)
 OBJECT_BYTES = 2000

@@ -1,4 +1,6 @@
-"""Shared output for benchmarks: an aligned text table or JSON."""
+"""What every `rovlink bench` benchmark prints: an aligned text table, or JSON
+(the benchmarks live beside what they measure: link/bench.py, debt/bench.py,
+console/bench/)."""
 
 from __future__ import annotations
 

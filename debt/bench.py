@@ -32,9 +32,8 @@ import statistics
 import time
 
 from rovlink.assets import ASSETS_DIR
+from rovlink.bench import emit, format_table
 from rovlink.command import positive_int
-
-from .table import emit, format_table
 
 BUDGETS = (250, 500, 1000, 2000, 4000, 8000)
 SAMPLE_BUDGETS = (500, 1000, 2000, 4000)
