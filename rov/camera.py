@@ -9,7 +9,7 @@ Goals
   on the ROV each time the link starts a new image.
 
 Plan
-- `SimulatedCamera`: ray-casting against the flat seabed of `rov.scene`, all
+- `SimulatedCamera`: ray-casting against the flat seabed of `rov.seabed`, all
   pixels at once with numpy.  Per-pixel ray directions are computed once for the
   camera (pinhole, `hfov_deg`, tilted down by `tilt_deg`), rotated by the vehicle's
   roll and pitch, intersected with the plane z = depth; that geometry and the
@@ -38,7 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from rovlink.rov.scene import Seabed
+from rovlink.rov.seabed import Seabed
 
 DEFAULT_SIZE = (320, 240)  # width, height
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
@@ -80,7 +80,7 @@ def _check_size(width: int, height: int) -> tuple[int, int]:
 
 
 class SimulatedCamera:
-    """Renders the seabed of `rov.scene` from the vehicle's pose."""
+    """Renders the seabed of `rov.seabed` from the vehicle's pose."""
 
     # Per-channel (R, G, B) coefficients, 1/m: coastal Mediterranean-ish water.
     ATTENUATION_PER_M = np.array([0.30, 0.11, 0.12], np.float32)

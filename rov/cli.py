@@ -199,7 +199,7 @@ def run_sim(args) -> int:
     import time
 
     from rovlink.rov.mavurl import parse_mavlink_url
-    from rovlink.rov.scene import SEABED_DEPTH_M
+    from rovlink.rov.seabed import SEABED_DEPTH_M
     from rovlink.rov.simulator import START_STATE, SimulatedVehicle
     from rovlink.rov.vehicle import SubMode, VehicleState
 

@@ -37,7 +37,7 @@ Plan
 
 API
     sim = SimulatedVehicle("udpin:127.0.0.1:0")   # port 0: pick a free port; starts at
-                                                  # START_STATE, the seabed of rov.scene is its floor
+                                                  # START_STATE, the seabed of rov.seabed is its floor
     sim.start()                 # background thread; sim.bridge_url -> "udpout:127.0.0.1:PORT"
     sim.truth()                 # SimTruth(state, armed, mode, pilot, target): ground truth
     sim.stop()                  # or use `with SimulatedVehicle(...) as sim:`
@@ -53,7 +53,7 @@ from dataclasses import dataclass
 
 from rovlink.rov.ardusub import TYPEMASK_POSITION_IGNORE, TYPEMASK_YAW_IGNORE, mavlink
 from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
-from rovlink.rov.scene import SEABED_DEPTH_M
+from rovlink.rov.seabed import SEABED_DEPTH_M
 from rovlink.rov.vehicle import (
     FLOWN_MODES,
     NEUTRAL,
@@ -82,7 +82,7 @@ ACCEPTED, UNSUPPORTED, FAILED = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_
 
 PILOT_TIMEOUT_S = 3.0  # ArduSub's FS_PILOT_TIMEOUT default
 # By default the vehicle starts 2 m above the simulated seabed, facing north, with
-# the amphorae of `rov.scene` in view ahead and the wreck to the north-west.
+# the amphorae of `rov.seabed` in view ahead and the wreck to the north-west.
 START_STATE = VehicleState(z_m=SEABED_DEPTH_M - 2.0)
 TICK_S = 0.02
 HEARTBEAT_INTERVAL_S = 1.0  # ArduSub's default stream rate

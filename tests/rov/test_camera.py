@@ -11,7 +11,7 @@ from PIL import Image
 
 from rovlink.rov.autopilot import AutopilotSnapshot
 from rovlink.rov.camera import CameraError, FolderCamera, OpenCVCamera, SimulatedCamera, open_camera
-from rovlink.rov.scene import META_PATH, SEABED_DEPTH_M, TEXTURE_PATH, Seabed, generate
+from rovlink.rov.seabed import META_PATH, SEABED_DEPTH_M, TEXTURE_PATH, Seabed, generate
 from rovlink.rov.vehicle import VehicleState
 
 
