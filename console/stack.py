@@ -22,7 +22,7 @@ from pathlib import Path
 from rovlink.link.aio import run_channel
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.messages import ImageSettings
-from rovlink.link.transport import inproc_pair
+from rovlink.link.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera
 from rovlink.rov.node import RovNode
@@ -52,19 +52,86 @@ class StackConfig:
     key: bytes | None = None
 
 
-class Stack:
-    def __init__(self, config: StackConfig | None = None) -> None:
-        self.config = config or StackConfig()
+class VehicleSide:
+    """The simulated ROV end: the ArduSub-like vehicle, the bridge to it, the
+    camera, the ROV node, and the emulated channel in front of them.  The
+    console's bytes come and go through `console_end` (an in-process endpoint
+    for the tests, loopback UDP when `rovlink demo` runs this in a process of
+    its own: console/vehicleside.py).  `start` and `stop` run on the loop the
+    parts are to run on."""
+
+    def __init__(self, config: StackConfig, console_end: Endpoint) -> None:
+        self.config = config
+        self.console_end = console_end
         self.sim = None
         self.bridge = None
         self.camera = None
         self.node = None
-        self.operator: Operator | None = None
         self.channel: Channel | None = None
-        self._tasks: list[asyncio.Task] = []
-        self._endpoints = []
+        self._endpoints: list[Endpoint] = []
         self._channel_log = None
+        self.tasks: list[asyncio.Task] = []
+
+    async def start(self) -> None:
+        c = self.config
+        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
+        self.bridge = AutopilotBridge(self.sim.bridge_url).start()
+        self.camera = open_camera(c.camera)
+        chan_b, rov_end = inproc_pair("rov")
+        self._endpoints = [self.console_end, chan_b, rov_end]
+        for ep in self._endpoints:
+            await ep.start()
+        if c.channel_log:
+            Path(c.channel_log).parent.mkdir(parents=True, exist_ok=True)
+            self._channel_log = open(c.channel_log, "w", buffering=1)
+        self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
+                               log=self._channel_log)
+        self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
+                            default_settings=c.image_settings, key=c.key)
+        loop = asyncio.get_running_loop()
+        self.tasks = [
+            loop.create_task(run_channel(self.channel, self.console_end, chan_b), name="channel"),
+            loop.create_task(self.node.run(), name="rov node"),
+        ]
+
+    async def stop(self) -> None:
+        for task in reversed(self.tasks):
+            task.cancel()
+        await asyncio.gather(*self.tasks, return_exceptions=True)
+        self.tasks = []
+        for ep in self._endpoints:
+            await ep.close()
+        if self.bridge:
+            self.bridge.stop()
+        if self.camera:
+            self.camera.close()
+        if self.sim:
+            self.sim.stop()
+        if self._channel_log:
+            self._channel_log.close()
+
+
+class Stack:
+    def __init__(self, config: StackConfig | None = None) -> None:
+        self.config = config or StackConfig()
+        self.vehicle: VehicleSide | None = None
+        self.operator: Operator | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._op_end: Endpoint | None = None
         self.link: LinkThread | None = None
+
+    # The vehicle side's parts, for tests and benchmarks that reach into them.
+    @property
+    def sim(self):
+        return self.vehicle.sim if self.vehicle else None
+
+    @property
+    def node(self):
+        return self.vehicle.node if self.vehicle else None
+
+    @property
+    def channel(self) -> Channel | None:
+        return self.vehicle.channel if self.vehicle else None
 
     async def start(self) -> Operator:
         self.link = LinkThread().start()
@@ -77,31 +144,16 @@ class Stack:
 
     async def _start_parts(self) -> None:
         c = self.config
-        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
-        self.bridge = AutopilotBridge(self.sim.bridge_url).start()
-        self.camera = open_camera(c.camera)
         op_end, chan_a = inproc_pair("operator")
-        chan_b, rov_end = inproc_pair("rov")
-        self._endpoints = [op_end, chan_a, chan_b, rov_end]
-        for ep in self._endpoints:
-            await ep.start()
-        if c.channel_log:
-            Path(c.channel_log).parent.mkdir(parents=True, exist_ok=True)
-            self._channel_log = open(c.channel_log, "w", buffering=1)
-        self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
-                               log=self._channel_log)
-        self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
-                            default_settings=c.image_settings, key=c.key)
+        self._op_end = op_end
+        self.vehicle = VehicleSide(c, chan_a)
+        await self.vehicle.start()
+        await op_end.start()
         self.operator = Operator(op_end, bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, record=c.record,
                                  image_settings=c.image_settings)
         if c.key is not None:
             self.operator.authenticate(c.key)
-        loop = asyncio.get_running_loop()
-        self._tasks = [
-            loop.create_task(run_channel(self.channel, chan_a, chan_b), name="channel"),
-            loop.create_task(self.node.run(), name="rov node"),
-            loop.create_task(self.operator.run(), name="operator"),
-        ]
+        self._tasks = [asyncio.get_running_loop().create_task(self.operator.run(), name="operator")]
 
     async def stop(self) -> None:
         if self.link is not None:
@@ -111,22 +163,16 @@ class Stack:
             await self._stop_parts()
 
     async def _stop_parts(self) -> None:
-        for task in reversed(self._tasks):
+        for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks = []
-        for ep in self._endpoints:
-            await ep.close()
+        if self.vehicle is not None:
+            await self.vehicle.stop()
+        if self._op_end is not None:
+            await self._op_end.close()
         if self.operator:
             self.operator.close()
-        if self.bridge:
-            self.bridge.stop()
-        if self.camera:
-            self.camera.close()
-        if self.sim:
-            self.sim.stop()
-        if self._channel_log:
-            self._channel_log.close()
 
     async def __aenter__(self) -> "Stack":
         await self.start()

@@ -36,45 +36,127 @@ def run(args) -> int:
 
     require_console_extra()
     import asyncio
+    import os
 
     from rovlink.command import CommandError
-    from rovlink.console.stack import Stack, StackConfig
+    from rovlink.console.linkthread import LinkThread
+    from rovlink.console.operator import Operator
+    from rovlink.console.stack import StackConfig
+    from rovlink.link.transport import TransportError, free_udp_port, open_transport
 
     from .serve import check_ports, default_record_path, serve_operator
 
     check_ports(args)  # before any banner, recording or link
-    record = None if args.no_record else (args.record or default_record_path())
-    import os
-
     # Both ends run here: a throwaway key for this session (docs/PROTOCOL.md §8).
     key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
-                         camera=args.camera, record=record, key=key,
-                         channel_log=None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl")
-
+                         camera=args.camera, key=key)
     args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
+    console_port, vehicle_port = free_udp_port(), free_udp_port()
+    # The vehicle side (simulated ArduSub, bridge, camera, ROV node, emulated channel) in a
+    # process of its own, as on a real ROV: the page and the web server cannot starve it.
+    vehicle = VehicleProcess(config, udp=vehicle_port, peer=console_port)
+    record = None if args.no_record else (args.record or default_record_path())
+    channel_log = None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl"
+    try:
+        vehicle.ready(channel_log)
+    except CommandError:
+        vehicle.stop()
+        raise
 
     async def main() -> None:
-        stack = Stack(config)
+        link = LinkThread().start()
+        endpoint = open_transport(f"udp://127.0.0.1:{console_port}?peer=127.0.0.1:{vehicle_port}")
         try:
-            operator = await stack.start()
-        except Exception as exc:
-            await stack.stop()
+            await link.call(endpoint.start())
+        except TransportError as exc:
+            await link.stop()
             raise CommandError(f"could not start the demo: {exc}") from None
+        operator = Operator(endpoint, bitrate_bps=config.bitrate_bps, delay_s=config.delay_s, record=record,
+                            image_settings=config.image_settings)
+        if key is not None:
+            operator.authenticate(key)
+        link.spawn(operator.run(), name="operator")
         try:
             await serve_operator(
-                operator, args, link=stack.link,
-                banner=(f"rovlink demo: simulated ROV over an emulated {args.bitrate:g} bit/s link "
-                        f"({args.delay * 1000:g} ms delay, BER {args.ber:g}); "
+                operator, args, link=link,
+                banner=(f"rovlink demo: simulated ROV (its own process) over an emulated {args.bitrate:g} bit/s "
+                        f"link ({args.delay * 1000:g} ms delay, BER {args.ber:g}); "
                         + ("INSECURE: link version 1.1, frames not authenticated" if key is None else
                            "link version 2, every frame authenticated (a throwaway key for this session)")
                         + (f"; recording to {record}" if record else "")),
             )
         finally:
-            await stack.stop()
+            await link.stop(endpoint.close())
+            operator.close()
 
     try:
         asyncio.run(main())
     except KeyboardInterrupt:
         pass
+    finally:
+        vehicle.stop()
     return 0
+
+
+class VehicleProcess:
+    """`python -m rovlink.console.vehicleside` as a child: started, told its key,
+    waited for, stopped (closing its stdin; terminated if it lingers)."""
+
+    def __init__(self, config, *, udp: int, peer: int) -> None:
+        self.config, self.udp, self.peer = config, udp, peer
+        self.proc = None
+
+    def ready(self, channel_log: str | None, timeout_s: float = 120.0) -> None:
+        import subprocess
+        import sys
+
+        from rovlink.command import CommandError
+
+        c = self.config
+        argv = [sys.executable, "-m", "rovlink.console.vehicleside", "--udp", str(self.udp), "--peer", str(self.peer),
+                "--bitrate", repr(c.bitrate_bps), "--delay", repr(c.delay_s), "--ber", repr(c.ber),
+                "--seed", str(c.seed), "--camera", c.camera, "--failsafe", repr(c.failsafe_s),
+                "--start-depth", repr(c.start_depth_m)]
+        if channel_log:
+            argv += ["--channel-log", channel_log]
+        self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self.proc.stdin.write(("insecure" if c.key is None else c.key.hex()) + "\n")
+        self.proc.stdin.flush()
+        line = _read_line(self.proc.stdout, timeout_s)
+        if line != "ready":
+            code = self.proc.poll()
+            raise CommandError("the simulated vehicle side did not start"
+                               + (f" (it exited with {code}; its error is above)" if code is not None else
+                                  f" within {timeout_s:g} s"))
+
+    def stop(self) -> None:
+        import subprocess
+
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        try:
+            proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def _read_line(stream, timeout_s: float) -> str | None:
+    """One line of `stream` within `timeout_s`, stripped; None at its end or on timeout."""
+    import threading
+
+    out: list[str] = []
+    reader = threading.Thread(target=lambda: out.append(stream.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout_s)
+    return out[0].strip() if out and out[0] else None

@@ -184,3 +184,37 @@ def test_demo_refuses_a_busy_port(tmp_path):
             assert not record.exists() and not record.parent.exists()
 
 
+
+
+def _children(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of the processes whose parent is `pid` (Linux /proc)."""
+    from pathlib import Path
+
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) == pid:
+                cmdline = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                out.append((int(stat.parent.name), cmdline))
+        except (OSError, IndexError, ValueError):
+            continue
+    return out
+
+
+def test_the_demos_vehicle_side_runs_in_a_process_of_its_own_and_ends_with_the_console(demo):
+    """Issue 25 of the pilot's page: the browser and the web server share the console's
+    process; the simulated ROV, its node and the emulated radio do not."""
+    import os
+
+    base, proc, _record = demo
+    vehicle = [pid for pid, cmd in _children(proc.pid) if "rovlink.console.vehicleside" in cmd]
+    assert len(vehicle) == 1, _children(proc.pid)
+    assert get(base + "/api/link")["state"] in ("up", "degraded")
+    # The console killed outright (no cleanup at all): its vehicle side sees its stdin
+    # close and stops; no simulated ROV is left running.
+    proc.kill()
+    proc.communicate()
+    assert wait_for(lambda: not os.path.exists(f"/proc/{vehicle[0]}") or
+                    open(f"/proc/{vehicle[0]}/stat").read().rsplit(")", 1)[1].split()[0] == "Z", 20), \
+        "the vehicle side outlived the console"
