@@ -47,6 +47,7 @@ import hashlib
 import hmac
 import math
 import os
+import stat
 from dataclasses import dataclass
 from typing import Callable
 
@@ -119,6 +120,9 @@ def read_key_file(path: str) -> bytes:
         raise KeyFileError(f"no such key file: {path}") from None
     except OSError as exc:
         raise KeyFileError(f"cannot read key file {path}: {exc.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise KeyFileError(f"{path} is a directory, not a key file: name the key file itself "
+                           f"(make one with rovlink keygen FILE)")
     if st.st_mode & 0o077:
         raise KeyFileError(f"key file {path} is readable by others (mode {st.st_mode & 0o777:o}); "
                         f"chmod 600 {path}, or make a new key with rovlink keygen")

@@ -89,18 +89,26 @@ class Endpoint:
         self._task: asyncio.Task | None = None
         self._backoff = backoff_s
         self._closing = False
+        self._quiet_until_up = False  # start(wait=True) reports a failure to open itself
 
     # -- life cycle ------------------------------------------------------
 
     async def start(self, *, wait: bool = True, timeout_s: float = 5.0) -> "Endpoint":
         """Open under supervision; with `wait`, until the first opening succeeded."""
+        if wait:
+            # The caller says why it failed, once: not also the supervisor's log.
+            self._quiet_until_up = True
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._supervise(), name=f"transport {self.url}")
         if wait:
             try:
                 await asyncio.wait_for(self._up.wait(), timeout_s)
             except asyncio.TimeoutError:
-                raise TransportError(f"{self.url}: could not open: {self.stats.last_error}") from None
+                why = self.stats.last_error
+                await self.close()  # no supervisor left retrying (or pending when the loop closes)
+                raise TransportError(f"{self.url}: could not open: {why}") from None
+            finally:
+                self._quiet_until_up = False
         return self
 
     async def close(self) -> None:
@@ -155,7 +163,7 @@ class Endpoint:
                 pass
 
     def _note_down(self, why: str) -> None:
-        if self.stats.last_error != why:
+        if self.stats.last_error != why and not self._quiet_until_up:
             log.warning("%s: %s", self.url, why)
         self.stats.last_error = why
         self.stats.history.append((time.time(), f"down: {why}"))

@@ -117,3 +117,19 @@ def test_the_console_needs_a_key_or_insecure(tmp_path):
     assert out.returncode == 1 and "readable by others" in out.stderr, out.stderr
     out = subprocess.run(ROVLINK + link + ["--key", str(key), "--insecure"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "exclude each other" in out.stderr
+    # A directory named as the key: said as such (not "chmod 600" on the directory).
+    out = subprocess.run(ROVLINK + link + ["--key", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and out.stderr.strip().splitlines() == [
+        f"rovlink console: error: {tmp_path} is a directory, not a key file: name the key file itself "
+        f"(make one with rovlink keygen FILE)"], out.stderr
+
+
+def test_a_missing_serial_port_is_said_once_and_nothing_is_left_running():
+    for side in (["rov"], ["console", "--port", str(free_tcp_port()), "--viser-port", str(free_tcp_port()),
+                           "--no-record"]):
+        out = subprocess.run(ROVLINK + side + ["--insecure", "--link", "serial:///dev/rovlink-no-such-port"],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 1, out.stderr
+        lines = out.stderr.strip().splitlines()
+        assert len(lines) == 1 and "could not open" in lines[0] and "/dev/rovlink-no-such-port" in lines[0], lines
+        assert "Task was destroyed" not in out.stderr
