@@ -600,6 +600,18 @@ class Operator:
         start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
         return preview_path(start, x_m, y_m, z_m, yaw_deg, seconds=seconds, step_s=step_s)
 
+    def uncertainty_m(self) -> float | None:
+        """How far the vehicle may be from the prediction: the odometry's age at the
+        most it can move.  Full speed while it is armed, or while the link is lost
+        (anything may have happened); disarmed with replies coming, only the drift
+        its poses show (a parked vehicle wears no ring)."""
+        age, fix = self.odometry_age_s(), self.odometry.fix
+        if age is None or fix is None:
+            return None
+        may_drive = fix.reply.armed or self.link_condition()[0] == "lost"
+        speed = MAX_SPEED_MPS if may_drive else math.hypot(*fix.velocity[:3])
+        return round(speed * max(0.0, age), 3)
+
     def measured_velocity(self) -> dict | None:
         """Speeds from successive received poses (finite differences, smoothed): body
         forward and right, down, and yaw rate; None before two replies."""
@@ -623,7 +635,7 @@ class Operator:
                        hold=reply.hold, attitude_valid=reply.attitude_valid,
                        stopping=self.stopping(),
                        odometry_age_s=age, stale=self.link_condition()[0] == "lost",
-                       uncertainty_m=None if age is None else round(MAX_SPEED_MPS * max(0.0, age), 3))
+                       uncertainty_m=self.uncertainty_m())
             predicted = self.predicted_pose()
             out["predicted"] = predicted.as_dict() if predicted else None
             out["velocity"] = self.measured_velocity()

@@ -64,7 +64,7 @@ from viser import transforms as tf
 from rovlink.assets import ASSETS_DIR
 from rovlink.console import control
 from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
-from rovlink.console.operator import MAX_SPEED_MPS, Operator, OrderError, Pose
+from rovlink.console.operator import Operator, OrderError, Pose
 
 from . import chase, frames
 from .chase import SCREEN_WIDTH_M, ViewerView
@@ -87,6 +87,7 @@ REFUSAL_NOTICE_S = 3.0         # at most one "not sent" notification per viewer 
 DRAG_HOLD_MAX_S = 20.0         # the screen and the views wait this long at most for a drag's end
 UNCERTAINTY_SEGMENTS = 48
 UNCERTAINTY_SHOWN_AFTER_S = 1.5  # odometry older than this: the ring around the ghost shows how far it may be
+UNCERTAINTY_SHOWN_M = 0.1  # a ring smaller than this says nothing (a parked, disarmed vehicle)
 
 
 def scene_key_from_path(path: str | None) -> str | None:
@@ -360,12 +361,11 @@ class ConsoleScene:
         self._uncertainty_shown = None
 
     def _update_uncertainty(self, predicted: Pose) -> None:
-        age = self.operator.odometry_age_s()
-        if age is None or age < UNCERTAINTY_SHOWN_AFTER_S:
+        age, radius = self.operator.odometry_age_s(), self.operator.uncertainty_m()
+        if age is None or age < UNCERTAINTY_SHOWN_AFTER_S or not radius or radius < UNCERTAINTY_SHOWN_M:
             if self.uncertainty_node.visible:
                 self.uncertainty_node.visible = False
             return
-        radius = MAX_SPEED_MPS * age
         key = (round(radius, 1), predicted.x_m, predicted.y_m, predicted.z_m)
         if key == self._uncertainty_shown:
             return

@@ -414,6 +414,17 @@ def test_uncertainty_ring_grows_with_the_odometry_age(live, monkeypatch):
         ghost = np.asarray(scene.ghost_node.position)
         return float(np.median(np.linalg.norm(pts[:, :2] - ghost[:2], axis=1)))
 
+    # Disarmed, replies coming: it cannot drive, so the ring is only its drift (it settles
+    # a few cm/s), not the 4 m of full speed.
+    assert wait_for(lambda: op.last_reply is not None and not op.last_reply.armed, 10.0)
+    age["s"] = 4.0
+    assert wait_for(lambda: op.pose_state()["uncertainty_m"] is not None and op.pose_state()["uncertainty_m"] < 0.5, 5)
+    time.sleep(0.5)  # (the scene's thread redraws at 10 Hz)
+    assert ring_radius() is None or ring_radius() < 0.5, ring_radius()
+    # Armed, it may have gone anywhere at full speed meanwhile.
+    op.arm(True)
+    assert wait_for(lambda: op.last_reply.armed, 15.0)
+    age["s"] = 0.5
     assert wait_for(lambda: not scene.uncertainty_node.visible, 2.0)  # fresh odometry: no ring
     radii = []
     for seconds in (2.0, 4.5, 8.0):
@@ -424,6 +435,8 @@ def test_uncertainty_ring_grows_with_the_odometry_age(live, monkeypatch):
     assert radii == sorted(radii) and radii[0] >= MAX_SPEED_MPS * UNCERTAINTY_SHOWN_AFTER_S
     age["s"] = 0.2
     assert wait_for(lambda: not scene.uncertainty_node.visible, 2.0)
+    op.arm(False)
+    assert wait_for(lambda: not op.last_reply.armed, 15.0)
 
 
 def test_frustum_is_drawn_at_the_pictures_capture_pose(live, monkeypatch):
