@@ -324,11 +324,12 @@ def test_every_orders_fate_shows_beside_its_control_with_its_time(open_page, liv
     page.wait_for_function("['requested', 'sent', 'followed'].includes(document.getElementById('arm-fate').dataset.state)")
     page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=15000)
     text = page.text_content("#arm-fate")
-    assert text.startswith("arm: followed") and text[-3] == ":" and text[-6] == ":", text  # ... HH:MM:SS
+    assert text.startswith("armed ✓ ") and text[-3] == ":" and text[-6] == ":", text  # ... HH:MM:SS
+    assert page.get_attribute("#arm-fate", "title").endswith("ARM: followed")
     page.select_option("#mode-select", "DEPTH_HOLD")
     page.click("#set-mode")
     page.wait_for_function("document.getElementById('mode-fate').dataset.state === 'followed'", timeout=15000)
-    assert page.text_content("#mode-fate").startswith("mode DEPTH_HOLD: followed")
+    assert page.text_content("#mode-fate").startswith("DEPTH_HOLD ✓ ")
 
     # A Go-to a little way off: its preview's length and time stay while the target shows.
     here = live.operator.pose_state()["received"]

@@ -140,6 +140,27 @@ def test_everything_a_pilot_acts_on_is_on_screen_without_scrolling(open_page, li
         for b in names[i + 1:]:
             assert not overlap(found[a], found[b]), f"{a} {found[a]} overlaps {b} {found[b]}"
         assert not overlap(found[a], found["#scene"]), f"{a} covers the 3D view"
+    # Nothing the top bar says is cut, also with every badge it may show up at once (set and
+    # measured in one go: the next telemetry puts the badges back as they are).
+    cut = page.evaluate("""(() => {
+        for (const id of ['failsafe', 'hold', 'stopping', 'attitude', 'replaying']) document.getElementById(id).hidden = false;
+        return [...document.querySelectorAll('#topbar > *, #topbar .group > *')]
+          .filter((e) => !e.hidden && e.offsetParent !== null)
+          .filter((e) => { const r = e.getBoundingClientRect();
+                           return e.scrollWidth > e.clientWidth + 1 || r.right > window.innerWidth + 0.5 || r.left < 0; })
+          .map((e) => e.id || e.className);
+    })()""")
+    assert not cut, f"cut in the top bar at {width}x{height}: {cut}"
+    # The small picture says which picture it is (the next one's first bytes may not be decoded yet).
+    page.wait_for_function("/^showing #\\d+ from \\d+ bytes$/.test(document.getElementById('image-decoded').textContent)")
+    said, key = page.evaluate("[document.getElementById('image-decoded').textContent, "
+                              "document.getElementById('image').dataset.key]")  # read together
+    assert said.split()[1] == "#" + key.split(":")[0], (said, key)
+    # The driving keys are in sight beside the instruments, not only at the panel's bottom.
+    hint = page.locator("#key-hint")
+    assert hint.is_visible() and "STOP" in hint.text_content() and "surge" in hint.text_content()
+    box = hint.bounding_box()
+    assert box["y"] + box["height"] <= height and box["x"] + box["width"] <= width, box
     # The page itself does not scroll; the 3D view keeps most of the width.
     assert page.evaluate("document.scrollingElement.scrollHeight <= window.innerHeight + 1")
     scene = found["#scene"]

@@ -187,6 +187,15 @@ function setupControls(config) {
   stop.innerHTML = "<td><kbd>Space</kbd> <kbd>Esc</kbd></td><td>STOP (from anywhere, the 3D view too; " +
     "Esc in a text field, where Space types)</td>";
   $("keymap").replaceChildren(...rows, stop);
+  // The same keys in one line beside the instruments, where the eyes are while driving.
+  const pairs = {};
+  for (const [key, [axis, sign]] of Object.entries(config.keys)) (pairs[axis] ||= [])[sign > 0 ? 0 : 1] = key;
+  $("key-hint").replaceChildren(...Object.entries(pairs).map(([axis, [plus, minus]]) => {
+    const span = document.createElement("span");
+    span.innerHTML = `<kbd>${plus}</kbd>/<kbd>${minus}</kbd> ${{ vx: "surge", vy: "sway", vz: "heave", vyaw: "yaw" }[axis]}`;
+    span.title = `${plus}: ${AXIS_WORDS[axis][1]}, ${minus}: ${AXIS_WORDS[axis][0]}`;
+    return span;
+  }), Object.assign(document.createElement("span"), { innerHTML: "<kbd>Space</kbd>/<kbd>Esc</kbd> STOP" }));
   $("gain").value = config.key_gain;
   $("gain-value").textContent = `${Math.round(config.key_gain * 100)} %`;
   const t = config.default_target;
@@ -551,12 +560,17 @@ function renderFate(o) {
   if (!el || +(el.dataset.id || 0) > o.id) return;  // late news of an older order
   const what = { ARM: "arm", DISARM: "disarm", MODE: `mode ${o.mode}`, POSITION: `go-to #${o.id}`,
                  IMAGE: `image settings #${o.id}` }[o.kind];
-  let state = o.state;
-  if (o.kind === "IMAGE" && state === "acknowledged") state = "in force from the next picture";
-  if ((o.kind === "ARM" || o.kind === "DISARM") && /^(requested|sent)/.test(state)) {
-    state = o.kind === "ARM" ? "arming…" : "disarming…";
+  let text = `${what}: ${o.state}${distanceLeft(o)} ${orderClock(o)}`;
+  if (o.kind === "IMAGE" && o.state === "acknowledged") text = `${what}: in force from the next picture ${orderClock(o)}`;
+  // In the top bar, short: the whole state is in its tooltip.
+  const pending = /^(requested|sent)/.test(o.state);
+  if (o.kind === "ARM" || o.kind === "DISARM") {
+    const verb = o.kind === "ARM" ? "arm" : "disarm";
+    text = pending ? `${verb}ing…` : o.state === "followed" ? `${verb}ed ✓ ${orderClock(o)}` : `${verb}: ${o.state}`;
+  } else if (o.kind === "MODE") {
+    text = pending ? `${o.mode}…` : o.state === "followed" ? `${o.mode} ✓ ${orderClock(o)}` : `${o.mode}: ${o.state}`;
   }
-  el.textContent = `${what}: ${state}${distanceLeft(o)} ${orderClock(o)}`;
+  el.textContent = text;
   el.title = `#${o.id} ${o.kind}: ${o.state}`;
   el.className = `fate ${fateClass(o.state)}`;
   el.dataset.id = o.id;
@@ -869,10 +883,11 @@ function showImage(im) {
     img.dataset.key = key;
     page.shownImage = key;
     $("no-image").hidden = true;
-    const bytes = key.split(":")[1];
+    const [serial, bytes] = key.split(":");
     img.dataset.img = imgNo;
     img.dataset.decodedBytes = bytes;
-    $("image-decoded").textContent = `showing ${bytes} bytes`;
+    // Which picture it is: the next one's first bytes may not be decoded yet.
+    $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes`;
     drawRoi();
     renderRoiStatus();
     done();
@@ -1082,6 +1097,12 @@ function wire() {
     $("goto-z").value = p.z_m.toFixed(2); $("goto-yaw").value = p.yaw_deg.toFixed(0);
   };
   wireRoi();
+  // The top bar may wrap to a second row: what hangs below it follows its bottom edge.
+  const topbar = $("topbar");
+  const followBar = () => document.documentElement.style.setProperty(
+    "--topbar-bottom", `${Math.round(topbar.getBoundingClientRect().bottom)}px`);
+  if (window.ResizeObserver) new ResizeObserver(followBar).observe(topbar);
+  followBar();
   $("next-image").onclick = () => api("/api/image/next");
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };

@@ -119,8 +119,12 @@
       ctx.moveTo(x, h - 4);
       ctx.lineTo(x, h - (major ? 18 : 10));
       ctx.stroke();
-      if (norm % 45 === 0) ctx.fillText(CARDINAL[norm], x, h - 22);
-      else if (norm % 15 === 0) ctx.fillText(String(norm), x, h - 22);
+      const label = norm % 45 === 0 ? CARDINAL[norm] : norm % 15 === 0 ? String(norm) : null;
+      // Only whole labels: one cut by the tape's edge reads as another number ("00" for 300).
+      if (label !== null) {
+        const half = ctx.measureText(label).width / 2;
+        if (x - half >= 0 && x + half <= w) ctx.fillText(label, x, h - 22);
+      }
     }
     if (valid && target !== null && target !== undefined) {
       let d = ((target - centre + 540) % 360) - 180;
