@@ -52,6 +52,7 @@ def run(args) -> int:
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
                          camera=args.camera, key=key)
     args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
+    compile_codec()
     console_port, vehicle_port = free_udp_port(), free_udp_port()
     # The vehicle side (simulated ArduSub, bridge, camera, ROV node, emulated channel) in a
     # process of its own, as on a real ROV: the page and the web server cannot starve it.
@@ -97,6 +98,35 @@ def run(args) -> int:
     finally:
         vehicle.stop()
     return 0
+
+
+def compile_codec(say_after_s: float = 1.5) -> None:
+    """DEBT's kernels compiled (and cached on disk) before the link starts.
+
+    On a fresh install numba compiles them on first use: half a minute to a minute
+    on a 2-core machine, in both the vehicle side and the console at once, which
+    starved the link (LINK LOST, then the ROV's FAILSAFE) and kept the first
+    picture waiting.  Done here once, with progress said; later runs load the cache
+    in half a second and say nothing."""
+    import sys
+    import threading
+    import time
+
+    from rovlink import debt
+
+    started = time.monotonic()
+    worker = threading.Thread(target=debt.warm_up, name="debt-compile", daemon=True)
+    worker.start()
+    worker.join(say_after_s)
+    if not worker.is_alive():
+        return
+    print("compiling the image codec for this machine (first run only; cached for the next)...",
+          file=sys.stderr, flush=True)
+    while worker.is_alive():
+        worker.join(10.0)
+        if worker.is_alive():
+            print(f"  still compiling, {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
+    print(f"image codec ready in {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
 
 
 class VehicleProcess:
