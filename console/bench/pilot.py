@@ -49,8 +49,10 @@ def measure_pilot(minutes: float = 10.0) -> dict:
     # Its output to a file: a pipe nobody reads for ten minutes could fill and stall it.
     log_path = os.path.join(workdir, "demo.log")
     log_file = open(log_path, "w")
+    # Recorded: its channel log says which frames the emulated radio itself lost.
+    record = os.path.join(workdir, "session.jsonl")
     demo = subprocess.Popen([sys.executable, "-m", "rovlink", "demo", "--port", str(port), "--viser-port",
-                             str(viser_port), "--no-record"], cwd=workdir,
+                             str(viser_port), "--record", record], cwd=workdir,
                             stdout=log_file, stderr=subprocess.STDOUT)
     samples: list[tuple[str, float | None]] = []
     stop = threading.Event()
@@ -127,6 +129,9 @@ def measure_pilot(minutes: float = 10.0) -> dict:
             except subprocess.TimeoutExpired:
                 demo.kill()
         log_file.close()
+    from .load import _channel_losses
+
+    channel = _channel_losses(record.replace(".jsonl", "") + ".channel.jsonl")
     states = [s for s, _ in samples]
     ages = sorted(a for _, a in samples if a is not None)
     share = {s: round(100.0 * states.count(s) / max(1, len(states)), 2) for s in ("up", "degraded", "lost")}
@@ -141,6 +146,9 @@ def measure_pilot(minutes: float = 10.0) -> dict:
         "odometry_age_s_p95": round(ages[int(0.95 * (len(ages) - 1))], 3) if ages else None,
         "polls_sent": link["polls_sent"],
         "replies_lost": link["replies_lost"],
+        # A poll or reply the radio lost costs one reply; the rest were late: starved of CPU.
+        "channel_losses": channel,
+        "replies_lost_not_by_channel": max(0, link["replies_lost"] - sum(channel.values())),
         "cpu_count": os.cpu_count(),
     }
 
@@ -158,6 +166,7 @@ def pilot_lines(r: dict) -> list[str]:
                 ["page alarms sounded", r["page_alarms"]],
                 ["odometry age s, median / p95", f"{r['odometry_age_s_median']} / {r['odometry_age_s_p95']}"],
                 ["polls sent, replies lost", f"{r['polls_sent']}, {r['replies_lost']}"],
+                ["  of which not by the radio (late)", r["replies_lost_not_by_channel"]],
             ])]
 
 
