@@ -31,6 +31,8 @@ import time
 import urllib.request
 from pathlib import Path
 
+from .child import die_with_parent
+
 UPLOAD_BYTES = 200 * 1024 * 1024
 
 
@@ -176,7 +178,7 @@ def measure_load(seconds: float, readers: int, uploads: int, ber: float) -> dict
         [sys.executable, "-m", "rovlink", "demo", "--port", str(port), "--viser-port", str(viser_port),
          "--ber", str(ber), "--record", str(record)],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=folder,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=die_with_parent)
     base = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 90

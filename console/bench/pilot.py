@@ -22,6 +22,7 @@ import threading
 import time
 import urllib.request
 
+from .child import die_with_parent
 from .page import CHROMIUM, CHROMIUM_ARGS
 
 KEYS = ("w", "d", "s", "a", "e", "q", "r", "f")
@@ -53,7 +54,7 @@ def measure_pilot(minutes: float = 10.0) -> dict:
     record = os.path.join(workdir, "session.jsonl")
     demo = subprocess.Popen([sys.executable, "-m", "rovlink", "demo", "--port", str(port), "--viser-port",
                              str(viser_port), "--record", record], cwd=workdir,
-                            stdout=log_file, stderr=subprocess.STDOUT)
+                            stdout=log_file, stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
     samples: list[tuple[str, float | None]] = []
     stop = threading.Event()
 
