@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import coder, kernels, rangecoder, twolevel
-from .header import (  # noqa: F401 (re-exported)
+from .header import (
     MAX_SHIFT,
     MAX_SIDE,
     PACKET_TOP,
@@ -37,9 +37,6 @@ from .header import (  # noqa: F401 (re-exported)
 )
 from .plan import ICT, KMAX, plan_for
 from .transform import band_shapes, forward, inverse
-
-_plan = plan_for  # the name older callers use
-
 
 # ---------------------------------------------------------------- validation
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from rovlink.bench import emit, format_table
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import ImageAbandoned, ImageComplete, Master
+from rovlink.link.messages import VELOCITY_FULL
 from rovlink.link.sim import SimLink
 from rovlink.link.slave import Slave, VelocityCommanded
 
@@ -109,7 +110,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
     if steering:
         def change(now):
             while True:
-                wish = tuple(rng.randint(-127, 127) for _ in range(4))
+                wish = tuple(rng.randint(-VELOCITY_FULL, VELOCITY_FULL) for _ in range(4))
                 if any(wish) and wish != (master.velocity.vx, master.velocity.vy, master.velocity.vz,
                                           master.velocity.vyaw):
                     break

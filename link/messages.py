@@ -58,6 +58,7 @@ REPLY_STATUS_BYTE = 13  # AUTOPILOT FAILSAFE POSITION_VALID ATTITUDE_VALID REJEC
 ATTITUDE_VALID_BIT = 0x10
 SYNC_BIT = 0x01  # version 2 only (§8)
 XYZ_CM = (-32768, 32767)  # a position's range on the wire, both ways
+VELOCITY_FULL = 127  # a VELOCITY axis at the vehicle's maximum speed (-127..127; -128 is invalid)
 ANGLE_CDEG = (-18000, 18000)  # a yaw or an attitude angle's range
 
 
@@ -162,7 +163,7 @@ class Velocity:
 
     def __post_init__(self) -> None:
         for name in ("vx", "vy", "vz", "vyaw"):
-            _check_int(f"VELOCITY {name.upper()}", getattr(self, name), -127, 127)
+            _check_int(f"VELOCITY {name.upper()}", getattr(self, name), -VELOCITY_FULL, VELOCITY_FULL)
         _check_int("VELOCITY ARM", self.arm, 0, 2)
         _check_int("VELOCITY MODE", self.mode, 0, 6)
         object.__setattr__(self, "arm", Arm(self.arm))

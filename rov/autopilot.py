@@ -61,7 +61,6 @@ API (all methods thread-safe and non-blocking, safe to call from asyncio code)
     bridge.brake() -> BrakeTicket         # the protocol's STOP: neutral velocity, cancel
                                           # any position order, POSHOLD with a valid position
                                           # estimate, else ALT_HOLD (ticket.hold_mode says which).
-    bridge.stop_motion()                  # the same (older name)
     bridge.failsafe(active)               # link lost: brake() once, then hold neutral
                                           # velocity until failsafe(False).
     bridge.snapshot() -> AutopilotSnapshot   # frozen; see rov.telemetry.
@@ -82,35 +81,21 @@ import threading
 import time
 
 from rovlink.link.messages import Reason
-from rovlink.rov.ardusub import (  # noqa: F401  (PROTOCOL_TO_SUB ... re-exported for older callers)
+from rovlink.rov.ardusub import (
     MAV_RESULT_NAMES,
-    PROTOCOL_MODE_OTHER,
-    PROTOCOL_MODE_UNKNOWN,
-    PROTOCOL_TO_SUB,
-    SUB_TO_PROTOCOL,
+    PROTOCOL_TO_SUB,  # noqa: F401  (console/session/predictor.py imports it from here: to go once it imports rov.ardusub's)
     TYPEMASK_POSITION_AND_YAW,
     TYPEMASK_YAW_IGNORE,
     SubMode,
     mavlink,
     mode_name,
-    protocol_mode,
     sub_mode,
 )
-from rovlink.rov.commands import (  # noqa: F401
-    CommandTracker,
-    GotoTicket,
-    Ticket,
-)
+from rovlink.rov.commands import CommandTracker, GotoTicket, Ticket
 from rovlink.rov.goto import GotoDriver, GotoOrder, goto_refusal
 from rovlink.rov.mavurl import open_mavlink, parse_mavlink_url
-from rovlink.rov.telemetry import HEARTBEAT_TIMEOUT_S, AutopilotSnapshot, Telemetry  # noqa: F401
+from rovlink.rov.telemetry import HEARTBEAT_TIMEOUT_S, AutopilotSnapshot, Telemetry
 from rovlink.rov.vehicle import PilotInput
-
-__all__ = [  # the bridge, and what callers used to import from here
-    "AutopilotBridge", "AutopilotSnapshot", "BrakeTicket", "GotoTicket", "Ticket",
-    "PROTOCOL_MODE_OTHER", "PROTOCOL_MODE_UNKNOWN", "PROTOCOL_TO_SUB", "SUB_TO_PROTOCOL",
-    "SubMode", "protocol_mode", "sub_mode",
-]
 
 log = logging.getLogger(__name__)
 
@@ -259,8 +244,6 @@ class AutopilotBridge:
             self._set_pilot(PilotInput())
             self._queue.append(("brake", None, ticket))
         return ticket
-
-    stop_motion = brake  # the older name
 
     def failsafe(self, active: bool) -> None:
         with self._lock:

@@ -52,7 +52,7 @@ import numpy as np
 
 from rovlink.link.aio import run_slave
 from rovlink.link.frame import MAX_FRAME
-from rovlink.link.messages import ImageSettings, Mode, Position, Reason, next_img
+from rovlink.link.messages import VELOCITY_FULL, ImageSettings, Mode, Position, Reason, next_img
 from rovlink.link.secure import SecureSlave
 from rovlink.link.slave import (
     ArmRequested,
@@ -219,7 +219,7 @@ class RovNode:
                 mode=snap.mode,
                 autopilot=snap.autopilot_alive,
                 position_valid=snap.position_valid,
-                attitude_valid=bool(getattr(snap, "attitude_valid", False)),
+                attitude_valid=snap.attitude_valid,
             )
         )
 
@@ -266,7 +266,7 @@ class RovNode:
 
     def _velocity(self, event: VelocityCommanded) -> None:
         v = event.velocity
-        self.bridge.set_velocity(v.vx / 127.0, v.vy / 127.0, v.vz / 127.0, v.vyaw / 127.0)
+        self.bridge.set_velocity(*(axis / VELOCITY_FULL for axis in (v.vx, v.vy, v.vz, v.vyaw)))
         if not v.is_neutral:
             self._brake_stands = False
         if event.replaces_target:
@@ -292,8 +292,7 @@ class RovNode:
         if pending is not None and pending.status == "accepted" and self._brake_stands:
             if self.bridge.snapshot().mode in (Mode.POS_HOLD, Mode.DEPTH_HOLD):
                 return  # still braked since: nothing new to do for a repeated STOP
-        brake = getattr(self.bridge, "brake", None) or self.bridge.stop_motion
-        self._brake_ticket = brake()
+        self._brake_ticket = self.bridge.brake()
         self._brake_stands = True
         self.stats.brakes += 1
         self._note(f"brake ({event.why}): neutral, target cancelled, POS_HOLD or DEPTH_HOLD")

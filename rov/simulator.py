@@ -186,10 +186,6 @@ class SimulatedVehicle:
     def position_available(self, value: bool) -> None:
         self._position_override = bool(value)
 
-    @property
-    def has_position(self) -> bool:  # the older name
-        return self.position_available
-
     def stream_intervals(self) -> dict[int, float]:
         """Message id -> seconds between sends, as ground stations asked (HEARTBEAT included)."""
         with self._lock:

@@ -32,15 +32,16 @@ class UsageError(CommandError):
 
 
 def link_key(args):
-    """The link key named by --key, None with --insecure (protocol version 1.1).
+    """The link key named by --key, None with --insecure (protocol version 1.1);
+    `args` of a parser given `add_key_arguments`.
 
     Neither: a UsageError naming `rovlink keygen`; a key file that is missing,
     malformed or readable by others: a CommandError."""
-    if getattr(args, "key", None) and getattr(args, "insecure", False):
+    if args.key and args.insecure:
         raise UsageError("--key and --insecure exclude each other")
-    if getattr(args, "insecure", False):
+    if args.insecure:
         return None
-    if not getattr(args, "key", None):
+    if not args.key:
         raise UsageError("the link needs a key: --key FILE (make one with: rovlink keygen FILE), "
                          "or --insecure to run protocol version 1.1 unauthenticated")
     from rovlink.link.auth import KeyFileError, read_key_file
@@ -56,7 +57,7 @@ def check_frame_size(endpoint, key) -> None:
     smaller `mtu` is a CommandError before anything starts."""
     from rovlink.link.secure import SYNC_FRAME_BYTES
 
-    max_frame = getattr(endpoint, "max_frame", None)
+    max_frame = endpoint.max_frame
     if key is not None and max_frame is not None and max_frame < SYNC_FRAME_BYTES:
         raise CommandError(f"mtu={max_frame}: link version 2 needs frames of at least {SYNC_FRAME_BYTES} bytes "
                            f"(a SYNC reply); raise the mtu, or use --insecure (version 1.1)")

@@ -251,13 +251,14 @@ def test_shape_adaptive_transform_inverts_and_keeps_region_and_rest_apart(h, w, 
     # With an ROI the 9/7 is lifted apart on the rectangle and the rest: the
     # region's coefficients (the coder's ROI mask) depend on its pixels only,
     # the others on the outside only, and the inverse restores the image.
-    from rovlink.debt import codec, kernels
+    from rovlink.debt import kernels
+    from rovlink.debt.plan import plan_for
 
     x0 = data.draw(st.integers(0, w - 1))
     x1 = data.draw(st.integers(x0 + 1, w))
     y0 = data.draw(st.integers(0, h - 1))
     y1 = data.draw(st.integers(y0 + 1, h))
-    plan = codec._plan(h, w, 1, False, (x0, y0, x1, y1), 6)
+    plan = plan_for(h, w, 1, False, (x0, y0, x1, y1), 6)
     rng = np.random.default_rng(h * 100 + w)
     inside = np.zeros((h, w), dtype=bool)
     inside[y0:y1, x0:x1] = True

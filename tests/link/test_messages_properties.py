@@ -133,8 +133,8 @@ def test_structural_faults_in_polls_are_protocol_errors(payload, words):
 
 
 @pytest.mark.parametrize("payload,words", [
-    # 1.0 raised ProtocolError for these; in 1.1 they are well-formed orders with a value
-    # out of range: decoded as InvalidOrder (the ROV answers and rejects, REASON 0).
+    # Well-formed orders with a value out of range (§1 (1.1)): decoded as InvalidOrder
+    # (the ROV answers and rejects, REASON 0), never a ProtocolError.
     (bytes([0x01, 0, 0, 0x40, 0x80, 0, 0, 0]), "-128"),
     (bytes([0x01, 0, 0, 0xC0, 0, 0, 0, 0]), "ARM 3"),
     (bytes([0x01, 0, 0, 0x07, 0, 0, 0, 0]), "MODE 7"),

@@ -9,7 +9,8 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from rovlink.rov.autopilot import AutopilotBridge, Ticket, protocol_mode, sub_mode
+from rovlink.rov.ardusub import protocol_mode, sub_mode
+from rovlink.rov.autopilot import AutopilotBridge, Ticket
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import PilotInput, SubMode, VehicleState
 
@@ -97,7 +98,7 @@ def test_stop_cancels_the_goto_and_holds_position(sim, bridge):
     ticket = bridge.goto(5.0, 0.0, 3.0, None)
     assert ticket.wait(4) == Ticket.ACCEPTED
     bridge.set_velocity(0.5, 0, 0, 0)
-    assert bridge.stop_motion().wait(3) == Ticket.ACCEPTED
+    assert bridge.brake().wait(3) == Ticket.ACCEPTED
     assert sim.truth().mode == SubMode.POSHOLD and sim.truth().target is None
     assert wait_for(lambda: sim.truth().pilot.x == 0, 1.0)
     assert ticket.status == Ticket.ACCEPTED  # it had been accepted; it no longer drives

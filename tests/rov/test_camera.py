@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from rovlink.rov.autopilot import AutopilotSnapshot
 from rovlink.rov.camera import CameraError, FolderCamera, OpenCVCamera, SimulatedCamera, open_camera
 from rovlink.rov.seabed import META_PATH, SEABED_DEPTH_M, TEXTURE_PATH, Seabed, generate
+from rovlink.rov.telemetry import AutopilotSnapshot
 from rovlink.rov.vehicle import VehicleState
 
 
