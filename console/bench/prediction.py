@@ -32,7 +32,7 @@ def _percentile(values: list[float], q: float) -> float | None:
 def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e-6) -> dict:
     from rovlink.console.operator import Operator
     from rovlink.link.channel import Channel, LinkParams
-    from rovlink.link.messages import Mode
+    from rovlink.link.messages import VELOCITY_FULL, Mode
     from rovlink.link.secure import SecureSlave
     from rovlink.link.sim import SimLink
     from rovlink.link.slave import BrakeRequested, Slave, VelocityCommanded, status_from_pose
@@ -62,7 +62,7 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
     def on_slave(event, t):
         if isinstance(event, VelocityCommanded):
             v = event.velocity
-            applied["pilot"] = PilotInput.from_velocity(v.vx / 127, v.vy / 127, v.vz / 127, v.vyaw / 127)
+            applied["pilot"] = PilotInput.from_velocity(*(axis / VELOCITY_FULL for axis in (v.vx, v.vy, v.vz, v.vyaw)))
             if pending_move and not v.is_neutral:
                 moved_at, _ = pending_move.pop()
                 first_wish.append(t - moved_at)
