@@ -5,8 +5,8 @@ A recording (written by `console.session.recorder.Recorder`) is JSON lines, each
 hex, "wish" velocity changes, "order" and "order_state", "pose", "image".
 
 Playback (`replaycontrol`: a timeline to pause, seek and change speed) needs no ROV: the received bytes are parsed again with the
-link's own FrameDecoder and Reply, image trunks reassembled by (IMG, OFFSET)
-exactly as the master did, and the resulting events handed to an Operator,
+link's own FrameDecoder and Reply, image trunks put together by the
+master's own `link.assembly.ImageAssembly`, and the resulting events handed to an Operator,
 which shows them as if live (its scene and web page work unchanged).
 
 Plots: Fig. 4 style time-lapse of the link (each frame a bar from its send to
@@ -18,10 +18,11 @@ velocity the ROV received (carried by polls that were answered).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+from rovlink.link.assembly import ImageAssembly
 from rovlink.link.frame import FrameDecoder
 from rovlink.link.master import ImageComplete, ImageProgress, PoseReceived
 from rovlink.link.messages import Poll, ProtocolError, Reply
@@ -56,11 +57,7 @@ def read_records(path: str | Path) -> Iterator[dict]:
         raise RecordingError(f"{path}: empty recording")
 
 
-@dataclass
-class _Assembly:
-    img: int | None = None
-    data: bytearray = field(default_factory=bytearray)
-    started_at: float = 0.0
+NO_IMAGE = -1  # no image object begun (IMG is 0..7)
 
 
 class ReplyReplayer:
@@ -68,7 +65,7 @@ class ReplyReplayer:
 
     def __init__(self, *, skip_first_image: bool = True) -> None:
         self.decoder = FrameDecoder()
-        self.image = _Assembly()
+        self.image = ImageAssembly(NO_IMAGE)
         # As the master (protocol 1.1, §4): the first image completed after
         # start is not shown; it may be a capture of any age.
         self._images_to_skip = 1 if skip_first_image else 0
@@ -95,20 +92,18 @@ class ReplyReplayer:
         if reply.img != img.img:
             if reply.offset != 0:
                 return events
-            self.image = img = _Assembly(reply.img, bytearray(), t)
-        if reply.offset > len(img.data):
+            self.image = img = ImageAssembly(reply.img, t)
+        if not img.add(reply.offset, reply.trunk):
             return events
-        img.data[reply.offset:] = reply.trunk
-        total = 2 + int.from_bytes(img.data[:2], "big") if len(img.data) >= 2 else None
         skipping = self._images_to_skip > 0
         if not skipping:
-            events.append(ImageProgress(img.img, len(img.data), total, bytes(img.data[2:])))
-        if total is not None and len(img.data) >= total:
+            events.append(ImageProgress(img.img, len(img.data), img.total, img.stream))
+        if img.complete:
             if skipping:
                 self._images_to_skip -= 1
             else:
-                events.append(ImageComplete(img.img, bytes(img.data[2:total]), img.started_at, t))
-            self.image = _Assembly()
+                events.append(ImageComplete(img.img, img.stream, img.started_at, t))
+            self.image = ImageAssembly(NO_IMAGE)
         return events
 
 

@@ -68,9 +68,10 @@ import collections
 import dataclasses
 import math
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Deque
 
+from .assembly import ImageAssembly
 from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
     IMG_IDS,
@@ -251,24 +252,6 @@ class _StopState:
     orphan: _PendingOrder | None = None  # the pending order it cancelled, fate unknown yet
 
 
-@dataclass
-class _Image:
-    img: int
-    started_at: float | None = None
-    data: bytearray = field(default_factory=bytearray)
-
-    @property
-    def total(self) -> int | None:
-        if len(self.data) < 2:
-            return None
-        return 2 + int.from_bytes(self.data[:2], "big")
-
-    @property
-    def complete(self) -> bool:
-        total = self.total
-        return total is not None and len(self.data) >= total
-
-
 class Master:
     """Operator-side protocol state machine (sans I/O)."""
 
@@ -343,7 +326,7 @@ class Master:
         self._awaiting: tuple[float, Poll, int] | None = None  # (sent at, poll, reply bytes expected)
         self._events: list[object] = []
         first = self._rng.randrange(IMG_IDS) if first_img is None else first_img
-        self._image = _Image(first)
+        self._image = ImageAssembly(first)
         self._images_to_skip = 1 if skip_first_image else 0
         self._last_reply: Reply | None = None
         # Error-rate estimate for the SIZE choice: exponentially weighted
@@ -793,27 +776,22 @@ class Master:
             events.append(ImageAbandoned(image.img, len(image.data), "the ROV sent the image anew (FIRST)"))
             self.stats.images_abandoned += 1
             image.data.clear()
-        if reply.offset > len(image.data):
+        if not image.add(reply.offset, reply.trunk):
             return events  # beyond the contiguous prefix: cannot happen with a conforming ROV
-        end = reply.offset + len(reply.trunk)
-        if end > len(image.data):
-            image.data[reply.offset :] = reply.trunk
         total = image.total
-        if total is not None and len(image.data) > total:
-            del image.data[total:]
         received = len(image.data)
         if self._images_to_skip:
             # The first image after start may be any age the ROV still held: not shown.
             if image.complete:
                 self._images_to_skip -= 1
-                self._image = _Image(next_img(image.img))
+                self._image = ImageAssembly(next_img(image.img))
             return events
-        events.append(ImageProgress(image.img, received, total, bytes(image.data[2:])))
+        events.append(ImageProgress(image.img, received, total, image.stream))
         if image.complete:
             self.stats.images_completed += 1
             started = image.started_at if image.started_at is not None else now
-            events.append(ImageComplete(image.img, bytes(image.data[2:]), started, now))
-            self._image = _Image(next_img(image.img))
+            events.append(ImageComplete(image.img, image.stream, started, now))
+            self._image = ImageAssembly(next_img(image.img))
         return events
 
     def _reply_lost(self, now: float) -> None:
@@ -833,7 +811,7 @@ class Master:
         if image.started_at is not None and not image.complete:
             self.stats.images_abandoned += 1
             self._events.append(ImageAbandoned(image.img, len(image.data), reason))
-        self._image = _Image(next_img(image.img))
+        self._image = ImageAssembly(next_img(image.img))
 
     def abandon_image(self) -> None:
         """The pilot has seen enough of this picture: ask for the next one."""

@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+from ..helpers import needs_chromium
+
 PARENT = """
 import subprocess, sys, time
 from rovlink.console.bench.child import die_with_parent
@@ -38,3 +40,23 @@ def test_a_child_of_a_benchmark_ends_when_the_benchmark_is_killed():
     else:
         os.kill(child, signal.SIGKILL)
         pytest.fail("the child outlived the benchmark that started it")
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_bench_console_measures_a_pilot_on_the_demos_page():
+    """The pilot row: `rovlink demo` as a process, its page in headless Chromium, flown for
+    a short while here; the link's state sampled, its alerts counted, its losses split."""
+    import json
+
+    out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "30", "--sample-every",
+                          "30", "--no-prediction", "--no-page", "--no-load", "--pilot-minutes", "0.5", "--json"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    doc = json.loads(out.stdout)
+    pilot = doc["pilot"]
+    assert pilot["samples"] >= 30 and sum(pilot["state_percent"].values()) == pytest.approx(100, abs=0.1)
+    assert pilot["polls_sent"] > 20 and pilot["odometry_age_s_median"] is not None
+    assert pilot["replies_lost_not_by_channel"] <= pilot["replies_lost"]
+    target = doc["targets"]["no_link_lost_or_failsafe_with_a_pilot_on_the_page"]
+    assert target["met"] is None  # half a minute says nothing of ten
