@@ -70,7 +70,7 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
             applied["pilot"] = PilotInput()
 
     def on_master(event, t):
-        operator._on_events([event], t)
+        operator.handle_events([event], t)
 
     channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, ber=ber), seed=seed)
     sim = SimLink(master, SecureSlave(slave, key), channel, on_master_event=on_master, on_slave_event=on_slave)
