@@ -100,3 +100,4 @@ pytestmark  # unused variable (tests/console/test_gcs.py:24)
 pytestmark  # unused variable (tests/console/test_restarts.py:32)
 pytestmark  # unused variable (tests/console/test_truth.py:23)
 pytestmark  # unused variable (tests/test_packaging.py:30)
+cleared_wall  # a field of LogEntry (console/session/state.py): the page reads it

@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from rovlink.link.messages import MAX_BUDGET, Mode
+from rovlink.link.messages import MAX_BUDGET, REQUESTABLE_MODES
 from rovlink.rov.vehicle import BlueRovParams
 
 from .operator import Operator, OrderError
@@ -59,7 +59,7 @@ SCENE_KEY = re.compile(r"[A-Za-z0-9_-]{16,64}")
 # One mode list, one key map, one set of defaults and limits
 # ----------------------------------------------------------------------
 
-MODES: tuple[str, ...] = tuple(m.name for m in Mode if 1 <= m <= 6)
+MODES: tuple[str, ...] = tuple(m.name for m in REQUESTABLE_MODES)
 AXES = ("vx", "vy", "vz", "vyaw")
 # Key letter -> (axis, sign); z is down and yaw clockwise, as in the wish.
 # The page matches KeyboardEvent.code "Key" + letter, the scene viser hotkeys.

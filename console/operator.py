@@ -54,6 +54,7 @@ from rovlink.link.master import (
 from rovlink.link.messages import (
     NO_IMAGE_DATA,
     REPLY_IMAGE_HEADER,
+    VELOCITY_FULL,
     ImageSettings,
     Mode,
     Position,
@@ -353,7 +354,7 @@ class Operator:
             if isinstance(order, Stop):
                 self.predictor.stop_sent(arrival)
             if isinstance(order, Velocity):
-                wish = (order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)
+                wish = tuple(v / VELOCITY_FULL for v in (order.vx, order.vy, order.vz, order.vyaw))
                 self._last_poll_velocity = (arrival, *wish)
                 self.predictor.wish_sent(arrival, wish)
         if isinstance(order, Velocity):
@@ -410,7 +411,7 @@ class Operator:
         for name, v in zip(("vx", "vy", "vz", "vyaw"), values):
             if not isinstance(v, (int, float)) or not math.isfinite(v) or not -1.0 <= v <= 1.0:
                 raise OrderError(f"{name} must be a number in -1..1, got {v!r}")
-        ints = tuple(int(round(v * 127)) for v in values)
+        ints = tuple(int(round(v * VELOCITY_FULL)) for v in values)
         t = self.now()
         with self._lock:
             self.master.set_velocity(*ints, t)

@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import Iterator
 
 from rovlink.link.assembly import ImageAssembly
-from rovlink.link.frame import FrameDecoder
+from rovlink.link.frame import MAX_FRAME, FrameDecoder
 from rovlink.link.master import ImageComplete, ImageProgress, PoseReceived
-from rovlink.link.messages import Poll, ProtocolError, Reply
+from rovlink.link.messages import VELOCITY_FULL, Poll, ProtocolError, Reply
 
 
 class RecordingError(ValueError):
@@ -146,7 +146,7 @@ def series(path: str | Path) -> Series:
                 poll = Poll.decode(data[2:len(data) - 2 - extra])
                 order = poll.order
                 last_poll = (t + 8 * len(data) / bitrate + delay,
-                             (order.vx / 127, order.vy / 127, order.vz / 127, order.vyaw / 127)) \
+                             (order.vx / VELOCITY_FULL, order.vy / VELOCITY_FULL, order.vz / VELOCITY_FULL, order.vyaw / VELOCITY_FULL)) \
                     if hasattr(order, "vyaw") else None
             except ProtocolError:
                 last_poll = None
@@ -157,7 +157,7 @@ def series(path: str | Path) -> Series:
                 received.append(last_poll)
                 last_poll = None
         elif k == "wish":
-            commanded.append((t, tuple(v / 127 for v in r["v"])))
+            commanded.append((t, tuple(v / VELOCITY_FULL for v in r["v"])))
         elif k == "image":
             images.append((t, float(r.get("seconds", 0.0))))
     duration = max([f[0] for f in frames] + [0.0])
@@ -182,9 +182,9 @@ def plot(path: str | Path, out_dir: str | Path, *, window_s: float | None = None
             break
         length = 8 * n / s.bitrate_bps
         if kind == "tx":  # operator -> ROV: drawn from send to arrival
-            ax.broken_barh([(t, length + s.delay_s)], (1.0, n / 259 * 0.8), color="tab:blue", alpha=0.8)
+            ax.broken_barh([(t, length + s.delay_s)], (1.0, n / MAX_FRAME * 0.8), color="tab:blue", alpha=0.8)
         else:  # ROV -> operator: drawn ending at its arrival
-            ax.broken_barh([(t - length - s.delay_s, length + s.delay_s)], (0.0, n / 259 * 0.8), color="tab:orange",
+            ax.broken_barh([(t - length - s.delay_s, length + s.delay_s)], (0.0, n / MAX_FRAME * 0.8), color="tab:orange",
                            alpha=0.8)
     for t, took in s.images:
         if t <= t_end:

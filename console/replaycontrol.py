@@ -41,6 +41,7 @@ import weakref
 from pathlib import Path
 from typing import Callable
 
+from rovlink.link.messages import VELOCITY_FULL
 from rovlink.link.secure import poll_sent_from_frame
 
 from .recording import ReplyReplayer, read_records
@@ -311,7 +312,7 @@ class ReplayController:
                 op.handle_events([sent], now)
         elif kind == "wish":
             counts["wish"] += 1
-            op.replayed_wish(tuple(v / 127 for v in record["v"]))
+            op.replayed_wish(tuple(v / VELOCITY_FULL for v in record["v"]))
         elif kind in ("order", "order_state"):
             counts["orders"] += 1
             op.replayed_order(record)

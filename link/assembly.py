@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-LENGTH_BYTES = 2  # the object's own length field, before the stream
+from .messages import OBJECT_LENGTH_BYTES as LENGTH_BYTES
 
 
 @dataclass

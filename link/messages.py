@@ -41,11 +41,12 @@ import struct
 from dataclasses import dataclass, field
 from typing import ClassVar, Union
 
-from .frame import MAX_PAYLOAD
+from .frame import MAX_PAYLOAD, OVERHEAD
 
 NO_IMAGE_DATA = 8191  # OFFSET that asks for no image data
 MAX_OBJECT = 8191  # bytes in an image object: [N:uint16][N bytes]
-MAX_BUDGET = MAX_OBJECT - 2
+OBJECT_LENGTH_BYTES = 2  # the object's length field, before its DEBT stream
+MAX_BUDGET = MAX_OBJECT - OBJECT_LENGTH_BYTES
 IMG_IDS = 8  # IMG is 3 bits: images are numbered 0..7, then 0 again
 SIZE_CLASS_BYTES = (24, 48, 96, 239)
 POLL_HEADER = 3  # poll payload bytes before the order's body
@@ -53,6 +54,7 @@ HELLO_BIT = 0x40  # poll byte 0, bit 6: a HELLO in version 2 (§8), a structural
 ORDER_BITS = 0x0F  # poll byte 0: the ORDER code
 REPLY_HEADER = 14  # reply payload bytes without image data
 REPLY_IMAGE_HEADER = 16  # reply payload bytes before the trunk
+MIN_FRAME = OVERHEAD + REPLY_IMAGE_HEADER + 1  # the smallest frame a link may cap at: a reply with a 1-byte trunk
 MAX_TRUNK = MAX_PAYLOAD - REPLY_IMAGE_HEADER
 REPLY_STATUS_BYTE = 13  # AUTOPILOT FAILSAFE POSITION_VALID ATTITUDE_VALID REJECTED REASON(2) SYNC
 ATTITUDE_VALID_BIT = 0x10

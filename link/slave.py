@@ -76,7 +76,9 @@ from .messages import (
     ANGLE_CDEG,
     MAX_OBJECT,
     MAX_POLL_PAYLOAD,
+    MIN_FRAME,
     NO_IMAGE_DATA,
+    OBJECT_LENGTH_BYTES,
     REPLY_IMAGE_HEADER,
     SIZE_CLASS_BYTES,
     XYZ_CM,
@@ -246,8 +248,8 @@ class Slave:
         default_settings: ImageSettings | None = None,
         now: float = 0.0,
     ) -> None:
-        if max_frame < OVERHEAD + REPLY_IMAGE_HEADER + 1:
-            raise ValueError(f"max_frame must be at least {OVERHEAD + REPLY_IMAGE_HEADER + 1} bytes")
+        if max_frame < MIN_FRAME:
+            raise ValueError(f"max_frame must be at least {MIN_FRAME} bytes")
         self.image_source = image_source
         self.failsafe_s = failsafe_s
         self.velocity_lapse_s = velocity_lapse_s
@@ -575,8 +577,8 @@ class Slave:
 
     @staticmethod
     def _wrap(stream: bytes) -> bytes:
-        stream = bytes(stream)[: MAX_OBJECT - 2]
-        return len(stream).to_bytes(2, "big") + stream
+        stream = bytes(stream)[: MAX_OBJECT - OBJECT_LENGTH_BYTES]
+        return len(stream).to_bytes(OBJECT_LENGTH_BYTES, "big") + stream
 
 
 def status_from_pose(

@@ -31,6 +31,7 @@ from typing import Callable
 from urllib.parse import parse_qs, urlsplit
 
 from .frame import MAX_FRAME
+from .messages import MIN_FRAME
 
 log = logging.getLogger("rovlink.link.transport")
 
@@ -408,8 +409,9 @@ def open_transport(url: str) -> Endpoint:
     common: dict = {}
     if "mtu" in query:
         mtu = query.pop("mtu")
-        if not mtu.isdigit() or not 20 <= int(mtu) <= MAX_FRAME:
-            raise TransportError(f"mtu must be a frame size of 20..{MAX_FRAME} bytes, got {mtu!r}")
+        if not mtu.isdigit() or not MIN_FRAME <= int(mtu) <= MAX_FRAME:
+            raise TransportError(f"mtu must be a frame size of {MIN_FRAME}..{MAX_FRAME} bytes (the smallest holds a "
+                                 f"reply with one byte of picture), got {mtu!r}")
         common["max_frame"] = int(mtu)
     if "crlf" in query:
         common["crlf"] = query.pop("crlf") in ("1", "true", "yes")

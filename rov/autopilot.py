@@ -83,7 +83,6 @@ import time
 from rovlink.link.messages import Reason
 from rovlink.rov.ardusub import (
     MAV_RESULT_NAMES,
-    PROTOCOL_TO_SUB,  # noqa: F401  (console/session/predictor.py imports it from here: to go once it imports rov.ardusub's)
     TYPEMASK_POSITION_AND_YAW,
     TYPEMASK_YAW_IGNORE,
     SubMode,

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from rovlink.link.messages import Mode, Reply
+from rovlink.link.messages import REQUESTABLE_MODES, Reply
 
 from .odometry import Fix
 
@@ -21,7 +21,7 @@ ORDERS_KEPT = 200
 ORDERS_LISTED = 50
 
 # The modes a pilot may request: the protocol's own list (1..6).
-MODE_NAMES = {m.name: m for m in Mode if 1 <= m <= 6}
+MODE_NAMES = {m.name: m for m in REQUESTABLE_MODES}
 REPORTED_MODE_NAMES = {0: "UNKNOWN", **{int(m): m.name for m in MODE_NAMES.values()}, 7: "OTHER"}
 
 # States that went wrong: the pilot is told loudly.

@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 import math
 
-from rovlink.rov.autopilot import PROTOCOL_TO_SUB
+from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 from rovlink.rov.vehicle import (
     Controls,
     PilotInput,

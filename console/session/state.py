@@ -146,10 +146,9 @@ class OrderInfo(BaseModel):
     kind: str
     state: str = Field(description="queued or requested, sent, acknowledged (one-shot) or followed (arm, mode), "
                                    "'rejected: <reason>', 'refused: <reason>', 'cancelled: <reason>'; a position "
-                                   "order then 'arrived' or 'aborted: <why>'; each state's time is t_<state>")
+                                   "order then 'arrived' or 'aborted: <why>', with distance_left_m (from the last "
+                                   "reply; null: no position); each state's time is t_<state>")
     t_queued: float
-    distance_left_m: float | None = Field(None, description="a position order: how far the vehicle is from its "
-                                                            "target, from the last reply (null: no position)")
 
 
 class LogEntry(BaseModel):

@@ -259,3 +259,15 @@ def test_serial_port_absent_at_start_is_reported():
 def test_bad_urls_say_what_is_wrong(url, words):
     with pytest.raises(TransportError, match=words):
         open_transport(url)
+
+
+def test_an_mtu_below_the_smallest_reply_is_refused_before_anything_starts():
+    # mtu=20 passed here once and then crashed `rovlink rov` with a traceback in the slave.
+    from rovlink.link.messages import MIN_FRAME
+    from rovlink.link.slave import Slave
+
+    with pytest.raises(TransportError, match=f"mtu must be a frame size of {MIN_FRAME}.."):
+        open_transport(f"udp://127.0.0.1:0?peer=127.0.0.1:9&mtu={MIN_FRAME - 1}")
+    endpoint = open_transport(f"udp://127.0.0.1:0?peer=127.0.0.1:9&mtu={MIN_FRAME}")
+    assert endpoint.max_frame == MIN_FRAME
+    Slave(image_source=lambda img, settings: b"", max_frame=endpoint.max_frame)  # the smallest the slave takes
