@@ -181,7 +181,7 @@ def measure_load(seconds: float, readers: int, uploads: int, ber: float) -> dict
         env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=die_with_parent)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + 300  # a first run compiles the codec first
         while True:
             try:
                 if _request(f"{base}/api/state")["pose"]["received"] is not None:

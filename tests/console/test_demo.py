@@ -48,7 +48,8 @@ def demo(tmp_path):
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     base = f"http://127.0.0.1:{port}"
     try:
-        assert wait_for(lambda: get(base + "/api/state"), 60), "the demo did not come up"
+        # (A fresh checkout compiles the codec first: up to a minute or two on a loaded machine.)
+        assert wait_for(lambda: get(base + "/api/state"), 240), "the demo did not come up"
         yield base, proc, record
     finally:
         if proc.poll() is None:

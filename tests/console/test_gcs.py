@@ -61,7 +61,7 @@ def demo():
                              str(free_tcp_port()), "--no-record", "--bitrate", "9600", "--gcs", f"udpout:127.0.0.1:{port}"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        hb = _heartbeat(gcs, lambda hb: hb.system_status != M.MAV_STATE_UNINIT, 90)
+        hb = _heartbeat(gcs, lambda hb: hb.system_status != M.MAV_STATE_UNINIT, 240)  # (a fresh checkout compiles the codec first)
         assert hb is not None, "no HEARTBEAT with a vehicle state from the gateway"
         yield gcs, f"http://127.0.0.1:{web}"
     finally:
@@ -134,7 +134,7 @@ def test_mavproxy_arms_and_changes_mode():
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True).start()
     try:
-        assert wait_for(lambda: any("online system 1" in line for line in lines), 90), "".join(lines)
+        assert wait_for(lambda: any("online system 1" in line for line in lines), 240), "".join(lines)
         mavproxy.stdin.write("arm throttle\n")
         mavproxy.stdin.flush()
         assert wait_for(lambda: any("ARMED" in line for line in lines), 20), "".join(lines)
