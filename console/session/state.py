@@ -16,14 +16,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-
-class Pose(BaseModel):
-    x_m: float
-    y_m: float
-    z_m: float
-    roll_deg: float
-    pitch_deg: float
-    yaw_deg: float
+# The session's own pose (a frozen dataclass) is the API's too: pydantic takes dataclasses as they are.
+from .odometry import Pose
 
 
 class MeasuredVelocity(BaseModel):
