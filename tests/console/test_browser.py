@@ -319,16 +319,30 @@ def test_every_orders_fate_shows_beside_its_control_with_its_time(open_page, liv
     its arrival and its abort, image settings in force; the orders list with times."""
     page = open_page()
     take_control(page)
+
+    def fate_id(element: str) -> int:
+        return int(page.get_attribute(element, "data-id") or 0)
+
+    def wait_fate(element: str, after: int, states: str, timeout: float = 15000) -> None:
+        """Until `element` shows an order newer than `after` in one of `states` (a fate left
+        there by an earlier test's order does not count)."""
+        page.wait_for_function(
+            f"(() => {{ const e = document.getElementById('{element[1:]}');"
+            f" return +(e.dataset.id || 0) > {after} && {states!r}.split(' ').includes(e.dataset.state); }})()",
+            timeout=timeout)
+
+    before = fate_id("#arm-fate")
     page.click("#arm")
     # Arming: said at once beside Arm, then followed when the vehicle reports it.
-    page.wait_for_function("['requested', 'sent', 'followed'].includes(document.getElementById('arm-fate').dataset.state)")
-    page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=15000)
+    wait_fate("#arm-fate", before, "requested sent followed")
+    wait_fate("#arm-fate", before, "followed")
     text = page.text_content("#arm-fate")
     assert text.startswith("armed ✓ ") and text[-3] == ":" and text[-6] == ":", text  # ... HH:MM:SS
     assert page.get_attribute("#arm-fate", "title").endswith("ARM: followed")
+    before = fate_id("#mode-fate")
     page.select_option("#mode-select", "DEPTH_HOLD")
     page.click("#set-mode")
-    page.wait_for_function("document.getElementById('mode-fate').dataset.state === 'followed'", timeout=15000)
+    wait_fate("#mode-fate", before, "followed")
     assert page.text_content("#mode-fate").startswith("DEPTH_HOLD ✓ ")
 
     # A Go-to a little way off: its preview's length and time stay while the target shows.
@@ -340,23 +354,28 @@ def test_every_orders_fate_shows_beside_its_control_with_its_time(open_page, liv
     page.wait_for_function("document.getElementById('goto-plan').textContent.startsWith('preview: ')")
     after_updates(page)  # the target event and telemetry came meanwhile
     assert page.text_content("#goto-plan").startswith("preview: ") and " m in about " in page.text_content("#goto-plan")
+    before = fate_id("#goto-fate")
     page.click("#goto-go")
-    page.wait_for_function("/m to go/.test(document.getElementById('goto-fate').textContent)", timeout=15000)
-    page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=60000)
+    wait_fate("#goto-fate", before, "queued sent acknowledged arrived")
+    page.wait_for_function("/m to go/.test(document.getElementById('goto-fate').textContent)"
+                           " || document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=15000)
+    wait_fate("#goto-fate", before, "arrived", 60000)
     assert page.text_content("#goto-fate").startswith("go-to #") and "arrived" in page.text_content("#goto-fate")
     assert "done" in page.get_attribute("#goto-fate", "class")
 
     # Another, given up by STOP: aborted, not left "acknowledged" for good.
     page.fill("#goto-x", f"{here['x_m'] - 6:.2f}")
+    before = fate_id("#goto-fate")
     page.click("#goto-go")
-    page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'acknowledged'", timeout=15000)
+    wait_fate("#goto-fate", before, "acknowledged")
     page.click("#stop")
     page.wait_for_function("document.getElementById('goto-fate').textContent.includes('aborted: STOP')", timeout=10000)
 
     # Image settings: in force from the next picture once the ROV acknowledged them.
     page.fill("#budget", "1500")
+    before = fate_id("#image-fate")
     page.click("#apply-image")
-    page.wait_for_function("document.getElementById('image-fate').dataset.state === 'acknowledged'", timeout=15000)
+    wait_fate("#image-fate", before, "acknowledged")
     assert "in force from the next picture" in page.text_content("#image-fate")
 
     # The orders list: more than four, each with the time of its state.
