@@ -24,3 +24,11 @@ def after_updates(page, n: int = 3, timeout_ms: float = 30000) -> None:
     makes it slower."""
     seen = telemetry_seen(page)
     page.wait_for_function(f"(+document.body.dataset.telemetry || 0) >= {seen + n}", timeout=timeout_ms)
+
+
+def after_ticks(page, n: int = 3, timeout_ms: float = 30000) -> None:
+    """Until the page's input loop (its 100 ms tick: gamepad buttons read, wish sent) has
+    turned `n` more times: long enough for a held button or stick to have acted, counted in
+    the page's own turns, so a loaded machine only makes it slower."""
+    seen = int(page.evaluate("+document.body.dataset.ticks || 0"))
+    page.wait_for_function(f"(+document.body.dataset.ticks || 0) >= {seen + n}", timeout=timeout_ms)

@@ -15,12 +15,12 @@ shaping rule in gamepad.js's header and rounded as console.js rounds them
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import wait_for
+from .pages import after_ticks
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -120,10 +120,10 @@ def tap(page, b: int) -> None:
     the page's timers may run late, never skipped."""
     button(page, b, True)
     page.wait_for_function(PRESSED, arg=b)
-    page.wait_for_timeout(200)
+    after_ticks(page, 2)
     button(page, b, False)
     page.wait_for_function(f"(b) => !({PRESSED})(b)", arg=b)
-    page.wait_for_timeout(200)
+    after_ticks(page, 2)
 
 
 def set_number(page, selector: str, value: str) -> None:
@@ -175,7 +175,7 @@ def test_deadzone_and_expo_shape_the_wish_and_a_resting_stick_gives_exactly_neut
     # The live state is drawn only while the settings are open.
     page.click("#gamepad-settings > summary")
     sticks(page, [0.0, 0.55, 0.0, 0.0])
-    page.wait_for_timeout(400)
+    after_ticks(page, 4)
     assert page.get_attribute("#gp-raw-1 td:last-child", "data-value") != "0.55"
     page.click("#gamepad-settings > summary")
     page.wait_for_function("document.querySelector('#gp-raw-1 td:last-child').dataset.value === '0.55'")
@@ -252,10 +252,10 @@ def test_gain_buttons_step_the_gain_once_per_press(pilot, live):
     # D-pad down (13), held: one step, not one per poll.
     button(page, 13, True)
     drives(page, live, {"vx": 0.75, "vy": 0.0, "vz": 0.0, "vyaw": 0.0})
-    page.wait_for_timeout(400)
+    after_ticks(page, 4)
     assert page.text_content("#gp-gain") == "75 %"
     button(page, 13, False)
-    page.wait_for_timeout(200)
+    after_ticks(page, 2)
     tap(page, 13)
     drives(page, live, {"vx": 0.5, "vy": 0.0, "vz": 0.0, "vyaw": 0.0})
     assert page.text_content("#gamepad") == "Gamepad: test pad. Gain 50 %."
@@ -342,16 +342,16 @@ def test_the_stop_button_is_the_pilots_choice_and_capture_drives_nothing(pilot, 
     button(page, 3, True)
     page.wait_for_function("document.getElementById('gp-stop').textContent === '3 (Y)'")
     assert page.evaluate("document.body.dataset.gamepadCapture") is None
-    page.wait_for_timeout(400)
+    after_ticks(page, 4)
     button(page, 3, False)
     assert stops(live) == before
     # B no longer stops; Y does, once per press.
     tap(page, 1)
-    page.wait_for_timeout(300)
+    after_ticks(page, 3)
     assert stops(live) == before
     button(page, 3, True)
     assert wait_for(lambda: stops(live) == before + 1, 3), "Y did not stop"
-    page.wait_for_timeout(400)
+    after_ticks(page, 4)
     assert stops(live) == before + 1
     button(page, 3, False)
     # Ticked on the page: LB (4) as well; the last STOP button cannot be unticked.
@@ -407,7 +407,7 @@ def test_a_pad_that_goes_sends_neutral(pilot, live):
     first = page.evaluate("window.sentVelocity[0]")
     assert {k: first[k] for k in NEUTRAL} == NEUTRAL
     drives(page, live, NEUTRAL)
-    time.sleep(0.3)
+    after_ticks(page, 3)
     assert all({k: m[k] for k in NEUTRAL} == NEUTRAL for m in page.evaluate("window.sentVelocity"))
     # Still listed but marked disconnected, without any event: neutral too.
     page.evaluate(FAKE_GAMEPAD, "third pad")

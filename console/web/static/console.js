@@ -1142,7 +1142,12 @@ function wire() {
       if (!window.rovGamepad.connected()) letGo();
     });
   }
-  setInterval(() => { pollGamepadButtons(); sendVelocity(); }, TICK_MS);
+  setInterval(() => {
+    pollGamepadButtons();
+    sendVelocity();
+    // Ticks so far: what the page's input loop has had the chance to do (the tests wait on it).
+    document.body.dataset.ticks = String((+document.body.dataset.ticks || 0) + 1);
+  }, TICK_MS);
   setHolder(false);
   // The one mode list, key map and limits come from the console, then telemetry.
   fetch("/api/config").then((r) => r.json()).then((config) => {
