@@ -144,13 +144,26 @@ def test_everything_a_pilot_acts_on_is_on_screen_without_scrolling(open_page, li
     # measured in one go: the next telemetry puts the badges back as they are).
     cut = page.evaluate("""(() => {
         for (const id of ['failsafe', 'hold', 'stopping', 'attitude', 'replaying']) document.getElementById(id).hidden = false;
+        const bar = document.getElementById('topbar').getBoundingClientRect();
         return [...document.querySelectorAll('#topbar > *, #topbar .group > *')]
           .filter((e) => !e.hidden && e.offsetParent !== null)
           .filter((e) => { const r = e.getBoundingClientRect();
-                           return e.scrollWidth > e.clientWidth + 1 || r.right > window.innerWidth + 0.5 || r.left < 0; })
+                           return e.scrollWidth > e.clientWidth + 1 || r.right > window.innerWidth + 0.5 || r.left < 0
+                             || r.bottom > bar.bottom + 0.5; })
           .map((e) => e.id || e.className);
     })()""")
     assert not cut, f"cut in the top bar at {width}x{height}: {cut}"
+    # ...and the bar keeps its height whatever it shows: nothing below it moves when a badge comes.
+    heights = page.evaluate("""(() => {
+        const bar = document.getElementById('topbar'), ids = ['failsafe', 'hold', 'stopping', 'attitude', 'replaying'];
+        const h = [];
+        for (const hidden of [true, false, true]) {
+          for (const id of ids) document.getElementById(id).hidden = hidden;
+          h.push(bar.getBoundingClientRect().height);
+        }
+        return h;
+    })()""")
+    assert len(set(heights)) == 1, heights
     # The small picture says which picture it is (the next one's first bytes may not be decoded yet).
     page.wait_for_function("/^showing #\\d+ from \\d+ bytes$/.test(document.getElementById('image-decoded').textContent)")
     said, key = page.evaluate("[document.getElementById('image-decoded').textContent, "

@@ -1097,12 +1097,6 @@ function wire() {
     $("goto-z").value = p.z_m.toFixed(2); $("goto-yaw").value = p.yaw_deg.toFixed(0);
   };
   wireRoi();
-  // The top bar may wrap to a second row: what hangs below it follows its bottom edge.
-  const topbar = $("topbar");
-  const followBar = () => document.documentElement.style.setProperty(
-    "--topbar-bottom", `${Math.round(topbar.getBoundingClientRect().bottom)}px`);
-  if (window.ResizeObserver) new ResizeObserver(followBar).observe(topbar);
-  followBar();
   $("next-image").onclick = () => api("/api/image/next");
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
