@@ -52,6 +52,7 @@ from rovlink.link.master import (
     StopNotCarriedOut,
 )
 from rovlink.link.messages import (
+    FAILSAFE_S,
     NO_IMAGE_DATA,
     REPLY_IMAGE_HEADER,
     VELOCITY_FULL,
@@ -71,7 +72,7 @@ from .session.health import LinkHealth
 from .session.images import DaemonWorker, ImageReceiver, ImageView
 from .session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
 from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
-from .session.predictor import NEUTRAL_WISH, ROV_FAILSAFE_S, Predictor, preview_path
+from .session.predictor import NEUTRAL_WISH, Predictor, preview_path
 from .session.recorder import Recorder
 
 __all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "Operator", "OrderError", "Pose"]
@@ -109,7 +110,7 @@ class Operator:
         self.master.set_pilot_in_force(False)
         self.bitrate_bps = bitrate_bps
         self.delay_s = delay_s
-        self.rov_failsafe_s = ROV_FAILSAFE_S
+        self.rov_failsafe_s = FAILSAFE_S  # the ROV's (docs/PROTOCOL.md §3); create_app may say otherwise
         self._lock = threading.RLock()
         self._subscribers: list[Callable[[str, Any], None]] = []
         self._quiet = False

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from rovlink.link.aio import run_channel
 from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.messages import ImageSettings
+from rovlink.link.messages import FAILSAFE_S, ImageSettings
 from rovlink.link.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera
@@ -41,7 +41,7 @@ class StackConfig:
     delay_s: float = 0.085
     ber: float = 7e-6
     seed: int = 0
-    failsafe_s: float = 3.0
+    failsafe_s: float = FAILSAFE_S
     camera: str = "sim"
     record: str | Path | None = None
     channel_log: str | Path | None = None

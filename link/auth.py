@@ -52,7 +52,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from .frame import MAX_PAYLOAD, START, crc16, encode_frame
-from .messages import HELLO_BIT, ORDER_BITS, POLL_HEADER, REPLY_HEADER, is_sync
+from .messages import FAILSAFE_S, HELLO_BIT, ORDER_BITS, POLL_HEADER, REPLY_HEADER, is_sync
 
 KEY_BYTES = 32
 TAG_BYTES = 4
@@ -174,7 +174,7 @@ class RovCounters:
 
 
 class RovChain:
-    def __init__(self, key: bytes, *, failsafe_s: float = 3.0, boot: bytes | None = None,
+    def __init__(self, key: bytes, *, failsafe_s: float = FAILSAFE_S, boot: bytes | None = None,
                  random_bytes: Callable[[int], bytes] = os.urandom) -> None:
         self.key = _check_key(key)
         self.failsafe_s = failsafe_s

@@ -74,6 +74,7 @@ from typing import Callable, Optional
 from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
     ANGLE_CDEG,
+    FAILSAFE_S,
     MAX_OBJECT,
     MAX_POLL_PAYLOAD,
     MIN_FRAME,
@@ -81,6 +82,7 @@ from .messages import (
     OBJECT_LENGTH_BYTES,
     REPLY_IMAGE_HEADER,
     SIZE_CLASS_BYTES,
+    VELOCITY_LAPSE_S,
     XYZ_CM,
     Arm,
     ImageSettings,
@@ -240,8 +242,8 @@ class Slave:
         self,
         *,
         image_source: ImageSource | None = None,
-        failsafe_s: float = 3.0,
-        velocity_lapse_s: float = 1.5,
+        failsafe_s: float = FAILSAFE_S,
+        velocity_lapse_s: float = VELOCITY_LAPSE_S,
         autopilot_wait_s: float = 2.0,
         max_frame: int = MAX_FRAME,
         trunk_cap: int | None = None,

@@ -52,7 +52,7 @@ import numpy as np
 
 from rovlink.link.aio import run_slave
 from rovlink.link.frame import MAX_FRAME
-from rovlink.link.messages import VELOCITY_FULL, ImageSettings, Mode, Position, Reason, next_img
+from rovlink.link.messages import FAILSAFE_S, VELOCITY_FULL, ImageSettings, Mode, Position, Reason, next_img
 from rovlink.link.secure import SecureSlave
 from rovlink.link.slave import (
     ArmRequested,
@@ -119,7 +119,7 @@ class RovNode:
         bridge,
         grab: Grab,
         *,
-        failsafe_s: float = 3.0,
+        failsafe_s: float = FAILSAFE_S,
         default_settings: ImageSettings | None = None,
         prefetch: bool = True,
         prefetch_max_age_s: float = 5.0,

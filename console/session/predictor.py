@@ -13,6 +13,7 @@ from __future__ import annotations
 import collections
 import math
 
+from rovlink.link.messages import FAILSAFE_S, VELOCITY_LAPSE_S
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 from rovlink.rov.vehicle import (
     Controls,
@@ -25,8 +26,6 @@ from rovlink.rov.vehicle import (
 
 from .odometry import Fix, Pose
 
-VELOCITY_LAPSE_S = 1.5    # a VELOCITY lapses on the ROV after this long without another (docs/PROTOCOL.md §5)
-ROV_FAILSAFE_S = 3.0      # the ROV's failsafe time: with no poll that long it stops (docs/PROTOCOL.md §3)
 NEUTRAL_WISH = (0.0, 0.0, 0.0, 0.0)
 STOP_WISH = ("STOP",)     # a STOP poll in the timeline of wishes sent: brake and HOLD
 
@@ -45,7 +44,7 @@ class Predictor:
     def stop_sent(self, arrival: float) -> None:
         self.sent.append((arrival, STOP_WISH))
 
-    def predict(self, fix: Fix | None, at: float, failsafe_s: float = ROV_FAILSAFE_S) -> Pose | None:
+    def predict(self, fix: Fix | None, at: float, failsafe_s: float = FAILSAFE_S) -> Pose | None:
         """Dead reckoning from `fix` to session time `at`, no further than the
         ROV's failsafe time past its sample (by then, with no poll heard, it has
         stopped; beyond it the uncertainty grows instead)."""
