@@ -95,7 +95,13 @@ class Odometry:
         sampled = t - (8.0 * (len(reply.encode()) + OVERHEAD) / self.bitrate_bps) - self.delay_s
         previous = self.fix
         velocity = (0.0, 0.0, 0.0, 0.0) if previous is None else previous.velocity
-        if previous is not None and sampled - previous.sampled_at > 0.05:
+        # Speeds only between two poses that are measured: a reply without a position
+        # (the autopilot's estimate not up yet) says 0,0,0, and the step from it to the
+        # first real pose is no speed (it read as metres per second at start).
+        both_valid = previous is not None and previous.reply.position_valid and reply.position_valid
+        if not both_valid:
+            velocity = (0.0, 0.0, 0.0, 0.0)
+        elif sampled - previous.sampled_at > 0.05:
             dt = sampled - previous.sampled_at
             old, new_pose = previous.pose, Pose.from_reply(reply)
             dyaw = (new_pose.yaw_deg - old.yaw_deg + 180) % 360 - 180

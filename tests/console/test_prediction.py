@@ -92,3 +92,16 @@ def test_against_the_truth_the_ghost_beats_the_received_pose_and_the_pilot_is_an
     assert result["all"]["predicted_pos_m"][1] < result["all"]["received_pos_m"][1]
     # A couple of dozen pauses: the median is a behaviour, the p95 is the bench's to judge.
     assert result["first_wish_after_pause_s"][0] <= 0.5, result["first_wish_after_pause_s"]
+
+
+def test_the_step_from_a_reply_without_a_position_to_the_first_real_one_is_no_speed():
+    # At start the autopilot's estimate is not up: its replies say 0,0,0. The first real
+    # pose 2 m down was read as metres per second (a 16 m ring, a ghost flying off).
+    op, clock = _operator()
+    clock.t = 10.0
+    op.handle_events([PoseReceived(Reply(autopilot=True, position_valid=False), 10.0, 0.3)], 10.0)
+    clock.t = 10.5
+    op.handle_events([PoseReceived(Reply(autopilot=True, position_valid=True, attitude_valid=True, z_cm=200),
+                                   10.5, 0.3)], 10.5)
+    assert op.measured_velocity() == {"forward_mps": 0.0, "right_mps": 0.0, "down_mps": 0.0, "yaw_dps": 0.0}
+    assert abs(op.predicted_pose(11.0).z_m - 2.0) < 0.05
