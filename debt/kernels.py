@@ -251,8 +251,11 @@ def reconstruct97(rec, pk, sgn, pos, inv_scale, out):
 
 
 @_jit
-def gather97(flat, pos, scale, mag, neg):
-    """Scaled magnitudes and signs of the coefficients, in coding order."""
+def gather97(flat, pos, scale, mag, neg, cdef, top_by_def):
+    """Scaled magnitudes and signs of the coefficients, in coding order; and
+    per deficit d (cdef, 0..15) the largest magnitude among the coefficients
+    with that deficit, into `top_by_def` (int64, 16 zeros), from which
+    `top_plane` gives the stream's top (one pass instead of numpy's four)."""
     for c in range(pos.shape[0]):
         v = flat[pos[c]]
         if v < 0:
@@ -260,7 +263,48 @@ def gather97(flat, pos, scale, mag, neg):
             v = -v
         else:
             neg[c] = np.uint8(0)
-        mag[c] = np.int64(np.floor(v * scale[c]))
+        m = np.int64(np.floor(v * scale[c]))
+        mag[c] = m
+        d = cdef[c]
+        if m > top_by_def[d]:
+            top_by_def[d] = m
+
+
+@_jit
+def top_plane(top_by_def):
+    """The highest plane any coefficient reaches counted with its deficit:
+    max over d of floor(log2(magnitude)) + d, 0 when all are zero."""
+    top = 0
+    for d in range(top_by_def.shape[0]):
+        m = top_by_def[d]
+        if m <= 0:
+            continue
+        bits = -1
+        while m > 0:
+            m >>= 1
+            bits += 1
+        if bits + d > top:
+            top = bits + d
+    return top
+
+
+@_jit
+def coefficient_error97(flat, pos, scale, err_weight, rec, pk):
+    """The squared error, summed and weighted back to pixels, of the
+    coefficients as `reconstruct97` shows them from (rec, pk) against the
+    true ones (see codec._coefficient_error)."""
+    total = 0.0
+    for c in range(pos.shape[0]):
+        true = abs(flat[pos[c]]) * scale[c]
+        p = pk[c]
+        shown = 0.0
+        if p >= 0:
+            r = rec[c]
+            step = np.int64(1) << np.int64(p)
+            shown = r + (DELTA_SIG if r == step else DELTA_REF) * step
+        e = (true - shown) * err_weight[c]
+        total += e * e
+    return total
 
 
 @_jit
@@ -289,37 +333,74 @@ def to_rgb(c0, c1, c2, m, offset, out):
 
 
 @_jit
-def _add_products(m, a, b, c):
-    # The upper triangle of m += v v^T for v = (a, b, c).
-    m[0, 0] += a * a
-    m[0, 1] += a * b
-    m[0, 2] += a * c
-    m[1, 1] += b * b
-    m[1, 2] += b * c
-    m[2, 2] += c * c
-
-
-@_jit
 def colour_moments(img, detail, pixels, total):
     """Second moments of an RGB picture in one pass: `detail` (3x3) of its
     horizontal and vertical neighbour differences, `pixels` (3x3) of the
-    pixels, `total` (3) their sums (for the mean)."""
+    pixels, `total` (3) their sums (for the mean), added to what they hold.
+    Every term is an integer and every sum stays below 2**53, so the sums are
+    exact whatever their order: accumulated in integers, per row."""
     h, w = img.shape[0], img.shape[1]
+    acc = np.zeros(15, dtype=np.int64)
     for y in range(h):
+        t0 = t1 = t2 = np.int64(0)
+        p00 = p01 = p02 = p11 = p12 = p22 = np.int64(0)
+        d00 = d01 = d02 = d11 = d12 = d22 = np.int64(0)
         for x in range(w):
-            r = np.float64(img[y, x, 0])
-            g = np.float64(img[y, x, 1])
-            b = np.float64(img[y, x, 2])
-            total[0] += r
-            total[1] += g
-            total[2] += b
-            _add_products(pixels, r, g, b)
+            r = np.int64(img[y, x, 0])
+            g = np.int64(img[y, x, 1])
+            b = np.int64(img[y, x, 2])
+            t0 += r
+            t1 += g
+            t2 += b
+            p00 += r * r
+            p01 += r * g
+            p02 += r * b
+            p11 += g * g
+            p12 += g * b
+            p22 += b * b
             if x + 1 < w:
-                _add_products(detail, np.float64(img[y, x + 1, 0]) - r, np.float64(img[y, x + 1, 1]) - g,
-                              np.float64(img[y, x + 1, 2]) - b)
+                dr = np.int64(img[y, x + 1, 0]) - r
+                dg = np.int64(img[y, x + 1, 1]) - g
+                db = np.int64(img[y, x + 1, 2]) - b
+                d00 += dr * dr
+                d01 += dr * dg
+                d02 += dr * db
+                d11 += dg * dg
+                d12 += dg * db
+                d22 += db * db
             if y + 1 < h:
-                _add_products(detail, np.float64(img[y + 1, x, 0]) - r, np.float64(img[y + 1, x, 1]) - g,
-                              np.float64(img[y + 1, x, 2]) - b)
+                dr = np.int64(img[y + 1, x, 0]) - r
+                dg = np.int64(img[y + 1, x, 1]) - g
+                db = np.int64(img[y + 1, x, 2]) - b
+                d00 += dr * dr
+                d01 += dr * dg
+                d02 += dr * db
+                d11 += dg * dg
+                d12 += dg * db
+                d22 += db * db
+        acc[0] += t0
+        acc[1] += t1
+        acc[2] += t2
+        acc[3] += p00
+        acc[4] += p01
+        acc[5] += p02
+        acc[6] += p11
+        acc[7] += p12
+        acc[8] += p22
+        acc[9] += d00
+        acc[10] += d01
+        acc[11] += d02
+        acc[12] += d11
+        acc[13] += d12
+        acc[14] += d22
+    for i in range(3):
+        total[i] += np.float64(acc[i])
+    k = 3
+    for i in range(3):
+        for j in range(i, 3):
+            pixels[i, j] += np.float64(acc[k])
+            detail[i, j] += np.float64(acc[k + 6])
+            k += 1
     for m in (detail, pixels):
         m[1, 0] = m[0, 1]
         m[2, 0] = m[0, 2]

@@ -1,0 +1,136 @@
+"""The encoder's faster paths give what the slower ones gave: the compiled
+gathering pass with its top plane, the compiled coefficient error, and the
+transform made once per picture for every stream tried (behaviour only; the
+milliseconds are `rovlink bench debt`'s)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rovlink import debt
+from rovlink.debt import bench, codec, kernels
+from rovlink.debt.plan import plan_for
+
+
+@pytest.fixture(scope="module")
+def frames():
+    # Three of the simulated camera's pictures: cruising height, and the sand a
+    # hand's breadth below, whose ripples make the encoder try its packets.
+    every = bench.camera_frames()
+    return {name: every[name] for name in ("cruise 2 m/colour", "sand 13 cm/grey", "sand 18 cm/colour")}
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_gather_finds_the_top_plane_numpy_finds(seed):
+    rng = np.random.default_rng(seed)
+    n = 5000
+    flat = rng.normal(0, 10.0 ** rng.uniform(0, 4), n)
+    flat[rng.random(n) < 0.3] = 0.0
+    pos = rng.permutation(n)
+    scale = rng.uniform(0.1, 40, n)
+    cdef = np.where(rng.random(n) < 0.5, 0, rng.integers(0, 16)).astype(np.uint8)
+    mag = np.zeros(n, dtype=np.int64)
+    neg = np.zeros(n, dtype=np.uint8)
+    top_by_def = np.zeros(16, dtype=np.int64)
+    kernels.gather97(flat, pos, scale, mag, neg, cdef, top_by_def)
+    v = flat[pos]
+    assert np.array_equal(mag, np.floor(np.abs(v) * scale).astype(np.int64))
+    assert np.array_equal(neg, (v < 0).astype(np.uint8))
+    nz = mag > 0
+    bits = np.frexp(mag[nz].astype(np.float64))[1] - 1
+    assert kernels.top_plane(top_by_def) == max(int((bits + cdef[nz]).max()), 0)
+
+
+def test_top_plane_of_nothing_is_zero():
+    assert kernels.top_plane(np.zeros(16, dtype=np.int64)) == 0
+    one = np.zeros(16, dtype=np.int64)
+    one[3] = 1
+    assert kernels.top_plane(one) == 3
+
+
+@pytest.mark.parametrize("colour", [False, True])
+def test_coefficient_error_matches_its_numpy_definition(colour):
+    rng = np.random.default_rng(1)
+    img = rng.integers(0, 256, (48, 64, 3) if colour else (48, 64), dtype=np.uint8)
+    plan = plan_for(48, 64, 3 if colour else 1, False, None, 0, None, ())
+    _rotation, flat = codec._analysed(img, colour, plan, None)
+    n = plan.lay.ncoef
+    pk = rng.integers(-1, 12, n).astype(np.int8)
+    step = np.left_shift(np.int64(1), np.maximum(pk, 0).astype(np.int64))
+    rec = np.where(pk >= 0, step * rng.integers(1, 4, n), 0)
+    true = np.abs(flat[plan.pos]) * plan.scale
+    delta = np.where(rec == step, kernels.DELTA_SIG, kernels.DELTA_REF)
+    shown = np.where(pk >= 0, rec + delta * step, 0.0)
+    expected = float(np.sum(((true - shown) * plan.err_weight) ** 2))
+    assert codec._coefficient_error(flat, plan, rec, pk) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("budget", [1000, 2000, 4000])
+def test_streams_sharing_one_transform_are_the_streams_made_alone(frames, budget):
+    # The dyadic and the packet streams of one picture share the analysis;
+    # each must come out byte for byte as when made alone, errors and all.
+    for name, img in frames.items():
+        colour = img.ndim == 3
+        limit = budget - 5
+        packets = codec._packets_for(8.0 * limit / img.size)
+        shared: dict = {}
+        e_shared, e_alone = [], []
+        dyadic = codec._wavelet_stream(img, colour, None, 0, limit, errors=e_shared, shared=shared)
+        packet = codec._packet_stream(img, colour, packets, limit, e_shared, shared)
+        assert dyadic == codec._wavelet_stream(img, colour, None, 0, limit, errors=e_alone), name
+        assert packet == codec._packet_stream(img, colour, packets, limit, e_alone), name
+        assert e_shared == e_alone, name
+        assert shared, "the analysis was not shared"
+
+
+def test_the_camera_pictures_near_the_sand_are_the_textured_ones(frames):
+    # What the bench's camera section claims: the sand close by makes the
+    # encoder try its packets; cruising height does not.
+    assert codec._textured(frames["sand 13 cm/grey"], False)
+    assert not codec._textured(frames["cruise 2 m/colour"], True)
+
+
+@pytest.mark.parametrize("roi", [None, (110, 80, 210, 160)])
+def test_every_prefix_of_a_camera_picture_is_a_picture(frames, roi):
+    for name, img in frames.items():
+        data = debt.encode(img, 2000, roi=roi, shift=6 if roi else 0)
+        assert len(data) <= 2000
+        header = codec.unpack_header(data).size
+        last = -1.0
+        for n in range(header, len(data) + 1, 97):
+            picture = debt.decode(data[:n])
+            assert picture.shape == img.shape, (name, n)
+            if roi is None:
+                quality = bench.psnr(img, picture)
+            else:
+                x0, y0, x1, y1 = roi
+                quality = bench.psnr(img[y0:y1, x0:x1], picture[y0:y1, x0:x1])
+            assert quality >= last - 1e-9, (name, n)
+            last = quality
+
+
+def test_bench_camera_section_reports_ratios_and_targets(frames):
+    one = {"sand 13 cm/grey": frames["sand 13 cm/grey"]}
+    rows = bench.camera_rows(1, budgets=(1000,), frames=one)
+    assert len(rows) == 2 and {bool(r["roi"]) for r in rows} == {False, True}
+    for r in rows:
+        for key in ("debt_encode_ms", "debt_decode_ms", "openjpeg_encode_ms", "openjpeg_decode_ms"):
+            assert r[key] > 0
+        assert r["encode_ratio"] == pytest.approx(r["debt_encode_ms"] / r["openjpeg_encode_ms"])
+        assert r["decode_ratio"] == pytest.approx(r["debt_decode_ms"] / r["openjpeg_decode_ms"])
+        assert r["debt_psnr"] > 30 and r["mode"]
+    targets = bench.camera_targets(rows)
+    assert targets["camera_encode_target_met"] == (max(r["encode_ratio"] for r in rows) <= bench.ENCODE_TARGET)
+    assert targets["camera_decode_target_met"] == (max(r["decode_ratio"] for r in rows) <= bench.DECODE_TARGET)
+    result = dict(quality=[], summary=[], roi=[], curves={}, timing=[], camera=rows,
+                  targets=dict(psnr_vs_jpeg2000_min_margin_db=0.0, psnr_vs_jpeg2000_worst_case="-",
+                               psnr_ge_jpeg2000_everywhere=True, ahead_of_jpeg2000="0/0",
+                               vs_webp_lowest_mean_db=None, ahead_of_webp_on_average=False,
+                               vs_avif_lowest_mean_db=None, ahead_of_avif_on_average=False,
+                               roi_shift6_1000B_gain_over_jpeg2000_min_db=0.0, roi_target_met=False,
+                               encode_ratio_vs_openjpeg=1.0, decode_ratio_vs_openjpeg=1.0,
+                               curves_monotone=None, **targets))
+    text = bench.render(result)
+    assert "simulated camera" in text and "camera target" in text
+    assert ("MET" in text) and ("MISSED" in text or targets["camera_encode_target_met"])
