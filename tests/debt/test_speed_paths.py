@@ -134,3 +134,63 @@ def test_bench_camera_section_reports_ratios_and_targets(frames):
     text = bench.render(result)
     assert "simulated camera" in text and "camera target" in text
     assert ("MET" in text) and ("MISSED" in text or targets["camera_encode_target_met"])
+
+
+def test_the_encoders_view_is_the_picture_the_decoder_shows(frames):
+    # The encoder tells two close streams apart by the picture its own state
+    # makes (`_picture97`), not by decoding: it is the decoder's picture but
+    # for the last few decisions the decoder cannot be sure of at the cut.
+    wall = bench.load_samples()["seabed"]
+    for img in (frames["sand 18 cm/colour"], frames["sand 13 cm/grey"], wall):
+        colour = img.ndim == 3
+        for budget in (600, 2000):
+            limit = budget - codec.header_size(False)
+            for packets in ((), (1,), (1, 1, 2)):
+                errors: list = []
+                views: list = []
+                if packets:
+                    data = codec._packet_stream(img, colour, packets, limit, errors, {}, views)
+                else:
+                    data = codec._wavelet_stream(img, colour, None, 0, limit, errors=errors, shared={}, views=views)
+                view = views[-1]()
+                assert view.shape == img.shape and view.dtype == np.uint8
+                assert abs(bench.psnr(img, view) - bench.psnr(img, debt.decode(data))) < 0.2, (budget, packets)
+
+
+def test_packets_are_not_tried_where_the_dyadic_stream_is_nearly_exact(frames, monkeypatch):
+    # Sand 13 cm below at 2000 B: the dyadic stream leaves ~0.03 squared error
+    # a pixel (under PACKETS_ABOVE_MSE), so the packet stream is not coded.
+    img = frames["sand 13 cm/grey"]
+    assert codec._textured(img, False)
+    expected = codec._wavelet_stream(img, False, None, 0, 2000 - codec.header_size(False))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the packet stream was coded")
+
+    monkeypatch.setattr(codec, "_packet_stream", refuse)
+    assert debt.encode(img, 2000) == expected
+
+
+def test_packets_are_still_tried_and_chosen_where_they_win():
+    # Brick (below the threshold's error everywhere on the bench) keeps its
+    # packet streams, as the bench measured them.
+    brick = bench.load_photographs(names=("brick",))["brick/crop"]
+    assert bench.debt_mode(debt.encode(brick, 1000)) == "packets 1,1,2"
+    assert bench.debt_mode(debt.encode(brick, 4000)) == "packets 1"
+    assert bench.debt_mode(debt.encode(brick, 8000)) == "wavelet"
+
+
+def test_bench_times_debt_at_openjpegs_bytes_where_openjpeg_stops_short(frames):
+    # Sand 13 cm below, grey, at 4000 B: OpenJPEG's whole codestream is
+    # smaller than the budget, so DEBT is timed at the bytes OpenJPEG wrote
+    # and its time at the full budget is kept beside.
+    one = {"sand 13 cm/grey": frames["sand 13 cm/grey"]}
+    rows = bench.camera_rows(1, budgets=(4000,), frames=one)
+    for r in rows:
+        assert r["openjpeg_short"] and r["openjpeg_bytes"] < 4000
+        assert r["debt_bytes_timed"] == r["openjpeg_bytes"]
+        assert r["debt_encode_ms_at_budget"] > 0 and r["encode_ratio_at_budget"] > 0
+        if not r["roi"]:    # at equal bytes DEBT's picture is still the better one
+            assert r["debt_psnr_timed"] > r["openjpeg_psnr"]
+    targets = bench.camera_targets(rows)
+    assert "camera_encode_ratio_worst_at_budget" in targets
