@@ -33,7 +33,7 @@ import numpy as np
 
 from rovlink import debt
 from rovlink.link.aio import run_master
-from rovlink.link.frame import MAX_FRAME, OVERHEAD
+from rovlink.link.frame import MAX_FRAME
 from rovlink.link.master import (
     ImageAbandoned,
     ImageComplete,
@@ -54,7 +54,6 @@ from rovlink.link.master import (
 from rovlink.link.messages import (
     FAILSAFE_S,
     NO_IMAGE_DATA,
-    REPLY_IMAGE_HEADER,
     VELOCITY_FULL,
     ImageSettings,
     Mode,
@@ -338,7 +337,12 @@ class Operator:
     def _poll_sent(self, sent: PollSent, t: float) -> None:
         """What the master said it sent: recorded, and the orders it carried marked sent."""
         frame = sent.frame
-        self.recorder.write({"k": "tx", "t": round(t, 4), "hex": frame.hex()})
+        record = {"k": "tx", "t": round(t, 4), "hex": frame.hex()}
+        if sent.poll is not None:
+            # Version 2 may leave the image request out of the frame (§8.1): the poll
+            # as the master made it is kept beside it, for a replay.
+            record["poll"] = sent.poll.encode().hex()
+        self.recorder.write(record)
         self.health.event(t, "tx", len(frame))
         self._last_poll_velocity = None
         poll = sent.poll
@@ -347,7 +351,7 @@ class Operator:
         order = poll.order
         if poll.offset != NO_IMAGE_DATA:
             with self._lock:
-                trunk_cap = self.master.reply_frame_bytes(poll.size) - OVERHEAD - REPLY_IMAGE_HEADER
+                trunk_cap = self.master.trunk_bytes(poll.size)
             self.images.request_sent(t, poll.img, poll.offset, trunk_cap)
         # It reaches the ROV after its own air time and the one-way delay.
         arrival = t + 8.0 * len(frame) / self.bitrate_bps + self.delay_s

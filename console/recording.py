@@ -143,7 +143,8 @@ def series(path: str | Path) -> Series:
             try:
                 if extra and data[2] & 0x40:  # a HELLO
                     raise ProtocolError("HELLO")
-                poll = Poll.decode(data[2:len(data) - 2 - extra])
+                # The poll as the master made it (version 2 may leave parts out of the frame, §8.1).
+                poll = Poll.decode(bytes.fromhex(r["poll"]) if "poll" in r else data[2:len(data) - 2 - extra])
                 order = poll.order
                 last_poll = (t + 8 * len(data) / bitrate + delay,
                              (order.vx / VELOCITY_FULL, order.vy / VELOCITY_FULL, order.vz / VELOCITY_FULL, order.vyaw / VELOCITY_FULL)) \

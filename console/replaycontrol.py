@@ -307,7 +307,8 @@ class ReplayController:
             op.handle_events(events, now)
         elif kind == "tx":
             counts["tx"] += 1
-            sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version)
+            sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version,
+                                        poll=bytes.fromhex(record["poll"]) if "poll" in record else None)
             if sent is not None:
                 op.handle_events([sent], now)
         elif kind == "wish":

@@ -51,8 +51,9 @@ import stat
 from dataclasses import dataclass
 from typing import Callable
 
-from .frame import MAX_PAYLOAD, START, crc16, encode_frame
-from .messages import FAILSAFE_S, HELLO_BIT, ORDER_BITS, POLL_HEADER, REPLY_HEADER, is_sync
+from .frame import START
+from .messages import FAILSAFE_S, HELLO_BIT, ORDER_BITS, POLL_HEADER, REPLY_HEADER, ProtocolError, is_sync
+from .wire2 import V2_MAX_CONTENTS, V2_OVERHEAD, encode_frame2
 
 KEY_BYTES = 32
 TAG_BYTES = 4
@@ -72,6 +73,7 @@ ROV_CHALLENGES_SEEN = 4096
 OPERATOR_KEEP_HELLOS = 4
 OPERATOR_KEEP_POLLS = 8
 COUNT_WINDOW = 127  # a poll is taken when its COUNT is 1..127 ahead of the last taken
+KEEP_FAILSAFES = 2  # §8.1: a kept chain value lives at most this many failsafe times
 
 
 class KeyFileError(ValueError):
@@ -159,6 +161,7 @@ class PollIn:
     chain: bytes  # the poll's chain value: the reply's PREV
     matched: bytes  # the kept chain value it was made on
     on_sync: bool  # matched a SYNC whose reference is not set yet
+    info: object = None  # what the caller kept with that value (`seal_reply`, `seal_sync`)
 
 
 @dataclass
@@ -189,13 +192,22 @@ class RovChain:
         self._last_count: int | None = None
         self._challenges: collections.deque = collections.deque()
         self._challenge_set: set[bytes] = set()
+        self._info: dict[bytes, object] = {}  # what the caller keeps with each kept chain value
+        self._taken_at: float | None = None  # when the last poll was taken
         self.counters = RovCounters()
 
     def _expire(self, now: float) -> None:
+        """§8.1: a kept value is matched while it is at most twice the failsafe time
+        old and the chain is alive: it was made, or a poll was taken, within the
+        failsafe time.  A ROV whose failsafe engaged answers nothing but HELLOs."""
+        alive_since = now - self.failsafe_s
+        chain_alive = self._taken_at is not None and self._taken_at >= alive_since
         for kept in (self._replies, self._syncs):
-            while kept and now - kept[0][1] > self.failsafe_s:
+            while kept and (now - kept[0][1] > KEEP_FAILSAFES * self.failsafe_s
+                            or (not chain_alive and kept[0][1] < alive_since)):
                 value, _ = kept.popleft()
                 self._sync_unreferenced.discard(value)
+                self._info.pop(value, None)
 
     def is_authentic(self, contents: bytes) -> bool:
         """Whether a HELLO or a poll carries a tag this end accepts (no state moves:
@@ -211,7 +223,7 @@ class RovChain:
     def check_poll(self, contents: bytes, now: float) -> HelloIn | PollIn | None:
         """Whether the frame contents (payload, extra, TAG) are an authentic
         HELLO to answer or an authentic poll to take (after it parses)."""
-        if len(contents) < HELLO_PAYLOAD + TAG_BYTES:
+        if len(contents) < 1 + COUNT_BYTES + TAG_BYTES:
             self.counters.inauthentic += 1
             return None
         signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
@@ -247,7 +259,7 @@ class RovChain:
                     if not 1 <= ahead <= COUNT_WINDOW:
                         self.counters.stale_count += 1
                         return None
-                return PollIn(payload, count, value, prev, on_sync)
+                return PollIn(payload, count, value, prev, on_sync, self._info.get(prev))
         self.counters.inauthentic += 1
         return None
 
@@ -255,6 +267,7 @@ class RovChain:
         """The poll parsed and is acted on: it sets the COUNT reference, and the
         kept values older than the one it matched are forgotten."""
         self._last_count = poll.count
+        self._taken_at = now
         self._sync_unreferenced.discard(poll.matched)
         for kept in (self._replies, self._syncs):
             times = [t for v, t in kept if v == poll.matched]
@@ -268,22 +281,34 @@ class RovChain:
             kept.clear()
             kept.extend(keep)
         self._sync_unreferenced &= {v for v, _ in self._syncs}
+        alive = {v for v, _ in (*self._replies, *self._syncs)}
+        self._info = {v: i for v, i in self._info.items() if v in alive}
         self.counters.polls_taken += 1
 
-    def seal_reply(self, payload: bytes, poll: PollIn, now: float) -> bytes:
-        value = mac(self.key, KIND_REPLY, poll.chain, payload)
-        self._replies.append((value, now))
-        return encode_frame(payload + value[:TAG_BYTES])
+    def _keep(self, kept: collections.deque, value: bytes, now: float, info: object) -> None:
+        if len(kept) == kept.maxlen:
+            self._info.pop(kept[0][0], None)
+        kept.append((value, now))
+        if info is not None:
+            self._info[value] = info
 
-    def seal_sync(self, payload: bytes, hello: HelloIn, now: float) -> bytes:
+    def seal_reply(self, payload: bytes, poll: PollIn, now: float, *, info: object = None) -> bytes:
+        """The reply frame to `poll`; `info` is handed back with the next poll made on it."""
+        value = mac(self.key, KIND_REPLY, poll.chain, payload)
+        self._keep(self._replies, value, now, info)
+        return encode_frame2(payload + value[:TAG_BYTES])
+
+    def seal_sync(self, payload: bytes, hello: HelloIn, now: float, *, info: object = None) -> bytes:
         if len(payload) != SYNC_PAYLOAD or not is_sync(payload):
             raise ValueError("a SYNC reply is a 14-byte reply payload with SYNC set")
         signed = payload + self.boot + self._random(NONCE_BYTES - BOOT_BYTES)
         value = mac(self.key, KIND_SYNC, hello.chain, signed)
-        self._syncs.append((value, now))
+        if len(self._syncs) == self._syncs.maxlen:
+            self._sync_unreferenced.discard(self._syncs[0][0])
+        self._keep(self._syncs, value, now, info)
         self._sync_unreferenced.add(value)
         self.counters.syncs += 1
-        return encode_frame(signed + value[:TAG_BYTES])
+        return encode_frame2(signed + value[:TAG_BYTES])
 
 
 # ---------------------------------------------------------------------------
@@ -299,6 +324,8 @@ class ReplyIn:
     answers: int  # the number of the poll or HELLO it answers (OperatorChain.sent order)
     sent_at: float
     late: bool
+    parsed: object = None  # what `open_reply`'s `parse` made of a timely one
+    malformed: bool = False  # timely and authentic, but `parse` refused it: not chained to
 
 
 @dataclass
@@ -309,6 +336,7 @@ class OperatorCounters:
     syncs: int = 0
     late: int = 0
     inauthentic: int = 0
+    malformed: int = 0
 
 
 @dataclass
@@ -338,6 +366,11 @@ class OperatorChain:
     def synced(self) -> bool:
         return self.chain_to is not None
 
+    @property
+    def next_number(self) -> int:
+        """The number the next HELLO or poll sealed gets (`ReplyIn.answers`)."""
+        return self._number
+
     def seal_hello(self, payload: bytes, now: float, *, deadline: float = math.inf,
                    challenge: bytes | None = None) -> bytes:
         """A HELLO frame; its SYNC is late after `deadline`."""
@@ -349,7 +382,7 @@ class OperatorChain:
         self._hellos.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.hellos += 1
-        return encode_frame(signed + value[:TAG_BYTES])
+        return encode_frame2(signed + value[:TAG_BYTES])
 
     def seal_poll(self, payload: bytes, now: float, *, deadline: float = math.inf) -> bytes:
         """A poll frame chained to the last timely answer; its reply is late after `deadline`."""
@@ -361,7 +394,7 @@ class OperatorChain:
         self._polls.append(_Sent(self._number, value, now, deadline))
         self._number += 1
         self.counters.polls += 1
-        return encode_frame(signed + value[:TAG_BYTES])
+        return encode_frame2(signed + value[:TAG_BYTES])
 
     def is_authentic(self, contents: bytes) -> bool:
         """Whether a reply or SYNC carries a tag this end accepts (no state moves)."""
@@ -371,30 +404,41 @@ class OperatorChain:
         return (any(_tag_matches(self.key, KIND_REPLY, s.value, signed, tag) for s in self._polls)
                 or any(_tag_matches(self.key, KIND_SYNC, s.value, signed, tag) for s in self._hellos))
 
-    def open_reply(self, contents: bytes, now: float) -> ReplyIn | None:
+    def open_reply(self, contents: bytes, now: float,
+                   parse: Callable[[bytes, bool, int], object] | None = None) -> ReplyIn | None:
         """An authentic reply or SYNC (possibly `late`: count it, never use it),
         or None for an inauthentic one (counted).  Timely: it answers the last
-        poll or HELLO sent, for the first time, by that frame's deadline."""
+        poll or HELLO sent, for the first time, by that frame's deadline.
+        `parse(payload, sync, answers)` reads a timely one before it is chained
+        to; a ProtocolError from it leaves the chain where it was (`malformed`)."""
         if len(contents) > TAG_BYTES:
             signed, tag = contents[:-TAG_BYTES], contents[-TAG_BYTES:]
+            # A reply may be as long as a SYNC and have its bit 0 set (DELTA,
+            # §8.1): only the tag's KIND tells them apart.
             if len(signed) == SYNC_PAYLOAD + NONCE_BYTES and is_sync(signed):
                 for sent in reversed(self._hellos):
                     value = _tag_matches(self.key, KIND_SYNC, sent.value, signed, tag)
                     if value is not None:
                         return self._answered(sent, value, signed[:SYNC_PAYLOAD], True,
-                                              signed[SYNC_PAYLOAD:SYNC_PAYLOAD + BOOT_BYTES], now)
-            else:
-                for sent in reversed(self._polls):
-                    value = _tag_matches(self.key, KIND_REPLY, sent.value, signed, tag)
-                    if value is not None:
-                        return self._answered(sent, value, signed, False, None, now)
+                                              signed[SYNC_PAYLOAD:SYNC_PAYLOAD + BOOT_BYTES], now, parse)
+            for sent in reversed(self._polls):
+                value = _tag_matches(self.key, KIND_REPLY, sent.value, signed, tag)
+                if value is not None:
+                    return self._answered(sent, value, signed, False, None, now, parse)
         self.counters.inauthentic += 1
         return None
 
     def _answered(self, sent: _Sent, value: bytes, payload: bytes, sync: bool, boot: bytes | None,
-                  now: float) -> ReplyIn:
+                  now: float, parse: Callable[[bytes, bool, int], object] | None) -> ReplyIn:
         self.last_authentic_at = now
         late = sent.answered or sent.number != self._number - 1 or now > sent.deadline
+        parsed = None
+        if not late and parse is not None:
+            try:
+                parsed = parse(payload, sync, sent.number)
+            except ProtocolError:
+                self.counters.malformed += 1
+                return ReplyIn(payload, sync, boot, sent.number, sent.sent_at, False, None, True)
         if late:
             self.counters.late += 1
         else:
@@ -405,7 +449,7 @@ class OperatorChain:
                 self.counters.syncs += 1
             else:
                 self.counters.replies += 1
-        return ReplyIn(payload, sync, boot, sent.number, sent.sent_at, late)
+        return ReplyIn(payload, sync, boot, sent.number, sent.sent_at, late, parsed)
 
 
 # ---------------------------------------------------------------------------
@@ -416,19 +460,21 @@ class OperatorChain:
 @dataclass
 class AuthDecoderCounters:
     frames: int = 0
-    rejected: int = 0  # candidates dropped: CRC failed, LEN out of bounds, or not authentic
-    inauthentic: int = 0  # of those: the CRC held but the tag did not (forged, replayed, stale)
+    rejected: int = 0  # candidates dropped: LEN out of bounds, or not authentic
+    inauthentic: int = 0  # of those: complete, but the tag did not hold (noise, forged, replayed, stale)
     bytes_skipped: int = 0
 
 
 class AuthFrameDecoder:
-    """§1 framing for version 2.  `authentic(contents)` says whether a frame's
-    contents (between LEN and CRC) carry a tag the receiver accepts; a frame
-    whose CRC holds but whose tag does not is handled like a CRC failure.
+    """§1 framing for version 2 (§8.1: no CRC; the tag is the check).
+    `authentic(contents)` says whether a frame's contents (the LEN bytes
+    after LEN) carry a tag the receiver accepts; a complete candidate whose
+    tag does not is dropped like a CRC failure in version 1.1: only its 0x55.
     `max_len`: the largest LEN this receiver expects (a callable, since the
     operator's depends on its last poll)."""
 
-    def __init__(self, authentic: Callable[[bytes], bool], max_len: Callable[[], int] | int = MAX_PAYLOAD) -> None:
+    def __init__(self, authentic: Callable[[bytes], bool],
+                 max_len: Callable[[], int] | int = V2_MAX_CONTENTS) -> None:
         self._authentic = authentic
         self._max_len = max_len if callable(max_len) else (lambda: max_len)
         self._buf = bytearray()
@@ -437,25 +483,22 @@ class AuthFrameDecoder:
 
     @property
     def crc_errors(self) -> int:
-        """Candidates dropped for a CRC failure or a LEN out of bounds (as FrameDecoder counts them)."""
+        """Start bytes dropped for a LEN out of bounds (a frame that fails its tag is `inauthentic`)."""
         return self.counters.rejected - self.counters.inauthentic
 
     def _valid_at(self, i: int, end_limit: int, count: bool = False) -> bytes | None:
-        """The contents of a complete, CRC-valid, authentic frame starting at i, if any.
-        `count`: count a CRC-valid frame whose tag fails as inauthentic."""
+        """The contents of a complete, authentic frame starting at i, if any.
+        `count`: count a complete frame whose tag fails as inauthentic."""
         buf = self._buf
         if i + 1 >= len(buf):
             return None
         n = buf[i + 1]
         if not 1 <= n <= self._max_len():
             return None
-        end = i + 2 + n + 2
+        end = i + V2_OVERHEAD + n
         if end > end_limit:
             return None
-        body = bytes(buf[i + 1:i + 2 + n])
-        if crc16(body) != int.from_bytes(buf[i + 2 + n:end], "big"):
-            return None
-        contents = body[1:]
+        contents = bytes(buf[i + V2_OVERHEAD:end])
         if self._authentic(contents):
             return contents
         if count:
@@ -485,7 +528,7 @@ class AuthFrameDecoder:
                 self.counters.rejected += 1
                 self._drop_first()
                 continue
-            end = 2 + n + 2
+            end = V2_OVERHEAD + n
             if len(buf) >= end:
                 contents = self._valid_at(0, len(buf), count=0 not in self._delivered_starts)
                 if contents is not None:

@@ -44,7 +44,10 @@ class LinkParams:
     delay_s: float = 0.085  # intrinsic (modem) delay
     propagation_s: float = 0.0  # distance / speed of the wave
     ber: float = 0.0  # bit error rate
-    loss: float = 0.0  # probability a whole packet is lost
+    loss: float = 0.0  # probability a whole packet is lost (the long-run fraction, with bursts too)
+    # Losses in bursts (a Gilbert-Elliott channel): the mean number of packets
+    # lost in a row; 1 (the default) loses packets independently.
+    burst: float = 1.0
     queue_bytes: int = 2048  # transmit queue; a packet that does not fit is dropped
 
     def __post_init__(self) -> None:
@@ -58,6 +61,10 @@ class LinkParams:
             raise ValueError(f"packet loss rate must be in [0, 1], got {self.loss}")
         if self.queue_bytes < 1:
             raise ValueError("queue must hold at least one byte")
+        if not self.burst >= 1.0:
+            raise ValueError(f"mean loss burst must be at least 1 packet, got {self.burst}")
+        if self.burst > 1.0 and self.loss >= 1.0:
+            raise ValueError("a loss of 1 has no bursts")
 
     def tx_time(self, nbytes: int) -> float:
         return 8.0 * nbytes / self.bitrate_bps
@@ -113,6 +120,7 @@ class Channel:
         self._air: dict[str, list[tuple[float, float]]] = {"a": [], "b": []}  # on-air intervals
         self._arrivals: list[tuple[float, int, _InFlight]] = []
         self._seq = 0
+        self._in_burst = {"a": False, "b": False}  # Gilbert-Elliott state per sending side
 
     @staticmethod
     def _make_log(log):
@@ -177,7 +185,7 @@ class Channel:
                 self.counters.collisions += 1
                 self._emit({"t": f.arrival, "ev": "collision", "dir": direction, "bytes": len(f.data)})
                 continue
-            if p.loss and self.rng.random() < p.loss:
+            if p.loss and self._lose(f.sender, p):
                 self.counters.lost += 1
                 self._emit({"t": f.arrival, "ev": "loss", "dir": direction, "bytes": len(f.data)})
                 continue
@@ -193,6 +201,19 @@ class Channel:
         return out
 
     # ------------------------------------------------------------------
+
+    def _lose(self, sender: str, p: LinkParams) -> bool:
+        """Whether the next packet from `sender` is lost.  With bursts, a two-state
+        chain per packet: a burst ends with probability 1/burst (so bursts last
+        `burst` packets on average) and starts with the probability that makes the
+        long-run loss `loss`: q = loss / burst / (1 - loss)."""
+        if p.burst <= 1.0:
+            return self.rng.random() < p.loss
+        if self._in_burst[sender]:
+            self._in_burst[sender] = self.rng.random() >= 1.0 / p.burst
+        else:
+            self._in_burst[sender] = self.rng.random() < p.loss / p.burst / (1.0 - p.loss)
+        return self._in_burst[sender]
 
     def _on_air(self, side: str, t0: float, t1: float) -> bool:
         return any(s < t1 and e > t0 for s, e in self._air[side])

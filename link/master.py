@@ -96,8 +96,33 @@ from .messages import (
     next_img,
 )
 
-# The poll the SIZE choice reckons with: the wish, every other cycle at least.
-_VELOCITY_POLL_BYTES = OVERHEAD + len(Poll(order=Velocity()).encode())
+
+class FrameSizes:
+    """Version 1.1's frame lengths, for timeouts and the SIZE choice (version 2
+    hands the master its own: `link.secure`)."""
+
+    def __init__(self, max_frame: int) -> None:
+        self.max_frame = max_frame
+
+    def poll(self, poll: Poll) -> int:
+        """The frame of `poll` (at most)."""
+        return OVERHEAD + len(poll.encode())
+
+    def reply(self, size: int) -> int:
+        """The longest reply frame a poll of SIZE `size` allows."""
+        return OVERHEAD + REPLY_IMAGE_HEADER + min(SIZE_CLASS_BYTES[size], self.max_frame - OVERHEAD - REPLY_IMAGE_HEADER)
+
+    def reply_without_image(self) -> int:
+        return OVERHEAD + REPLY_HEADER
+
+    def trunk(self, size: int) -> int:
+        """The trunk such a reply carries (at least)."""
+        return self.reply(size) - OVERHEAD - REPLY_IMAGE_HEADER
+
+    def velocity_poll(self) -> int:
+        """The poll the SIZE choice reckons with: the wish, every other cycle at least."""
+        return self.poll(Poll(order=Velocity()))
+
 
 # ---------------------------------------------------------------------------
 # Events handed to the console
@@ -299,6 +324,7 @@ class Master:
         self.start_wait_s = start_wait_s
         self.stats = MasterStats()
         self.decoder = FrameDecoder(max_len=self.max_frame - OVERHEAD)
+        self.sizes = FrameSizes(self.max_frame)  # the frame lengths of the link's version
 
         self._rng = rng or random.Random()
         self._wish = Velocity()
@@ -323,6 +349,14 @@ class Master:
         self._ack: int | None = None  # ACK of the last reply; None before the first
         self._first_reply_at: float | None = None
         self._wish_turn = False  # while an order is pending, every other poll carries the wish
+        # Version 2 (§8.1), set by link.secure: a NONE poll chained to the reply to a
+        # VELOCITY poll (or to such a NONE poll) repeats that wish, so an unchanged
+        # wish goes as NONE; and after a lost reply the next poll asks for no image
+        # data, so that its answer, or its loss, comes sooner (the failsafe's sake).
+        self.repeat_by_none = False
+        self.quick_after_loss = False
+        self._velocity_taken: Velocity | None = None  # the wish the last reply's poll carried or repeated
+        self._lost_last = False  # the last poll's reply was lost
         self._awaiting: tuple[float, Poll, int] | None = None  # (sent at, poll, reply bytes expected)
         self._events: list[object] = []
         first = self._rng.randrange(IMG_IDS) if first_img is None else first_img
@@ -443,8 +477,11 @@ class Master:
         return 8.0 * nbytes / self.bitrate_bps
 
     def reply_frame_bytes(self, size: int) -> int:
-        trunk = min(SIZE_CLASS_BYTES[size], self.max_frame - OVERHEAD - REPLY_IMAGE_HEADER)
-        return OVERHEAD + REPLY_IMAGE_HEADER + trunk
+        return self.sizes.reply(size)
+
+    def trunk_bytes(self, size: int) -> int:
+        """The trunk a reply to a poll of SIZE `size` carries (at least, with a whole pose)."""
+        return self.sizes.trunk(size)
 
     def timeout_for(self, poll_frame_bytes: int, reply_frame_bytes: int) -> float:
         return self.tx_time(poll_frame_bytes) + self.tx_time(reply_frame_bytes) + 2 * self.delay_s + self.margin_s
@@ -454,7 +491,7 @@ class Master:
         if self._awaiting is None:
             return None
         sent_at, poll, reply_bytes = self._awaiting
-        return sent_at + self.timeout_for(OVERHEAD + len(poll.encode()), reply_bytes)
+        return sent_at + self.timeout_for(self.sizes.poll(poll), reply_bytes)
 
     @property
     def awaiting_reply(self) -> bool:
@@ -485,7 +522,7 @@ class Master:
         self._events.append(PollSent(now, frame, poll, order_ids))
         expected = self._expected_reply_bytes(poll)
         # §1 (1.1): no reply longer than this poll's SIZE allows is a start.
-        self.decoder.max_len = self.reply_frame_bytes(poll.size) - OVERHEAD
+        self.decoder.max_len = min(self.reply_frame_bytes(poll.size) - OVERHEAD, MAX_FRAME - OVERHEAD)
         self._awaiting = (now, poll, expected)
         self.stats.polls_sent += 1
         self.stats.bytes_sent += len(frame)
@@ -527,8 +564,13 @@ class Master:
                 order = NoOrder()
             elif self._recentre_owed and self._last_reply is not None and self._last_reply.hold:
                 order = Velocity(0, 0, 0, 0, order.arm, order.mode)
+        if isinstance(order, Velocity) and self.repeat_by_none and not order.arm and not order.mode \
+                and order == self._velocity_taken:
+            order = NoOrder()  # the ROV repeats the wish of the poll the chained reply answered
         size = self._choose_size(now)
-        if self.images_enabled:
+        if self.quick_after_loss and self._lost_last:
+            img, offset = self._image.img, NO_IMAGE_DATA  # a short cycle: the link is answered or lost sooner
+        elif self.images_enabled:
             img, offset = self._image.img, min(len(self._image.data), NO_IMAGE_DATA - 1)
         else:
             img, offset = self._image.img, NO_IMAGE_DATA
@@ -596,11 +638,11 @@ class Master:
 
     def _best_size_for_error_rate(self) -> int:
         ber = self.estimated_ber()
-        poll_bytes = _VELOCITY_POLL_BYTES
+        poll_bytes = self.sizes.velocity_poll()
         best, best_rate = 3, -1.0
         for size in range(4):
             reply = self.reply_frame_bytes(size)
-            trunk = reply - OVERHEAD - REPLY_IMAGE_HEADER
+            trunk = self.sizes.trunk(size)
             p_ok = (1.0 - ber) ** (8 * (poll_bytes + reply))
             cycle = self.timeout_for(poll_bytes, reply) - self.margin_s
             # A lost cycle costs the full timeout instead of the cycle.
@@ -612,7 +654,7 @@ class Master:
 
     def _expected_reply_bytes(self, poll: Poll) -> int:
         if not poll.wants_image:
-            return OVERHEAD + REPLY_HEADER
+            return self.sizes.reply_without_image()
         return self.reply_frame_bytes(poll.size)
 
     def _observe_cycle(self, lost: bool, bits: int) -> None:
@@ -646,7 +688,13 @@ class Master:
         if self._awaiting is not None:
             sent_at, poll, _ = self._awaiting
             round_trip = now - sent_at
-            bits = 8 * (OVERHEAD + len(poll.encode()) + OVERHEAD + len(payload))
+            self._lost_last = False
+            if isinstance(poll.order, Velocity):
+                v = poll.order
+                self._velocity_taken = v if not v.arm and not v.mode else None
+            elif not isinstance(poll.order, NoOrder):
+                self._velocity_taken = None  # a one-shot order or a STOP: no wish repeated after it
+            bits = 8 * (self.sizes.poll(poll) + OVERHEAD + len(payload))
             self._observe_cycle(False, bits)
             self._awaiting = None
         self.stats.replies += 1
@@ -673,6 +721,7 @@ class Master:
         fate and is not sent again, queued orders are not sent, ARM/MODE
         requests wait for a reply to a VELOCITY poll; a STOP goes on until
         confirmed."""
+        self._velocity_taken = None  # after a HELLO the ROV may have failsafed or restarted
         try:
             reply = dataclasses.replace(Reply.decode(payload, allow_sync=True), sync=False)
         except ProtocolError:
@@ -798,8 +847,9 @@ class Master:
         assert self._awaiting is not None
         sent_at, poll, expected = self._awaiting
         self._awaiting = None
+        self._lost_last = True
         self.stats.replies_lost += 1
-        self._observe_cycle(True, 8 * (OVERHEAD + len(poll.encode()) + expected))
+        self._observe_cycle(True, 8 * (self.sizes.poll(poll) + expected))
         self._events.append(ReplyLost(sent_at, now))
         if not self.retransmit and poll.wants_image and self._image.data:
             self._next_image("reply lost (no retransmission)")

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from .auth import (
     CHALLENGE_BYTES,
     HELLO_PAYLOAD,
+    KEEP_FAILSAFES,
     NONCE_BYTES,
     SYNC_PAYLOAD,
     TAG_BYTES,
@@ -48,9 +49,10 @@ from .auth import (
     PollIn,
     RovChain,
 )
-from .frame import MAX_FRAME, OVERHEAD, frame_contents
-from .master import Master, MasterStats, PollSent
+from .frame import frame_contents
+from .master import FrameSizes, Master, MasterStats, PollSent
 from .messages import (
+    FAILSAFE_S,
     HELLO_BIT,
     MAX_POLL_PAYLOAD,
     ImageSettings,
@@ -63,24 +65,70 @@ from .messages import (
     Stop,
 )
 from .slave import Slave, SlaveOutput
+from .wire2 import (
+    MIN_POLL_FRAME,
+    NO_CONTINUATION,
+    POSE_BYTES,
+    V2_MAX_FRAME,
+    V2_OVERHEAD,
+    V2_REPLY_STATUS,
+    Pose,
+    continuation_of,
+    frame2_contents,
+    poll_from_wire,
+    poll_to_wire,
+    pose_of,
+    pose_wire_bytes,
+    reply_frame_cap,
+    reply_from_wire,
+    reply_to_wire,
+    request_of,
+    trunk_room,
+    wish_of,
+)
 
 POLL_EXTRA = 1 + TAG_BYTES  # COUNT, TAG
 REPLY_EXTRA = TAG_BYTES
 _NO_ORDER = Poll().encode()  # SEQ 0, SIZE 0, ORDER NONE, no image data
 HELLO_POLL = bytes((_NO_ORDER[0] | HELLO_BIT,)) + _NO_ORDER[1:]  # a HELLO before its CHALLENGE
-HELLO_FRAME_BYTES = OVERHEAD + HELLO_PAYLOAD + CHALLENGE_BYTES + TAG_BYTES
-SYNC_FRAME_BYTES = OVERHEAD + SYNC_PAYLOAD + NONCE_BYTES + TAG_BYTES
+HELLO_FRAME_BYTES = V2_OVERHEAD + HELLO_PAYLOAD + CHALLENGE_BYTES + TAG_BYTES
+SYNC_FRAME_BYTES = V2_OVERHEAD + SYNC_PAYLOAD + NONCE_BYTES + TAG_BYTES
 MAX_POLL_LEN = MAX_POLL_PAYLOAD + POLL_EXTRA  # the largest poll (POSITION), or a HELLO (15)
 
 
-def poll_sent_from_frame(frame: bytes, at: float, *, version: str) -> PollSent | None:
+class FrameSizes2(FrameSizes):
+    """Version 2's frame lengths (§8.1) for the master's timeouts and SIZE choice:
+    no CRC, COUNT and TAG on a poll, a reply frame capped by its SIZE class."""
+
+    def poll(self, poll: Poll) -> int:
+        return V2_OVERHEAD + len(poll.encode()) + POLL_EXTRA  # at most: the request may be left out
+
+    def reply(self, size: int) -> int:
+        return reply_frame_cap(size, self.max_frame)
+
+    def reply_without_image(self) -> int:
+        return V2_OVERHEAD + V2_REPLY_STATUS + POSE_BYTES + TAG_BYTES
+
+    def trunk(self, size: int) -> int:
+        return trunk_room(size, self.max_frame, POSE_BYTES, TAG_BYTES, self.velocity_poll())
+
+    def velocity_poll(self) -> int:
+        return V2_OVERHEAD + 1 + 4 + POLL_EXTRA  # the four axes, the request continued
+
+
+def poll_sent_from_frame(frame: bytes, at: float, *, version: str, poll: bytes | None = None) -> PollSent | None:
     """A recorded poll frame as the master said it sent it (a replay has frames,
-    not events; no order ids); None for bytes that are no poll."""
+    not events; no order ids); None for bytes that are no poll.  `poll`: the
+    version 1.1 payload the master made, which a version 2 recording keeps beside
+    its frame (the frame may leave its image request out, §8.1)."""
     contents = frame_contents(frame)
     if version == "2":
+        contents = frame2_contents(frame)
         if contents and contents[0] & HELLO_BIT:
             return PollSent(at, frame, None)
-        contents = contents[:-POLL_EXTRA]
+        if poll is None:
+            return None
+        contents = poll
     try:
         return PollSent(at, frame, Poll.decode(contents))
     except ProtocolError:
@@ -126,10 +174,14 @@ class SecureSlave:
 
     def __init__(self, slave: Slave, key: bytes, *, boot: bytes | None = None) -> None:
         self.slave = slave
-        # A reply's frame holds the tag too (§8: SIZE 3 is 235 bytes in version 2,
-        # and a link's maximum frame size counts the tag).
+        # §8.1: a SIZE class caps the reply frame, tag and pose included, and so
+        # does the link's maximum frame size.
         _check_max_frame(slave.max_frame)
-        slave.max_frame = min(slave.max_frame, MAX_FRAME) - REPLY_EXTRA
+        self.max_frame = min(slave.max_frame, V2_MAX_FRAME)
+        self._pose_bytes = POSE_BYTES  # the pose of the reply being made
+        self._poll_frame = MIN_POLL_FRAME  # the frame of the poll it answers
+        slave.trunk_room = lambda size: trunk_room(size, self.max_frame, self._pose_bytes, TAG_BYTES,
+                                                   self._poll_frame)
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=MAX_POLL_LEN)
 
@@ -162,13 +214,27 @@ class SecureSlave:
             if got is None and self.chain.counters.bad_hellos != bad_hellos:
                 self.slave.stats.protocol_errors += 1  # a HELLO with an order: authentic, not answered
             elif isinstance(got, HelloIn):
-                replies.append(self.chain.seal_sync(self._sync_payload(), got, now))
+                sync = self._sync_payload()
+                replies.append(self.chain.seal_sync(sync, got, now, info=(NO_CONTINUATION, pose_of(sync), None)))
             elif isinstance(got, PollIn):
-                one = self.slave.receive(got.payload, now)
+                continuation, reference, wish = got.info if got.info is not None else (NO_CONTINUATION, None, None)
+                try:
+                    poll = poll_from_wire(got.payload, continuation, wish)
+                except ProtocolError:
+                    self.slave.stats.protocol_errors += 1  # authentic, no layout: never answered, not taken
+                    continue
+                s = self.slave.status
+                self._poll_frame = V2_OVERHEAD + len(contents)
+                self._pose_bytes = pose_wire_bytes(
+                    (s.x_cm, s.y_cm, s.z_cm, s.roll_cdeg, s.pitch_cdeg, s.yaw_cdeg), reference)
+                one = self.slave.receive(poll, now)
                 out.events.extend(one.events)
                 if one.reply:  # it parsed: the poll is taken
                     self.chain.take(got, now)
-                    replies.append(self.chain.seal_reply(frame_contents(one.reply), got, now))
+                    reply = frame_contents(one.reply)
+                    replies.append(self.chain.seal_reply(
+                        reply_to_wire(reply, reference), got, now,
+                        info=(continuation_of(reply, poll), pose_of(reply), wish_of(poll))))
             else:
                 out.events.append(InauthenticFrame("poll"))
         out.events.extend(InauthenticFrame("poll") for _ in range(self.decoder.counters.inauthentic - before))
@@ -184,12 +250,13 @@ class SecureMaster:
 
     def __init__(self, master: Master, key: bytes) -> None:
         self.master = master
-        master.margin_s += master.tx_time(POLL_EXTRA + REPLY_EXTRA)
-        # §8: the link's maximum frame size counts the tag, so the trunks the
-        # slave sends are 4 bytes shorter (SIZE 3: 235 bytes).
+        # §8.1: version 2's frames, for the master's timeouts and SIZE choice.
         _check_max_frame(master.max_frame)
-        master.max_frame = min(master.max_frame, MAX_FRAME) - REPLY_EXTRA
+        master.sizes = FrameSizes2(min(master.max_frame, V2_MAX_FRAME))
+        master.repeat_by_none = True
+        master.quick_after_loss = True
         self.chain = OperatorChain(key)
+        self.rov_failsafe_s = FAILSAFE_S  # the ROV's failsafe time (its setting; the console may know it)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=self._max_reply_len)
         self.stats2 = SecureStats()
         self._hello_deadline: float | None = None  # a HELLO holds the token until then
@@ -197,6 +264,12 @@ class SecureMaster:
         self._events: list[object] = []
         self._last_size = 3
         self._boot: bytes | None = None
+        # §8.1: what the reply (or SYNC) the next poll is chained to leaves for
+        # it: where the picture continues (None: unknown, so the request is
+        # always sent) and the pose the next reply's differences start from.
+        self._continuation: tuple[int, int] | None = NO_CONTINUATION
+        self._reference: Pose | None = None
+        self._sent: dict[int, tuple[bytes, Pose | None]] = {}  # poll number -> (1.1 payload, reference)
         # Called with (payload, sync, now) for every authentic, timely reply
         # handed to the master: what a recording must keep to be replayed.
         self.on_reply = None
@@ -245,6 +318,9 @@ class SecureMaster:
     def reply_frame_bytes(self, size: int) -> int:
         return self.master.reply_frame_bytes(size)
 
+    def trunk_bytes(self, size: int) -> int:
+        return self.master.trunk_bytes(size)
+
     # -- timing -------------------------------------------------------------
 
     def hello_timeout(self) -> float:
@@ -253,7 +329,7 @@ class SecureMaster:
 
     def _poll_timeout(self) -> float:
         m = self.master
-        return m.timeout_for(OVERHEAD + MAX_POLL_PAYLOAD + POLL_EXTRA, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA)
+        return m.timeout_for(V2_OVERHEAD + MAX_POLL_PAYLOAD + POLL_EXTRA, m.reply_frame_bytes(self._last_size))
 
     def deadline(self) -> float | None:
         if self._hello_deadline is not None:
@@ -261,12 +337,16 @@ class SecureMaster:
         return self.master.deadline()
 
     def _silent_too_long(self, now: float) -> bool:
+        """§8.1: no authentic reply for so long that the ROV may no longer keep the
+        chain value the polls are made on (twice its failsafe time, less two poll
+        timeouts), or may have restarted: HELLOs then alternate with polls."""
         heard = self.chain.last_authentic_at
-        return heard is not None and now - heard > max(2.0, 2 * self._poll_timeout())
+        silent = max(2.0, KEEP_FAILSAFES * self.rov_failsafe_s - 2 * self._poll_timeout())
+        return heard is not None and now - heard > silent
 
     def _max_reply_len(self) -> int:
         m = self.master
-        return max(SYNC_FRAME_BYTES, m.reply_frame_bytes(self._last_size) + REPLY_EXTRA) - OVERHEAD
+        return max(SYNC_FRAME_BYTES, m.reply_frame_bytes(self._last_size)) - V2_OVERHEAD
 
     # -- sending -----------------------------------------------------------
 
@@ -293,7 +373,10 @@ class SecureMaster:
         self._last_was_hello = False
         payload = frame_contents(frame)
         self._last_size = Poll.decode_header(payload)[1]
-        sealed = self.chain.seal_poll(payload, now, deadline=self.master.deadline())
+        number = self.chain.next_number
+        sealed = self.chain.seal_poll(poll_to_wire(payload, self._continuation), now, deadline=self.master.deadline())
+        self._sent[number] = (payload, self._reference)
+        self._sent.pop(number - 16, None)
         # The master said what it sent: the frame that left is the sealed one.
         self._events.extend(dataclasses.replace(e, frame=sealed) if isinstance(e, PollSent) else e
                             for e in self.master.take_events())
@@ -304,6 +387,17 @@ class SecureMaster:
         return events + self.master.take_events()
 
     # -- receiving ---------------------------------------------------------
+
+    def _parse(self, payload: bytes, sync: bool, answers: int) -> tuple[bytes, tuple[int, int], Pose]:
+        """A timely reply's version 1.1 payload, and what it leaves for the next poll (§8.1)."""
+        if sync:
+            return payload, NO_CONTINUATION, pose_of(payload)
+        sent = self._sent.get(answers)
+        if sent is None:
+            raise ProtocolError("a reply to a poll no longer kept")
+        poll, reference = sent
+        reply, pose = reply_from_wire(payload, request_of(poll), reference)
+        return reply, continuation_of(reply, poll), pose
 
     def receive_bytes(self, data: bytes, now: float) -> list[object]:
         self.master.stats.bytes_received += len(data)
@@ -321,17 +415,21 @@ class SecureMaster:
         answers: only an answer to the last one sent, within that frame's own
         deadline, reaches the master (a SYNC as a SYNC, never as the answer
         to a poll); anything else is late and confirms nothing."""
-        got = self.chain.open_reply(contents, now)
+        got = self.chain.open_reply(contents, now, self._parse)
         if got is None:
             self.stats2.inauthentic += 1
             return [InauthenticFrame("reply")]
         if got.late:
             self.stats2.late += 1
             return [LateReply(got.sync)]
+        if got.malformed:
+            self.master.stats.protocol_errors += 1  # authentic, but no reply: counted, its poll unanswered
+            return self.master.take_events()
+        payload, self._continuation, self._reference = got.parsed  # type: ignore[misc]
         if self.on_reply is not None:
-            self.on_reply(got.payload, got.sync, now)
+            self.on_reply(payload, got.sync, now)
         if not got.sync:
-            return self.master.receive(got.payload, now)
+            return self.master.receive(payload, now)
         self._hello_deadline = None  # the HELLO is answered: the token is ours
         first = self.stats2.syncs == 0
         restarted = not first and got.boot != self._boot

@@ -258,6 +258,9 @@ class Slave:
         self.autopilot_wait_s = autopilot_wait_s
         self.max_frame = min(max_frame, MAX_FRAME)
         self.trunk_cap = trunk_cap
+        # SIZE -> trunk bytes; None: version 1.1's classes within max_frame
+        # (version 2 sizes its trunks itself: link.secure).
+        self.trunk_room: Callable[[int], int] | None = None
         self.settings = default_settings or ImageSettings(mono=True, budget_bytes=2000)
         self.ack = 0
         self.rejected = False  # REJECTED/REASON describe the order named by ACK
@@ -566,12 +569,17 @@ class Slave:
         obj = self._held_object
         if obj is None:
             return None, None, b""  # still encoding: answer without image data
+        if self.trunk_room is not None:
+            limit = self.trunk_room(size)
+        else:
+            limit = min(SIZE_CLASS_BYTES[size], self.max_frame - OVERHEAD - REPLY_IMAGE_HEADER)
+        if limit <= 0:
+            return None, None, b""  # no room in this reply (a version 2 pose that filled it)
         if self._fresh:
             offset = 0
             self._fresh = False
         if offset >= len(obj):
             return None, None, b""
-        limit = min(SIZE_CLASS_BYTES[size], self.max_frame - OVERHEAD - REPLY_IMAGE_HEADER)
         if self.trunk_cap is not None:
             limit = min(limit, self.trunk_cap)
         trunk = obj[offset : offset + limit]

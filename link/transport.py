@@ -16,6 +16,9 @@ Plan: `open_transport(url)` parses a URL and returns an `Endpoint`:
                                         with CR LF (S100); mtu caps the frame
                                         size the protocol may use
     inproc://NAME                       two in-process ends with the same NAME
+    wlmodem:///dev/ttyUSB0?role=a&channel=4
+                                        a Water Linked Modem-M64 (link/wlmodem.py):
+                                        8-byte packets, 64 bit/s (the acoustic profile)
 `Endpoint.start()` opens it under a supervisor task; `send(data)` writes a
 frame (never blocks); `await recv()` returns the next chunk of bytes.
 """
@@ -405,6 +408,10 @@ def inproc_pair(name: str = "pair", **kw) -> tuple[InprocEndpoint, InprocEndpoin
 def open_transport(url: str) -> Endpoint:
     """Parse a transport URL; raises TransportError saying what is wrong."""
     parts = urlsplit(url)
+    if parts.scheme == "wlmodem":  # it reads its own options (role, channel, baud, diag)
+        from .wlmodem import open_wlmodem
+
+        return open_wlmodem(url)
     query = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
     common: dict = {}
     if "mtu" in query:
@@ -446,7 +453,7 @@ def open_transport(url: str) -> Endpoint:
             ep.peer, ends[0].peer = ends[0], ep
         ends.append(ep)
         return ep
-    raise TransportError(f"unknown transport {parts.scheme!r} in {url!r}: use udp://, serial:// or inproc://")
+    raise TransportError(f"unknown transport {parts.scheme!r} in {url!r}: use udp://, serial://, wlmodem:// or inproc://")
 
 
 def _no_extra(query: dict, url: str) -> None:

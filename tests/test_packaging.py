@@ -84,7 +84,7 @@ def test_the_base_requirements_leave_the_console_extra_out(wheel):
             base.add(req.name.lower())
         elif req.marker.evaluate({"extra": "console"}):
             console.add(req.name.lower())
-    assert base == {"numpy", "numba", "pyserial", "pymavlink", "pillow"}
+    assert base == {"numpy", "numba", "pyserial", "pymavlink", "pillow", "wlmodem"}
     assert console == CONSOLE_EXTRA
     assert "console" in meta.get_all("Provides-Extra")
 

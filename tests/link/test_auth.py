@@ -23,14 +23,28 @@ from rovlink.link.auth import (
 )
 
 K = bytes(range(32))
-HELLO = "55 0f 40 1f ff 01 02 03 04 05 06 07 08 b9 6b 8d 9f aa c2"
-SYNC = "55 1e 01 00 00 00 00 00 00 00 00 00 00 00 00 81 12 34 56 78 9a bc de f0 11 22 33 44 e9 7f 89 c4 54 84"
-POLL = "55 0d 21 00 00 41 32 00 ec 0a 00 78 48 6e 1b b7 bb"
-REPLY = "55 12 01 00 00 00 00 00 00 00 00 00 00 00 00 b0 37 f8 51 72 a5 40"
+# §8's vectors (with §8.1's bytes): a HELLO, its SYNC, then three polls and their
+# replies: a poll that says its image request (none follows a SYNC) and a reply
+# whose pose is six differences; a VELOCITY without ARM/MODE continuing the
+# picture and a FIRST trunk; a NONE poll that repeats that wish and continues,
+# and a reply whose pose is whole (its differences would be longer).
+HELLO = "55 0f 40 1f ff 01 02 03 04 05 06 07 08 b9 6b 8d 9f"
+SYNC = "55 1e 01 00 00 00 00 00 00 00 00 00 00 00 00 81 12 34 56 78 9a bc de f0 11 22 33 44 e9 7f 89 c4"
+POLL = "55 0d 21 00 00 41 32 00 ec 0a 00 78 48 6e 1b"
+REPLY = "55 0c 01 b1 00 00 00 00 00 00 5c 23 da 64"
+POLL2 = "55 0a 01 32 00 ec 0a 01 8f e2 1f 06"
+REPLY2 = "55 12 91 b1 14 05 04 0a 0d f0 01 00 05 61 62 63 25 8c 2e 02"
+POLL3 = "55 06 00 02 db 2b ab e3"
+REPLY3 = "55 14 51 b0 04 e2 fe d4 01 c2 00 96 ff 24 23 28 64 65 09 5a cf a9"
+FRAMES = [HELLO, SYNC, POLL, REPLY, POLL2, REPLY2, POLL3, REPLY3]
 CHAINS = ["b96b8d9fbc458dfba83713417e76d1a1a89fa90a8b3d362c094195444064981f",
           "e97f89c42a589677a98501ca4be290aa9338c0d0963ce4057a20f1b153c52bd9",
           "78486e1b471099dce51b8d157c794ae19f950e43c54801e7b1326eb4d47302f1",
-          "37f85172bbe871d3260a2f81b673f1bd08d83f93cebef772d78b12668aa15486"]
+          "5c23da64f2512e78313d016e76326d8bb8c6f79e21e8402766da107c5ce30563",
+          "8fe21f06c3de4b604d133b5e392f76e7fe500b6343ad86a9b540ebf27369b363",
+          "258c2e024d68bc2663b48a6c238acfe37ba74bcb86dbc4eeb455d6879976b8bb",
+          "db2babe3439401c10e1dd0553cd5dd7e6bee08b92594606df0449a75353c55f7",
+          "095acfa971f7e0bc5bd6b5744c0718683481616cb7237368ca56e7b254fbc371"]
 VELOCITY_PAYLOAD = bytes.fromhex("21000041320 0ec0a".replace(" ", ""))
 REPLY_PAYLOAD = bytes.fromhex("01" + "00" * 12 + "b0")
 SYNC_PAYLOAD = bytes.fromhex("01" + "00" * 12 + "81")
@@ -41,7 +55,7 @@ def wire(text: str) -> bytes:
 
 
 def contents(frame: bytes) -> bytes:
-    return frame[2:-2]
+    return frame[2:]  # version 2 has no CRC (§8.1)
 
 
 def scripted(*chunks: bytes):
@@ -57,26 +71,62 @@ def scripted(*chunks: bytes):
 
 
 def test_the_section_8_vectors_byte_for_byte():
+    """Both ends, from the text: the chain seals and checks the frames, and §8.1's
+    translation makes each version 2 payload from the version 1.1 one and back."""
+    import struct
+
+    from rovlink.link.wire2 import (
+        NO_CONTINUATION,
+        continuation_of,
+        poll_from_wire,
+        poll_to_wire,
+        pose_of,
+        reply_from_wire,
+        reply_to_wire,
+        request_of,
+        wish_of,
+    )
+
     op = OperatorChain(K, count=0)
     rov = RovChain(K, boot=wire("12 34 56 78"), random_bytes=scripted(wire("9a bc de f0 11 22 33 44")))
     hello = op.seal_hello(wire("40 1f ff"), 0.0, challenge=wire("01 02 03 04 05 06 07 08"))
-    assert hello == wire(HELLO)
     got = rov.check_poll(contents(hello), 0.0)
-    assert isinstance(got, HelloIn) and got.chain.hex() == CHAINS[0]
-    sync = rov.seal_sync(SYNC_PAYLOAD, got, 0.01)
-    assert sync == wire(SYNC)
+    assert isinstance(got, HelloIn)
+    sent, chains = [hello], [got.chain]
+    sync = rov.seal_sync(SYNC_PAYLOAD, got, 0.01, info=(NO_CONTINUATION, pose_of(SYNC_PAYLOAD), None))
     answer = op.open_reply(contents(sync), 0.02)
     assert answer.sync and not answer.late and answer.boot == wire("12 34 56 78")
-    assert op.chain_to.hex() == CHAINS[1]
-    poll = op.seal_poll(VELOCITY_PAYLOAD, 0.03)
-    assert poll == wire(POLL)
-    taken = rov.check_poll(contents(poll), 0.04)
-    assert isinstance(taken, PollIn) and taken.payload == VELOCITY_PAYLOAD and taken.chain.hex() == CHAINS[2]
-    rov.take(taken, 0.04)
-    reply = rov.seal_reply(REPLY_PAYLOAD, taken, 0.05)
-    assert reply == wire(REPLY)
-    answer = op.open_reply(contents(reply), 0.06)
-    assert answer.payload == REPLY_PAYLOAD and not answer.late and op.chain_to.hex() == CHAINS[3]
+    sent.append(sync)
+    chains.append(op.chain_to)
+    # (version 1.1 poll the operator's master made, what the ROV's slave gets, its reply)
+    exchanges = [
+        (VELOCITY_PAYLOAD, VELOCITY_PAYLOAD, REPLY_PAYLOAD),
+        (wire("01 00 00 00 32 00 ec 0a"), wire("01 00 00 00 32 00 ec 0a"),
+         wire("91 000a fffd 0002 0005 fff9 0078 b0 0000 0005616263")),
+        (wire("00 00 05"), wire("01 00 05 00 32 00 ec 0a"),  # NONE: the chained reply's wish again
+         bytes([0x51]) + struct.pack(">hhhhhh", 1250, -300, 450, 150, -220, 9000) + wire("b0 0005 6465")),
+    ]
+    continuation, reference = NO_CONTINUATION, pose_of(SYNC_PAYLOAD)
+    t = 0.03
+    for poll11, slave_gets, reply11 in exchanges:
+        poll = op.seal_poll(poll_to_wire(poll11, continuation), t)
+        taken = rov.check_poll(contents(poll), t)
+        assert isinstance(taken, PollIn)
+        kept_continuation, kept_pose, kept_wish = taken.info
+        assert poll_from_wire(taken.payload, kept_continuation, kept_wish) == slave_gets
+        rov.take(taken, t)
+        reply = rov.seal_reply(reply_to_wire(reply11, kept_pose), taken, t,
+                               info=(continuation_of(reply11, slave_gets), pose_of(reply11), wish_of(slave_gets)))
+        answer = op.open_reply(contents(reply), t + 0.01)
+        assert not answer.late
+        back, reference = reply_from_wire(answer.payload, request_of(poll11), reference)
+        assert back == reply11 and reference == pose_of(reply11)
+        continuation = continuation_of(reply11, poll11)
+        sent += [poll, reply]
+        chains += [taken.chain, op.chain_to]
+        t += 0.1
+    assert [f.hex(" ") for f in sent] == FRAMES
+    assert [c.hex() for c in chains] == CHAINS
 
 
 def test_a_mac_is_blake2s_of_kind_prev_and_data():
