@@ -59,19 +59,26 @@ class LinkHealth:
             self._crc_seen = total
 
     def inauthentic(self, t: float) -> None:
-        """A forged or replayed frame: counted; more than a few in a while is an alert."""
+        """A frame whose tag did not hold: counted.  Version 2 has no CRC (§8.1), so
+        noise and forgery look alike; more than a few while no reply comes is an
+        alert (the wrong key, another operator's link, a forger, or noise enough to
+        lose the link)."""
         self.inauthentic_frames += 1
         self.event(t, "forged")
         recent = self.auth_recent(t)
-        if recent > AUTH_ALERT_COUNT and (self._auth_alerted_at is None
-                                          or t - self._auth_alerted_at > AUTH_ALERT_WINDOW_S):
+        if self._auth_alert(t) and (self._auth_alerted_at is None
+                                    or t - self._auth_alerted_at > AUTH_ALERT_WINDOW_S):
             self._auth_alerted_at = t
-            self._note(f"ALERT: {recent} inauthentic frames in {AUTH_ALERT_WINDOW_S:g} s "
-                       f"(forged or replayed replies on the link)", "alert")
+            self._note(f"ALERT: {recent} frames failed authentication in {AUTH_ALERT_WINDOW_S:g} s and no reply "
+                       f"came (another key or operator on the link, a forger, or heavy noise)", "alert")
 
     def auth_recent(self, t: float) -> int:
         return sum(1 for e in list(self._history.link_events)[-300:]
                    if e[1] == "forged" and t - e[0] <= AUTH_ALERT_WINDOW_S)
+
+    def _auth_alert(self, t: float) -> bool:
+        replied = self.reply_at is not None and t - self.reply_at <= AUTH_ALERT_WINDOW_S
+        return not replied and self.auth_recent(t) > AUTH_ALERT_COUNT
 
     # -- the condition ----------------------------------------------------
 
@@ -131,7 +138,7 @@ class LinkHealth:
             "bytes_per_s": sum(e[2] for e in recent) / span,
             "inauthentic_frames": self.inauthentic_frames,
             "late_replies": self.late_replies,
-            "auth_alert": self.auth_recent(t) > AUTH_ALERT_COUNT,
+            "auth_alert": self._auth_alert(t),
             # Up means replies arrive, not that polls leave.
             "link_up": state in ("up", "degraded"),
         }

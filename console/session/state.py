@@ -117,9 +117,9 @@ class LinkState(BaseModel):
     images_completed: int
     images_abandoned: int
     version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated')
-    inauthentic_frames: int = Field(0, description="forged or replayed frames dropped (protocol 2)")
+    inauthentic_frames: int = Field(0, description="frames whose tag did not hold, dropped (protocol 2: noise or forgery)")
     late_replies: int = Field(0, description="authentic replies that came too late (protocol 2)")
-    auth_alert: bool = Field(False, description="more than 3 inauthentic frames in the last 10 s")
+    auth_alert: bool = Field(False, description="more than 3 frames failed authentication in the last 10 s, and no reply came")
     link_up: bool = Field(description="replies arrive (state up or degraded)")
     transport_up: bool
 

@@ -292,6 +292,22 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
     assert not operator.link_state()["auth_alert"]
 
 
+def test_frames_failing_their_tag_while_replies_come_are_counted_not_alerted(operator, clock):
+    """Version 2 has no CRC (§8.1): a reply hit by noise fails its tag like a forged one.
+    While replies keep coming that is a noisy link (counted, shown), not an alert."""
+    from rovlink.link.master import PoseReceived
+    from rovlink.link.messages import Reply
+    from rovlink.link.secure import InauthenticFrame
+
+    for _ in range(8):
+        operator.handle_events([PoseReceived(Reply(autopilot=True), operator.now(), 0.4), InauthenticFrame("reply")],
+                               operator.now())
+        clock.t += 1.0
+    link = operator.link_state()
+    assert link["inauthentic_frames"] == 8 and not link["auth_alert"]
+    assert not any("ALERT" in line.text for line in operator.history.log)
+
+
 def test_the_shared_target_says_sent_whoever_sent_it(operator, clock):
     desk = ControlDesk(operator, clock=clock)
     pilot = desk.connect("pilot", scene_key=KEY)
