@@ -436,7 +436,7 @@ class ControlPanel:
             f"| since reply | {fmt(s['since_reply_s'], '.1f', ' s')} |\n"
             f"| round trip | {fmt(s['round_trip_s'] and s['round_trip_s'] * 1000, '.0f', ' ms')} |\n"
             f"| replies lost | {s['replies_lost']} of {s['polls_sent']} |\n"
-            f"| CRC errors | {s['crc_errors']} |\n"
+            f"| bad frames | {s['crc_errors']} |\n"
             f"| traffic | {fmt(s['bytes_per_s'], '.0f', ' B/s')} |\n"
             f"| images | {s['images_completed']} done, {s['images_abandoned']} abandoned |\n\n"
             + " · ".join(flags))

@@ -385,7 +385,7 @@ function render(s) {
   $("link-version").textContent = secure ? "2, authenticated" : "1.1, INSECURE (no key)";
   $("link-version").classList.toggle("insecure", !secure);
   $("link-auth").textContent = `${l.inauthentic_frames ?? 0} / ${l.late_replies ?? 0}`;
-  if (l.auth_alert && !page.authAlert) showError("ALERT: forged or replayed replies on the link");
+  if (l.auth_alert && !page.authAlert) showError("ALERT: frames fail authentication and no reply comes (another key or operator, a forger, or heavy noise)");
   page.authAlert = !!l.auth_alert;
   $("link-bps").textContent = `${fmt(l.bytes_per_s, 0)} B/s`;
   $("link-odo-age").textContent = l.odometry_age_s === null ? "—" : `${fmt(l.odometry_age_s, 2)} s`;
