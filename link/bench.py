@@ -238,6 +238,9 @@ def _plots(out_dir: str, sessions: dict[str, Session]) -> list[str]:
 
 
 def run(args) -> int:
+    if args.profile == "acoustic":
+        from rovlink.link.acoustic_bench import run as run_acoustic
+        return run_acoustic(args)
     floor_s = 8 * OBJECT_BYTES / args.bitrate
     rows = []
     results = []
@@ -390,6 +393,8 @@ def add_parser(subparsers) -> None:
         description=__doc__.split("\n\n")[0] if __doc__ else None,
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.add_argument("--profile", choices=("radio", "acoustic"), default="radio",
+                   help="radio (default): the paper's link; acoustic: docs/PROTOCOL.md §9 over the Modem-M64 emulator")
     p.add_argument("--duration", type=float, default=900.0, metavar="S", help="simulated seconds per session (900)")
     p.add_argument("--loss-duration", type=float, default=3600.0, metavar="S",
                    help="simulated seconds per steering session under loss (3600)")

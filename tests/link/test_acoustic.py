@@ -1,0 +1,384 @@
+"""The acoustic profile (docs/PROTOCOL.md §9): its vectors byte for byte at both
+ends, and sessions over the emulated Modem-M64 in simulated time."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rovlink.link import acoustic as ac
+from rovlink.link.acoustic_sim import AcousticSim, fixed_camera
+from rovlink.link.messages import Mode
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
+K = bytes(range(32))
+CHALLENGE = bytes.fromhex("01020304")
+BOOT = bytes.fromhex("12345678")
+NONCE = bytes.fromhex("9abcdef0")
+S = CHALLENGE + BOOT + NONCE
+OBJECT = bytes.fromhex("00056162636465")  # [N = 5] "abcde"
+
+
+def _up(ctr, kind, body):
+    return b"".join(ac.seal_control(K, ac.LABEL_UP, S, ctr, kind, body))
+
+
+def _down(ctr, kind, body):
+    return b"".join(ac.seal_control(K, ac.LABEL_DOWN, S, ctr, kind, body))
+
+
+STATUS0 = ac.Status(x_dm=125, y_dm=-30, z_dm=45, heading_cdeg=9000, armed=True, hold=True, position_valid=True,
+                    attitude_valid=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, battery_dv=158)
+STATUS17 = ac.Status(hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE, stop_no2=1, oid=3)
+GOTO = ac.GoTo(2, 125, -30, 45, -9000, yaw_set=True)
+THUMB = ac.ThumbRequest(3, budget=198, roi=(20, 15, 60, 45), shift=4, mono=True)
+
+
+def vectors() -> list[bytes]:
+    """§9's table, in its order."""
+    return [
+        ac.seal_hello(K, CHALLENGE),
+        b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, ac.FAILSAFE_HOLD))),
+        _down(0, ac.DOWN_STATUS, STATUS0.encode()),
+        _up(0, ac.UP_POLL, ac.Poll(1, 3, False, 0b011 << 21).encode()),
+        _up(1, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode()),
+        _up(2, ac.UP_GOTO, GOTO.encode()),
+        _up(3, ac.UP_THUMB, THUMB.encode()),
+        _up(4, ac.UP_STOP, ac.StopBody(1, 3).encode()),
+        ac.data_packet(1, 0, OBJECT),
+        _down(1, ac.DOWN_THUMB_END, ac.ThumbEnd(3, ac.object_mac(K, S, 3, OBJECT)).encode()),
+        _down(17, ac.DOWN_STATUS, STATUS17.encode()),
+    ]
+
+
+def _doc_rows() -> list[str]:
+    text = DOC.read_text(encoding="utf-8")
+    start = text.index("\n## 9.")
+    end = text.find("\n## ", start + 1)
+    section = text[start:] if end < 0 else text[start:end]
+    rows = []
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 2 and re.fullmatch(r"`[0-9a-f]{2}( [0-9a-f]{2}){7}(  [0-9a-f]{2}( [0-9a-f]{2}){7})?`", cells[1]):
+            rows.append(cells[1].strip("`").replace("  ", " "))
+    return rows
+
+
+def _chunks(frame: bytes) -> list[bytes]:
+    return [frame[i:i + 8] for i in range(0, len(frame), 8)]
+
+
+def _feeder(values):
+    it = iter(values)
+    return lambda n: next(it)
+
+
+# ---------------------------------------------------------------------------
+# §9's vectors
+# ---------------------------------------------------------------------------
+
+
+def test_section_9_prints_exactly_the_vectors_the_code_makes():
+    assert _doc_rows() == [v.hex(" ") for v in vectors()]
+
+
+def test_the_rov_end_makes_and_takes_the_vectors():
+    v = [bytes.fromhex(r) for r in _doc_rows()]
+    rov = ac.AcousticRov(K, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(ac.VehicleState(12.5, -3.0, 4.5, 90.0, armed=True, mode=Mode.POS_HOLD, position_valid=True,
+                                      attitude_valid=True, autopilot=True, battery_v=15.8))
+    assert rov.tick(0.0) == [ac.Stop(None)]
+    assert rov.receive(v[0], 1.0) == [ac.SessionStarted(CHALLENGE)]
+    assert rov.wants_flush
+    assert rov.next_packet(1.0) + rov.next_packet(2.0) == v[1]
+    assert rov.next_packet(3.0) + rov.next_packet(4.0) == v[1]  # the SYNC again, until a frame of its session comes
+    assert rov.receive(v[3], 5.0) == []
+    assert rov.next_packet(5.0) + rov.next_packet(6.0) == v[2]
+    assert rov.receive(v[4], 6.0) == [ac.Arm(1)]
+    rov.order_outcome(1, ac.R_DONE)
+    events = []
+    for i, p in enumerate(_chunks(v[5]) + _chunks(v[6])):
+        events += rov.receive(p, 7.0 + i)
+    assert events == [ac.GoToWanted(2, GOTO), ac.ThumbnailWanted(3, THUMB)]
+    assert rov.receive(v[7], 11.0) == [ac.Stop(1, True)]
+    assert rov.last_oid == 3 and rov.hold and rov.counters.frames_taken == 5
+
+
+def test_the_operator_end_makes_and_takes_the_vectors():
+    v = [bytes.fromhex(r) for r in _doc_rows()]
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    assert op.next_packet(0.0) == v[0]
+    events = []
+    for i, p in enumerate(_chunks(v[1]) + _chunks(v[2])):
+        events += op.receive(p, 5.0 + i)
+    assert events[0] == ac.Synced(BOOT, False, 60, ac.FAILSAFE_HOLD)
+    assert events[1] == ac.StatusReceived(STATUS0, 8.0 - ac.STATUS_TRANSIT_S, 0)
+    assert op.ready and op.next_packet(9.0) == _up(0, ac.UP_POLL, ac.Poll().encode())  # nothing wanted yet
+    assert op.send_order(ac.Order(0, ac.OP_ARM), 9.0) == 1
+    assert op.next_packet(10.0) == v[4]
+    # The operator's own THUMB request 3, and the ROV's answer from the table.
+    op.thumb = ac._Wanted(3)
+    got = op.receive(v[8], 12.0) + op.receive(v[9], 13.0)
+    assert got == [ac.ThumbnailProgress(3, OBJECT), ac.ThumbnailComplete(3, OBJECT)]
+    assert op.rx_last == 1
+    got = op.receive(v[10][:8], 14.0) + op.receive(v[10][8:], 15.0)  # frames 2..16 lost: 17 is in the window
+    assert got == [ac.StatusReceived(STATUS17, 15.0 - ac.STATUS_TRANSIT_S, 17),
+                   ac.OrderFate(1, "unknown", "the ROV moved past it before reporting it")]  # our ARM: passed by OID 3
+    assert op.counters.inauthentic == 0
+
+
+# ---------------------------------------------------------------------------
+# Packets
+# ---------------------------------------------------------------------------
+
+u8 = st.integers(0, 255)
+i16 = st.integers(-32768, 32767)
+BODIES = st.one_of(
+    st.builds(ac.Poll, st.integers(0, 1), st.integers(0, 63), st.booleans(), st.integers(0, 2**24 - 1)),
+    st.builds(ac.StopBody, u8, u8),
+    st.builds(ac.Order, u8, u8, st.integers(0, 65535)),
+    st.builds(ac.GoTo, u8, i16, i16, i16, i16, st.booleans(), st.booleans(), st.booleans()),
+    st.builds(ac.ThumbRequest, u8, st.integers(0, 65535), st.tuples(u8, u8, u8, u8), st.integers(0, 15),
+              st.booleans()),
+    st.builds(ac.Status, i16, i16, i16, st.integers(0, 35999), *[st.booleans()] * 8, st.integers(0, 7),
+              st.integers(0, 7), st.integers(0, 3), u8, u8),
+    st.builds(ac.ThumbEnd, u8, st.binary(min_size=3, max_size=3)),
+)
+KINDS = {ac.Poll: (ac.UP_POLL, True), ac.StopBody: (ac.UP_STOP, True), ac.Order: (ac.UP_ORDER, True),
+         ac.GoTo: (ac.UP_GOTO, True), ac.ThumbRequest: (ac.UP_THUMB, True), ac.Status: (ac.DOWN_STATUS, False),
+         ac.ThumbEnd: (ac.DOWN_THUMB_END, False)}
+
+
+@settings(max_examples=150, deadline=None)
+@given(body=BODIES, ctr=st.integers(0, 40))
+def test_every_control_kind_round_trips_through_the_receiving_machine(body, ctr):
+    kind, up = KINDS[type(body)]
+    raw = body.encode()
+    assert len(raw) in (ac.SHORT_BODY, ac.LONG_BODY) and type(body).decode(raw) == body
+    label = ac.LABEL_UP if up else ac.LABEL_DOWN
+    packets = ac.seal_control(K, label, S, ctr, kind, raw)
+    assert len(packets) == (ac.UP_PACKETS if up else ac.DOWN_PACKETS)[kind]
+    end = ac.AcousticRov(K, boot=BOOT) if up else ac.AcousticOperator(K)
+    end.session, end.rx_last = S, max(-1, ctr - 16)
+    for p in packets:
+        end.receive(p, 1.0)
+    assert end.rx_last == ctr and end.counters.frames_taken == 1
+
+
+@settings(max_examples=100, deadline=None)
+@given(t=st.integers(0, 1), idx=st.integers(0, 62), chunk=st.binary(min_size=7, max_size=7))
+def test_data_packets_round_trip(t, idx, chunk):
+    p = ac.data_packet(t, idx, chunk)
+    assert len(p) == 8 and any(p) and p[0] >> 6 & 1 == t and p[0] & 63 == idx and p[1:] == chunk
+
+
+@settings(max_examples=200, deadline=None)
+@given(junk=st.lists(st.binary(min_size=0, max_size=20), max_size=30))
+def test_bad_packets_are_counted_and_ignored_never_a_crash(junk):
+    rov, op = ac.AcousticRov(K, boot=BOOT), ac.AcousticOperator(K)
+    op.thumb = ac._Wanted(1)
+    for end in (rov, op):
+        end.session = S
+        for i, p in enumerate(junk):
+            end.receive(p, float(i))
+        assert end.rx_last == -1 or end.counters.frames_taken  # nothing taken without a tag
+        c = end.counters
+        assert c.bad_size == sum(len(p) != 8 for p in junk)
+
+
+def test_wrong_sizes_all_zero_and_garbage_are_counted():
+    rov = ac.AcousticRov(K, boot=BOOT)
+    rov.session = S
+    for p in (b"", b"\x10" * 7, b"\x10" * 9, bytes(8), b"\x90" + bytes(7), b"\x70" + bytes(7), b"\x30garbage"[:8]):
+        assert rov.receive(p, 0.0) == []
+    c = rov.counters
+    assert (c.bad_size, c.all_zero, c.bad_kind, c.inauthentic, c.frames_taken) == (3, 1, 2, 1, 0)
+
+
+def test_no_packet_handed_to_the_modem_is_all_zero_or_of_another_size():
+    sim = _synced(seed=3)
+    sim.order(ac.ThumbRequest(0))
+    sim.run_until(sim.now + 60)
+    for side in "ab":
+        assert sim.handed[side] and all(len(p) == 8 and any(p) for _, p in sim.handed[side])
+
+
+# ---------------------------------------------------------------------------
+# Sessions over the emulated M64
+# ---------------------------------------------------------------------------
+
+
+def _synced(seed=1, **kw) -> AcousticSim:
+    kw.setdefault("camera", fixed_camera(200))
+    sim = AcousticSim(K, seed=seed, **kw)
+    while not sim.operator.ready:
+        sim.run_until(sim.now + 1.0)
+        assert sim.now < 120, "no session"
+    return sim
+
+
+def _fates(sim, oid):
+    return [e.state for _, e in sim.events(ac.OrderFate) if e.oid == oid]
+
+
+def test_a_goto_is_taken_flown_and_done_and_a_stop_is_confirmed():
+    sim = _synced()
+    oid = sim.order(ac.GoTo(0, 50, 0, 0, relative=True))
+    sim.run_until(sim.now + 40)
+    assert _fates(sim, oid) == ["taken", "done"]
+    assert abs(sim.vehicle.x - 5.0) < 1e-6
+    assert [e for _, e in sim.events(ac.GoToWanted, "rov")] == [ac.GoToWanted(oid, ac.GoTo(oid, 50, 0, 0, relative=True))]
+    pressed = sim.now
+    n = sim.stop()
+    sim.run_until(sim.now + 15)
+    (t, confirmed), = sim.events(ac.StopConfirmed)
+    assert confirmed == ac.StopConfirmed(n, pressed) and t - pressed < 8.0
+    assert sim.operator.ready
+
+
+def test_stop_goes_first_ahead_of_an_order_and_a_thumbnail_under_way():
+    sim = _synced(seed=2)
+    sim.order(ac.ThumbRequest(0))
+    sim.run_until(sim.now + 15)  # thumbnail data flowing
+    assert sim.operator.thumb.slots
+    oid = sim.order(ac.GoTo(0, 300, 0, 0, relative=True))
+    sim.run_until(sim.now + 0.3)
+    assert sim.channel.queue_length("a") == 1  # the order waits in the modem
+    pressed = sim.now
+    n = sim.stop()
+    sim.run_until(sim.now + 0.05)
+    handed = [p for t, p in sim.handed["a"] if t >= pressed]
+    assert handed and handed[0][0] >> 4 == ac.UP_STOP  # flushed: the STOP is the next packet on the air
+    sim.run_until(pressed + 20)
+    (t_rov, _), *_ = [(t, e) for t, e in sim.events(ac.Stop, "rov") if e.stop_no == n]
+    assert t_rov - pressed <= 2.6
+    assert sim.events(ac.StopConfirmed)
+    # The order the STOP overtook: cancelled (never taken) or aborted, and never run after the STOP.
+    assert _fates(sim, oid)[-1] in ("cancelled", "aborted")
+    assert all(t < t_rov for t, e in sim.events(ac.GoToWanted, "rov"))
+    assert sim.vehicle.target is None
+
+
+def test_a_thumbnail_is_decoded_and_verified():
+    from rovlink import debt
+
+    sim = _synced(seed=4, camera=None)  # the real camera: an 80x60 grey DEBT picture
+    oid = sim.order(ac.ThumbRequest(0, budget=198))
+    sim.run_until(sim.now + 80)
+    (_, done), = sim.events(ac.ThumbnailComplete)
+    assert done.oid == oid and done.verified and len(done.object) == 200
+    picture = debt.decode(done.object[2:])
+    assert picture.shape == (60, 80)
+    progress = [e for _, e in sim.events(ac.ThumbnailProgress)]
+    assert progress and not any(e.verified for e in progress)
+    assert all(done.object.startswith(e.prefix) for e in progress)
+    assert _fates(sim, oid) == ["taken", "done"]
+
+
+def test_a_forged_thumbnail_byte_fails_verification_is_counted_and_the_thumbnail_comes_again():
+    sim = _synced(seed=5)
+    forged = []
+
+    def tamper(to, packet, now):
+        if to == "a" and packet[0] & 0x80 and packet[0] & 63 == 4 and not forged:
+            forged.append(now)
+            return packet[:3] + bytes([packet[3] ^ 1]) + packet[4:]
+        return packet
+
+    sim.tamper = tamper
+    oid = sim.order(ac.ThumbRequest(0))
+    sim.run_until(sim.now + 150)
+    assert forged
+    assert [e for _, e in sim.events(ac.ThumbnailRejected)] == [ac.ThumbnailRejected(oid)]
+    assert sim.operator.counters.thumbnail_mismatches == 1
+    (_, done), = sim.events(ac.ThumbnailComplete)
+    assert done.object == fixed_camera(200)(None)
+
+
+def test_a_replayed_or_held_back_packet_is_refused():
+    sim = _synced(seed=6)
+    arm = sim.order(ac.Order(0, ac.OP_ARM))
+    sim.run_until(sim.now + 12)
+    assert _fates(sim, arm)[-1] == "done"
+    order_packets = [p for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_ORDER]
+    disarm = sim.order(ac.Order(0, ac.OP_DISARM))
+    sim.run_until(sim.now + 12)
+    assert _fates(sim, disarm)[-1] == "done" and not sim.vehicle.armed
+    rov = sim.rov
+    taken, stale = rov.counters.frames_taken, rov.counters.inauthentic
+    for p in order_packets:  # the ARM, recorded and played again: behind the window
+        assert rov.receive(p, sim.now) == []
+    assert rov.counters.frames_taken == taken and rov.counters.inauthentic == stale + len(order_packets)
+    assert not sim.vehicle.armed
+
+
+def test_a_held_back_frame_is_refused_once_a_newer_one_was_taken():
+    rov = ac.AcousticRov(K, boot=BOOT)
+    rov.session = S
+    older, newer = _up(0, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode()), _up(1, ac.UP_POLL, ac.Poll().encode())
+    rov.update_status(ac.VehicleState(autopilot=True))
+    assert rov.receive(newer, 0.0) == [] and rov.rx_last == 1
+    assert rov.receive(older, 0.1) == [] and rov.counters.inauthentic == 1 and rov.last_oid == 0
+
+
+def test_a_replayed_hello_gets_no_sync():
+    rov = ac.AcousticRov(K, boot=BOOT)
+    hello = ac.seal_hello(K, CHALLENGE)
+    assert rov.receive(hello, 0.0) == [ac.SessionStarted(CHALLENGE)]
+    session = rov.session
+    rov.next_packet(0.0), rov.next_packet(1.0)
+    assert rov.receive(hello, 5.0) == []
+    assert rov.session == session and rov.counters.replayed_hellos == 1
+
+
+def test_a_rov_restart_is_seen_by_its_boot_and_the_pending_order_is_of_unknown_fate():
+    sim = _synced(seed=7)
+    first_boot = sim.rov.boot
+    sim.rov_down = True  # the ROV's process dies ...
+    oid = sim.order(ac.GoTo(0, 50, 0, 0, relative=True))
+    sim.run_until(sim.now + 10)
+    sim.restart_rov()  # ... and starts again
+    sim.rov_down = False
+    sim.run_until(sim.now + 60)
+    synced = [e for _, e in sim.events(ac.Synced)]
+    assert synced[-1].restarted and synced[-1].boot != first_boot
+    assert _fates(sim, oid) == ["unknown"]
+    assert sim.operator.ready  # orders again once the new ROV's STATUS came
+
+
+@pytest.mark.parametrize("action,mode", [(ac.FAILSAFE_HOLD, Mode.POS_HOLD), (ac.FAILSAFE_SURFACE, Mode.SURFACE)])
+def test_failsafe_after_failsafe_s_of_silence_with_the_configured_action(action, mode):
+    sim = _synced(seed=8, failsafe_s=30, failsafe_action=action)
+    synced = [e for _, e in sim.events(ac.Synced)][-1]
+    assert (synced.failsafe_s, synced.failsafe_action) == (30, action)
+    oid = sim.order(ac.GoTo(0, 400, 0, 0, relative=True))
+    sim.run_until(sim.now + 8)
+    silent_from = sim.now
+    sim.tamper = lambda to, p, now: None if to == "b" else p  # the uplink goes silent
+    sim.run_until(sim.now + 45)
+    (t, entered), = sim.events(ac.FailsafeEntered, "rov")
+    assert entered.action == action and 30 - 3 <= t - silent_from <= 30 + 3
+    assert sim.vehicle.mode == mode and sim.vehicle.target is None
+    statuses = [e.status for _, e in sim.events(ac.StatusReceived) if _ > t]
+    assert statuses and statuses[-1].failsafe and statuses[-1].hold
+    assert _fates(sim, oid)[-1] == "aborted"
+    sim.tamper = None
+    sim.run_until(sim.now + 40)
+    assert sim.events(ac.FailsafeCleared, "rov")
+
+
+def test_thirty_percent_loss_still_converges():
+    sim = _synced(seed=9, loss=0.3)
+    oid = sim.order(ac.GoTo(0, 30, 0, 0, relative=True))
+    sim.run_until(sim.now + 90)
+    assert _fates(sim, oid)[-1] == "done"
+    thumb = sim.order(ac.ThumbRequest(0))
+    sim.run_until(sim.now + 300)
+    assert [e.oid for _, e in sim.events(ac.ThumbnailComplete)] == [thumb]
+    n = sim.stop()
+    sim.run_until(sim.now + 60)
+    assert [e.stop_no for _, e in sim.events(ac.StopConfirmed)] == [n]
