@@ -16,7 +16,7 @@ Plan: two sans-I/O machines over the same packet layer.
   queue is empty; flush the modem first when `wants_flush`), `tick(now) ->
   events` (failsafe), `update_status(VehicleState)`, `order_outcome(oid,
   result)`, `thumbnail_ready(oid, object)`.  Events: `Stop`, `Hold`,
-  `Surface`, `Arm`, `Disarm`, `SetMode`, `GoTo`, `ThumbnailWanted`,
+  `Surface`, `Arm`, `Disarm`, `SetMode`, `GoToWanted`, `ThumbnailWanted`,
   `FailsafeEntered`, `FailsafeCleared`, `SessionStarted`.
 - `AcousticOperator` (the console's end): `stop(now) -> STOP number`,
   `cancel_stop()`, `send_order(body, now) -> OID`, `next_packet(now)`,
