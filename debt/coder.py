@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import _jit
+from .jit import _inline, _jit
 from .rangecoder import PROB_ONE, _code, _save
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
@@ -73,7 +73,60 @@ FORCE_SPLIT_CTXS = (2, 3, 4, 5)
 SIG_GROUP = 4
 
 
-@_jit
+def _sig_table_entry(orient: int, nh: int, nv: int, nd: int) -> int:
+    # The significance context of a coefficient whose neighbours count nh
+    # along its band's edges, nv across and nd diagonally: the EBCOT split.
+    if orient == 1:  # high-pass across columns: edges run vertically
+        nh, nv = nv, nh
+    if orient == 3:
+        hv = nh + nv
+        if nd >= 3:
+            return 8
+        if nd == 2:
+            return 7 if hv >= 1 else 6
+        if nd == 1:
+            return 5 if hv >= 2 else (4 if hv == 1 else 3)
+        return 2 if hv >= 2 else (1 if hv == 1 else 0)
+    if nh == 2:
+        return 8
+    if nh == 1:
+        if nv >= 1:
+            return 7
+        return 6 if nd >= 1 else 5
+    if nv == 2:
+        return 4
+    if nv == 1:
+        return 3
+    if nd >= 2:
+        return 2
+    return 1 if nd == 1 else 0
+
+
+# `_sig_context` as a table (a lookup instead of a tree of unpredictable
+# branches): by orientation (0..3), then nh (0..2), nv (0..2), nd (0..4).
+SIG_TABLE = np.array([_sig_table_entry(o, nh, nv, nd) for o in range(4) for nh in range(3)
+                      for nv in range(3) for nd in range(5)], dtype=np.int64)
+
+
+def _sign_table_entry(hc: int, vc: int) -> int:
+    # EBCOT's sign context (0..4) and prediction (flip) from the clamped
+    # horizontal and vertical neighbour sums, as sctx * 2 + flip.
+    flip = 0
+    if hc < 0 or (hc == 0 and vc < 0):
+        flip = 1
+        hc = -hc
+        vc = -vc
+    if hc == 0:
+        sctx = 0 if vc == 0 else 1
+    else:
+        sctx = 4 if vc == 1 else (3 if vc == 0 else 2)
+    return sctx * 2 + flip
+
+
+SIGN_TABLE = np.array([_sign_table_entry(hc, vc) for hc in (-1, 0, 1) for vc in (-1, 0, 1)], dtype=np.int64)
+
+
+@_inline
 def _node_at(leaf, pyramid, binfo, noff, nw, b, k, y, x):
     # A set's value: at level 0 the coefficient's own (leaf array), above it
     # the block node's (pyramid).  Used for magnitudes, floors and deficits
@@ -84,7 +137,7 @@ def _node_at(leaf, pyramid, binfo, noff, nw, b, k, y, x):
     return pyramid[noff[b, k] + y * nw[b, k] + x]
 
 
-@_jit
+@_inline
 def _sig_context(sig, off, h, w, y, x, orient):
     # Significance context from the 8 neighbours, split as EBCOT does into
     # along-edge (h), across-edge (v) and diagonal (d) counts: in a band that
@@ -113,35 +166,10 @@ def _sig_context(sig, off, h, w, y, x, orient):
             nd += sig[row + w + x - 1]
         if rt:
             nd += sig[row + w + x + 1]
-    if orient == 1:  # high-pass across columns: edges run vertically
-        t = nh
-        nh = nv
-        nv = t
-    if orient == 3:
-        hv = nh + nv
-        if nd >= 3:
-            return 8
-        if nd == 2:
-            return 7 if hv >= 1 else 6
-        if nd == 1:
-            return 5 if hv >= 2 else (4 if hv == 1 else 3)
-        return 2 if hv >= 2 else (1 if hv == 1 else 0)
-    if nh == 2:
-        return 8
-    if nh == 1:
-        if nv >= 1:
-            return 7
-        return 6 if nd >= 1 else 5
-    if nv == 2:
-        return 4
-    if nv == 1:
-        return 3
-    if nd >= 2:
-        return 2
-    return 1 if nd == 1 else 0
+    return SIG_TABLE[orient * 45 + nh * 15 + nv * 5 + nd]
 
 
-@_jit
+@_inline
 def _first_component(binfo, b, y, x):
     # The same coefficient of the first colour component, or -1.
     lb = binfo[b, 10]
@@ -150,7 +178,7 @@ def _first_component(binfo, b, y, x):
     return binfo[lb, 0] + y * binfo[lb, 2] + x
 
 
-@_jit
+@_inline
 def _first_block(nsig, sig, noff, nw, binfo, b, k, y, x):
     # 8 when the same block of the first colour component is significant.
     lb = binfo[b, 10]
@@ -161,7 +189,7 @@ def _first_block(nsig, sig, noff, nw, binfo, b, k, y, x):
     return 8 if nsig[noff[lb, k] + y * nw[lb, k] + x] else 0
 
 
-@_jit
+@_inline
 def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
     # Plus 10 when the first colour component is significant at this place.
     ctx = _sig_context_parent0(sig, binfo, b, off, h, w, y, x)
@@ -171,7 +199,7 @@ def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
     return ctx
 
 
-@_jit
+@_inline
 def _sig_context_parent0(sig, binfo, b, off, h, w, y, x):
     # With no significant neighbour, whether the parent (same orientation,
     # one level coarser) is significant still says much at low rates.
@@ -187,7 +215,7 @@ def _sig_context_parent0(sig, binfo, b, off, h, w, y, x):
     return ctx
 
 
-@_jit
+@_inline
 def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     # Blocks next to blocks already found significant are likelier to be.
     # Returns 0..7; 2-5 force a split at k = 1 (FORCE_SPLIT_CTXS).
@@ -246,15 +274,14 @@ def _set_context(nsig, sig, noff, nw, binfo, b, k, y, x):
     return c if c < 2 else 2
 
 
-@_jit
+@_inline
 def _sign_part(sig, sgn, i):
-    # +1 for a significant positive neighbour, -1 for a negative one.
-    if sig[i] == 0:
-        return 0
-    return -1 if sgn[i] else 1
+    # +1 for a significant positive neighbour, -1 for a negative one, 0 for
+    # an insignificant one (without a branch: sig and sgn are 0 or 1).
+    return np.int64(sig[i]) * (1 - 2 * np.int64(sgn[i]))
 
 
-@_jit
+@_inline
 def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w, y, x, p,
                      cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp):
     # A coefficient just found significant: its sign, then its state.  The
@@ -273,15 +300,9 @@ def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b
         vc += _sign_part(sig, sgn, c + w)
     hc = max(-1, min(1, hc))
     vc = max(-1, min(1, vc))
-    flip = 0
-    if hc < 0 or (hc == 0 and vc < 0):
-        flip = 1
-        hc = -hc
-        vc = -vc
-    if hc == 0:
-        sctx = 0 if vc == 0 else 1
-    else:
-        sctx = 4 if vc == 1 else (3 if vc == 0 else 2)
+    e = SIGN_TABLE[(hc + 1) * 3 + vc + 1]
+    flip = e & 1
+    sctx = e >> 1
     # A colour component after the first, where the first is significant:
     # the signs of the two relate the same way as at significant neighbours
     # where both are (local colour correlation): predicted by their votes.
@@ -344,7 +365,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
     the end of the certain data (decoder) stopped it first."""
     ncoef = cfloor.shape[0]
-    probs = np.full(2 * NCTX, PROB_ONE // 2, dtype=np.int64)  # fast, then slow estimates
+    probs = np.full(2 * NCTX, PROB_ONE // 2, dtype=np.int64)  # per context its fast and slow estimates
     counts = np.zeros(NCTX, dtype=np.int64)
     lis = np.empty(max(int(seg[kmax + 1]), 1), dtype=np.int64)
     lis_len = np.zeros(kmax + 1, dtype=np.int64)

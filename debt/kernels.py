@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .jit import _jit as _jit_plain
 from .jit import _jit_nrt as _jit
 from .transform import _A, _B, _C, _D
 
@@ -30,7 +31,7 @@ DELTA_SIG = 0.42
 DELTA_REF = 0.5
 
 
-@_jit
+@_jit_plain
 def _rows_step(a, s, e, x0, x1, start, coef):
     # Along columns x0..x1-1 of the row segment [s, e):
     # a[r] += coef * (a[r-1] + a[r+1]) for r = start, start+2, ... in it,
@@ -42,12 +43,21 @@ def _rows_step(a, s, e, x0, x1, start, coef):
     while r < e:
         up = r - 1 if r - 1 >= s else r + 1
         dn = r + 1 if r + 1 < e else r - 1
-        for x in range(x0, x1):
-            a[r, x] += coef * (a[up, x] + a[dn, x])
+        _lift_run(a[r, x0:x1], a[up, x0:x1], a[dn, x0:x1], coef)
         r += 2
 
 
-@_jit
+@_jit_plain
+def _lift_run(row, up, dn, coef):
+    # row += coef * (up + dn).  The rows come as separate arrays and are
+    # indexed from 0: the compiler then vectorises the loop (on one 2-D
+    # array, or from an index it cannot prove non-negative, it did not:
+    # 2.5x slower).
+    for x in range(row.shape[0]):
+        row[x] += coef * (up[x] + dn[x])
+
+
+@_jit_plain
 def _cols_step(a, r0, r1, s, e, start, coef):
     # The same along rows r0..r1-1 over the column segment [s, e); the
     # mirrored edges are taken out of the inner loop.
@@ -66,7 +76,7 @@ def _cols_step(a, r0, r1, s, e, start, coef):
             a[r, x] += 2.0 * coef * a[r, x - 1]
 
 
-@_jit
+@_jit_plain
 def _vertical(a, h, w, roi, start, coef):
     # One lifting step down the columns.  With a region (roi[0] < roi[2] and
     # roi[1] < roi[3]: x0, y0, x1, y1 at this level) its columns are lifted
@@ -83,7 +93,7 @@ def _vertical(a, h, w, roi, start, coef):
         _rows_step(a, 0, h, 0, w, start, coef)
 
 
-@_jit
+@_jit_plain
 def _horizontal(a, h, w, hl, roi, start, coef):
     # One lifting step along the rows, once the rows are split into low
     # [0, hl) and high [hl, h): the region's rows (low rows ceil(y0/2) ..
@@ -149,6 +159,81 @@ def forward97(a, levels, roi):
             cur[i] = (cur[i] + 1) // 2
 
 
+@_jit_plain
+def _lift_split(lo, hi, s, e, par, coef):
+    # `_cols_step` over the column segment [s, e) of a row held split, its
+    # even samples in `lo` and its odd ones in `hi`: the same operations in
+    # the same order on the same values, so the same floating-point results,
+    # but on contiguous runs of separate arrays (vectorised).  par 0 lifts
+    # the even samples from their odd neighbours, 1 the odd from the even.
+    if e - s < 2:
+        return
+    x = s + ((par - s) & 1)
+    if x == s:
+        if par == 0:
+            lo[x >> 1] += 2.0 * coef * hi[x >> 1]
+        else:
+            hi[x >> 1] += 2.0 * coef * lo[(x >> 1) + 1]
+        x += 2
+    n = (e - x) // 2 if e > x else 0
+    i0 = x >> 1
+    if n > 0:
+        if par == 0:
+            _lift_run(lo[i0:i0 + n], hi[i0 - 1:i0 + n - 1], hi[i0:i0 + n], coef)
+        else:
+            _lift_run(hi[i0:i0 + n], lo[i0:i0 + n], lo[i0 + 1:i0 + n + 1], coef)
+    x += 2 * n
+    if x < e:
+        if par == 0:
+            lo[x >> 1] += 2.0 * coef * hi[(x >> 1) - 1]
+        else:
+            hi[x >> 1] += 2.0 * coef * lo[x >> 1]
+
+
+@_jit_plain
+def _inverse_row(lo, hi, s, e):
+    # The four inverse lifting steps along one split row segment.
+    _lift_split(lo, hi, s, e, 0, -_D)
+    _lift_split(lo, hi, s, e, 1, -_C)
+    _lift_split(lo, hi, s, e, 0, -_B)
+    _lift_split(lo, hi, s, e, 1, -_A)
+
+
+@_jit_plain
+def _inverse_rows(a, h, w, hl, wl, roi, lo, hi):
+    # Inverse horizontal step of one level, row by row (rows are
+    # independent, so row by row equals step by step): the row's low and
+    # high columns copied apart, the four lifting steps (`_lift_split`),
+    # and the samples written back interleaved.  With a region, its rows
+    # (as `_horizontal`) are lifted in three segments, left of, over and
+    # right of it.
+    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
+    has = x0 < x1 and y0 < y1
+    lo0 = (y0 + 1) // 2
+    lo1 = (y1 + 1) // 2
+    hi0 = hl + y0 // 2
+    hi1 = hl + y1 // 2
+    if h <= 1:
+        lo0, lo1, hi0, hi1 = 0, 1, 1, 1
+    nh = w - wl
+    for r in range(h):
+        for i in range(wl):
+            lo[i] = a[r, i]
+        for i in range(nh):
+            hi[i] = a[r, wl + i]
+        if has and ((lo0 <= r < lo1 and r < hl) or (hi0 <= r < hi1 and r >= hl)):
+            _inverse_row(lo, hi, 0, x0)
+            _inverse_row(lo, hi, x0, x1)
+            _inverse_row(lo, hi, x1, w)
+        else:
+            _inverse_row(lo, hi, 0, w)
+        for i in range(nh):
+            a[r, 2 * i] = lo[i]
+            a[r, 2 * i + 1] = hi[i]
+        if wl > nh:
+            a[r, 2 * nh] = lo[nh]
+
+
 @_jit
 def inverse97(a, levels, roi):
     """In-place inverse of `forward97` (the same roi)."""
@@ -164,7 +249,8 @@ def inverse97(a, levels, roi):
         ws[j + 1] = (ws[j] + 1) // 2
         for i in range(4):
             rois[j + 1, i] = (rois[j, i] + 1) // 2
-    tmp = np.empty(max(H, W), dtype=np.float64)
+    lo = np.empty(max(H, W), dtype=np.float64)
+    hi = np.empty(max(H, W), dtype=np.float64)
     rows = np.empty((H, W), dtype=np.float64)
     for j in range(levels - 1, -1, -1):
         h = hs[j]
@@ -173,15 +259,7 @@ def inverse97(a, levels, roi):
         wl = ws[j + 1]
         cur = rois[j]
         if w > 1:
-            for r in range(h):
-                for x in range(w):
-                    tmp[x] = a[r, (x >> 1) if x % 2 == 0 else wl + (x >> 1)]
-                for x in range(w):
-                    a[r, x] = tmp[x]
-            _horizontal(a, h, w, hl, cur, 0, -_D)
-            _horizontal(a, h, w, hl, cur, 1, -_C)
-            _horizontal(a, h, w, hl, cur, 0, -_B)
-            _horizontal(a, h, w, hl, cur, 1, -_A)
+            _inverse_rows(a, h, w, hl, wl, cur, lo, hi)
         if h > 1:
             for r in range(h):
                 src = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
@@ -307,29 +385,54 @@ def coefficient_error97(flat, pos, scale, err_weight, rec, pk):
     return total
 
 
-@_jit
+@_jit_plain
+def _to_byte_row(a, offset, out):
+    # clip(round(a + offset), 0, 255), branch-free (vectorised).
+    for x in range(a.shape[0]):
+        out[x] = np.uint8(min(max(np.rint(a[x] + offset), 0.0), 255.0))
+
+
+@_jit_plain
 def to_uint8(a, offset, out):
     """out = clip(round(a + offset), 0, 255) in one pass (grey pictures)."""
-    h, w = a.shape
-    for r in range(h):
-        for x in range(w):
-            v = np.rint(a[r, x] + offset)
-            out[r, x] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+    for r in range(a.shape[0]):
+        _to_byte_row(a[r], offset, out[r])
+
+
+@_jit_plain
+def _rgb_plane_row(a, b, c, ma, mb, mc, offset, out):
+    # clip(round(a ma + b mb + c mc + offset), 0, 255) along one row.
+    for x in range(a.shape[0]):
+        out[x] = np.uint8(min(max(np.rint(a[x] * ma + b[x] * mb + c[x] * mc + offset), 0.0), 255.0))
+
+
+@_jit_plain
+def _to_rgb_rows(c0, c1, c2, m, offset, out, t0, t1, t2):
+    for r in range(c0.shape[0]):
+        a = c0[r]
+        b = c1[r]
+        c = c2[r]
+        _rgb_plane_row(a, b, c, m[0, 0], m[1, 0], m[2, 0], offset, t0)
+        _rgb_plane_row(a, b, c, m[0, 1], m[1, 1], m[2, 1], offset, t1)
+        _rgb_plane_row(a, b, c, m[0, 2], m[1, 2], m[2, 2], offset, t2)
+        o = out[r]
+        for x in range(c0.shape[1]):
+            o[x, 0] = t0[x]
+            o[x, 1] = t1[x]
+            o[x, 2] = t2[x]
 
 
 @_jit
 def to_rgb(c0, c1, c2, m, offset, out):
     """out[..., j] = clip(round(c0 m[0, j] + c1 m[1, j] + c2 m[2, j] + offset), 0, 255)
-    in one pass (colour pictures: components back to RGB)."""
-    h, w = c0.shape
-    for r in range(h):
-        for x in range(w):
-            a = c0[r, x]
-            b = c1[r, x]
-            c = c2[r, x]
-            for j in range(3):
-                v = np.rint(a * m[0, j] + b * m[1, j] + c * m[2, j] + offset)
-                out[r, x, j] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+    in one pass (colour pictures: components back to RGB).  Each plane of a
+    row is made apart, branch-free (vectorised), then interleaved: 3x
+    faster than pixel by pixel, the same values."""
+    w = c0.shape[1]
+    t0 = np.empty(w, dtype=np.uint8)
+    t1 = np.empty(w, dtype=np.uint8)
+    t2 = np.empty(w, dtype=np.uint8)
+    _to_rgb_rows(c0, c1, c2, m, offset, out, t0, t1, t2)
 
 
 @_jit

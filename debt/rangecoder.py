@@ -77,8 +77,8 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
     byte limit or the number of bytes the decoder holds.  Returns the new
     state and the bit, or -1 when the encoder reached its byte limit or the
     decoder cannot be sure of the decision from the bytes it has."""
-    half = probs.shape[0] >> 1
-    p = (probs[ctx] + probs[half + ctx]) >> 1
+    i = ctx << 1       # the two estimates side by side (one cache line)
+    p = (probs[i] + probs[i + 1]) >> 1
     if mode == 0:
         if a4 >= lim:
             return a0, a1, a2, a3, a4, -1
@@ -118,24 +118,18 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
     fast = slow if slow < FAST_CAP else FAST_CAP
     if n < RATE_LAST:
         counts[ctx] = n + 1
-    pf = probs[ctx]
-    ps = probs[half + ctx]
+    pf = probs[i]
+    ps = probs[i + 1]
     if bit == 0:
         pf += (PROB_ONE - pf) >> fast
         ps += (PROB_ONE - ps) >> slow
     else:
         pf -= pf >> fast
         ps -= ps >> slow
-    if pf < 32:
-        pf = 32
-    elif pf > PROB_ONE - 32:
-        pf = PROB_ONE - 32
-    if ps < 32:
-        ps = 32
-    elif ps > PROB_ONE - 32:
-        ps = PROB_ONE - 32
-    probs[ctx] = pf
-    probs[half + ctx] = ps
+    pf = min(max(pf, 32), PROB_ONE - 32)     # kept off the ends (no branch)
+    ps = min(max(ps, 32), PROB_ONE - 32)
+    probs[i] = pf
+    probs[i + 1] = ps
     return a0, a1, a2, a3, a4, bit
 
 

@@ -1,0 +1,231 @@
+"""Decoding made faster must show every picture bit for bit as before.
+
+Streams and decoded pictures (whole and a prefix) of the project's samples
+and a rippled texture (its packet streams), with and without a region of
+interest, against digests made by the code before the decoder was sped up
+(issue 23); and the rewritten kernels against step-by-step references kept
+here (the inverse 9/7 lifting as it was, the colour conversion in numpy)."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+from rovlink.debt import codec, coder, kernels, samples
+from rovlink.debt.transform import _A, _B, _C, _D
+
+# (picture, budget, region?) -> (stream, picture of its first third, picture): sha256[:16]
+DIGESTS = {
+    ('grey-scene', 500, False): ('5992ca33eff58f84', '0d9d43509bd2ab2d', '655f84a42794720e'),
+    ('grey-scene', 500, True): ('f31fad076270d47c', '3a2d35ed203344c1', '130cd35bbad945be'),
+    ('grey-scene', 2000, False): ('905ead25fa4b68c9', 'd35d027b30f65333', '787ea100a1d00508'),
+    ('grey-scene', 2000, True): ('44949ac44a116c9c', 'bc5faf91afd8c482', 'e5938d7f598deb36'),
+    ('grey-scene', 4000, False): ('924ad9b9c4c70777', 'd06e78d48acce6ec', 'f2e2e3b803ca62c5'),
+    ('grey-scene', 4000, True): ('a12af510b75ad2d2', '6e609e375f9f63ac', '083607b691322590'),
+    ('colour-still-life', 500, False): ('eec4ac554f22cb0e', 'ae8a67a886e7c267', 'd890c2768896915e'),
+    ('colour-still-life', 500, True): ('0a9de7c2045162f4', '059b374f36b70d8f', 'ab33073051f16d0e'),
+    ('colour-still-life', 2000, False): ('4dfcc060769324be', '12f9072a874c4862', '6ca5764621992149'),
+    ('colour-still-life', 2000, True): ('9c4a2721328ac06d', '6df4bbff8643fab9', '3f683522174a6f09'),
+    ('colour-still-life', 4000, False): ('414194a6cb52282e', '15e4ddd67c58d7cd', '590aa6d243f72231'),
+    ('colour-still-life', 4000, True): ('adcdd2f81d4862f9', 'f5f448aa83771614', 'c61e67dd06123bee'),
+    ('seabed', 500, False): ('4b281398d417348f', 'f95d0589a6ae802b', 'e4dc8bbcee14ef5f'),
+    ('seabed', 500, True): ('d2c66cd0212747a9', 'f5c65a89e04d46f3', '2aa1ffb19ac24c59'),
+    ('seabed', 2000, False): ('1651ba227cc891a6', '0fb12b3fb66198c1', 'bf377c38be47e135'),
+    ('seabed', 2000, True): ('84182ecfb2b7f988', '79ed8f0e9c5814bb', '15d62ba06dd71b47'),
+    ('seabed', 4000, False): ('236b53b2b8e627eb', 'c14c8b020e31b9c9', '1af15f2326afd384'),
+    ('seabed', 4000, True): ('2472d7416f9e2dd9', 'e483c0a1841c0e8e', '114fe7db3858636d'),
+    ('ripples', 500, False): ('a79a25de2ce8ed6d', '089e2377ddb1781e', 'e20ed55880cce6a2'),
+    ('ripples', 500, True): ('0878a905bf76577a', '342b9e80f8d1a7d5', 'b3bfaacc8f0141e2'),
+    ('ripples', 2000, False): ('27d241d4c6bd059c', 'f0a5c75209d4cb85', 'b3eb9f2c8d2a23df'),
+    ('ripples', 2000, True): ('07649f9b3c0ab3bb', 'e312e16427a5f2e8', 'f388787a7fb4c625'),
+    ('ripples', 4000, False): ('a50567e2dd189750', '77c4175acada0028', '1ef94ffc7df9dfc6'),
+    ('ripples', 4000, True): ('306e22d11c1b8823', '577184a242c72af5', '5252de216ee81aed'),
+    ('ripples colour', 500, False): ('b2aea92095d7e13f', '4c1b59b3d4bbe19f', '841ffbb9481426d5'),
+    ('ripples colour', 500, True): ('54a3bde0b5d6ac65', 'f22d566ef83eb98f', 'fc7fc6ff57ff8d4f'),
+    ('ripples colour', 2000, False): ('dfce4cf4130a675e', '6935e417ef353e4e', '9125d1cef28d1d35'),
+    ('ripples colour', 2000, True): ('66661e5e2591e5a9', 'b8bd46c014427f7e', 'b00ce212750f9f33'),
+    ('ripples colour', 4000, False): ('be8be289186e3234', '66bd552d9521d93a', 'dfa920901e6826f2'),
+    ('ripples colour', 4000, True): ('7be5b8c079c80789', '0ec4dd6129e40b3f', 'f8dda30fc9ae7512'),
+}
+
+
+def _ripples(colour: bool) -> np.ndarray:
+    yy, xx = np.mgrid[0:240, 0:320].astype(np.float64)
+    rng = np.random.default_rng(7)
+    v = 128 + 50 * np.sin(xx * 2.2 + 0.3 * yy) + 20 * np.sin(yy * 1.3) + rng.normal(size=xx.shape) * 6
+    g = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+    if not colour:
+        return g
+    return np.stack([g, np.clip(g.astype(int) - 20, 0, 255).astype(np.uint8), 255 - g], axis=-1)
+
+
+def _picture(name: str) -> np.ndarray:
+    if name.startswith("ripples"):
+        return _ripples(name.endswith("colour"))
+    return samples.sample(name)
+
+
+def _digest(data) -> str:
+    return hashlib.sha256(bytes(data)).hexdigest()[:16]
+
+
+@pytest.mark.parametrize("name", sorted({k[0] for k in DIGESTS}))
+def test_streams_and_pictures_are_the_ones_before(name):
+    img = _picture(name)
+    for (n, budget, roi), want in DIGESTS.items():
+        if n != name:
+            continue
+        data = codec.encode(img, budget, roi=(110, 80, 210, 160) if roi else None, shift=6 if roi else 0)
+        got = (_digest(data), _digest(codec.decode(data[:len(data) // 3]).tobytes()),
+               _digest(codec.decode(data).tobytes()))
+        assert got == want, (name, budget, roi)
+
+
+# ---------------------------------------------------------------- the inverse 9/7 as it was
+
+def _rows_step(a, s, e, x0, x1, start, coef):
+    if e - s < 2 or x0 >= x1:
+        return
+    r = s + ((start - s) & 1)
+    while r < e:
+        up = r - 1 if r - 1 >= s else r + 1
+        dn = r + 1 if r + 1 < e else r - 1
+        a[r, x0:x1] += coef * (a[up, x0:x1] + a[dn, x0:x1])
+        r += 2
+
+
+def _cols_step(a, r0, r1, s, e, start, coef):
+    if e - s < 2:
+        return
+    first = s + ((start - s) & 1)
+    for r in range(r0, r1):
+        x = first
+        if x == s:
+            a[r, s] += 2.0 * coef * a[r, s + 1]
+            x += 2
+        while x + 1 < e:
+            a[r, x] += coef * (a[r, x - 1] + a[r, x + 1])
+            x += 2
+        if x < e:
+            a[r, x] += 2.0 * coef * a[r, x - 1]
+
+
+def _vertical(a, h, w, roi, start, coef):
+    x0, y0, x1, y1 = roi
+    if x0 < x1 and y0 < y1:
+        for args in ((0, h, 0, x0), (0, h, x1, w), (0, y0, x0, x1), (y0, y1, x0, x1), (y1, h, x0, x1)):
+            _rows_step(a, *args, start, coef)
+    else:
+        _rows_step(a, 0, h, 0, w, start, coef)
+
+
+def _horizontal(a, h, w, hl, roi, start, coef):
+    x0, y0, x1, y1 = roi
+    if not (x0 < x1 and y0 < y1):
+        _cols_step(a, 0, h, 0, w, start, coef)
+        return
+    bands = ((0, hl, (y0 + 1) // 2, (y1 + 1) // 2), (hl, h, hl + y0 // 2, hl + y1 // 2)) if h > 1 else \
+        ((0, 1, 0, 1), (1, 1, 1, 1))
+    for lo, hi, i0, i1 in bands:
+        _cols_step(a, lo, i0, 0, w, start, coef)
+        _cols_step(a, i0, i1, 0, x0, start, coef)
+        _cols_step(a, i0, i1, x0, x1, start, coef)
+        _cols_step(a, i0, i1, x1, w, start, coef)
+        _cols_step(a, i1, hi, 0, w, start, coef)
+
+
+def _inverse97_as_it_was(a, levels, roi):
+    sizes = [(a.shape[0], a.shape[1], tuple(int(v) for v in roi))]
+    for _ in range(levels):
+        h, w, r = sizes[-1]
+        sizes.append(((h + 1) // 2, (w + 1) // 2, tuple((v + 1) // 2 for v in r)))
+    for j in range(levels - 1, -1, -1):
+        h, w, cur = sizes[j]
+        hl, wl = sizes[j + 1][0], sizes[j + 1][1]
+        if w > 1:
+            order = [(x >> 1) if x % 2 == 0 else wl + (x >> 1) for x in range(w)]
+            a[:h, :w] = a[:h, order]
+            for start, coef in ((0, -_D), (1, -_C), (0, -_B), (1, -_A)):
+                _horizontal(a, h, w, hl, cur, start, coef)
+        if h > 1:
+            order = [(r >> 1) if r % 2 == 0 else hl + (r >> 1) for r in range(h)]
+            a[:h, :w] = a[order, :w]
+            for start, coef in ((0, -_D), (1, -_C), (0, -_B), (1, -_A)):
+                _vertical(a, h, w, cur, start, coef)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_inverse97_gives_the_lifting_step_by_step_bit_for_bit(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(6):
+        h, w = (int(v) for v in rng.integers(1, 48, 2))
+        levels = int(rng.integers(1, 6))
+        if rng.random() < 0.6:
+            x0, y0 = int(rng.integers(0, w)), int(rng.integers(0, h))
+            roi = np.array([x0, y0, int(rng.integers(x0 + 1, w + 1)), int(rng.integers(y0 + 1, h + 1))], dtype=np.int64)
+        else:
+            roi = np.zeros(4, dtype=np.int64)
+        a = rng.normal(size=(h, w)) * 100
+        want = a.copy()
+        _inverse97_as_it_was(want, levels, roi)
+        kernels.inverse97(a, levels, roi)
+        assert np.array_equal(a.view(np.int64), want.view(np.int64)), (h, w, levels, roi)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_colour_and_grey_conversions_are_numpys_bit_for_bit(seed):
+    rng = np.random.default_rng(seed)
+    h, w = (int(v) for v in rng.integers(1, 40, 2))
+    comps = [rng.normal(size=(h, w)) * s for s in (90, 40, 400)]
+    if comps[0].size >= 3:
+        comps[0].flat[:3] = (-128.5, 127.5, 0.5)    # halves: rounded to even
+    m = np.linalg.qr(rng.normal(size=(3, 3)))[0] * np.sqrt(3.0)
+    out = np.empty((h, w, 3), dtype=np.uint8)
+    kernels.to_rgb(*comps, m, 128.0, out)
+    for j in range(3):
+        want = np.clip(np.rint(comps[0] * m[0, j] + comps[1] * m[1, j] + comps[2] * m[2, j] + 128.0), 0, 255)
+        assert np.array_equal(out[..., j], want.astype(np.uint8))
+    grey = np.empty((h, w), dtype=np.uint8)
+    kernels.to_uint8(comps[2], 128.0, grey)
+    assert np.array_equal(grey, np.clip(np.rint(comps[2] + 128.0), 0, 255).astype(np.uint8))
+
+
+def _sig_context_as_it_was(orient, nh, nv, nd):
+    if orient == 1:
+        nh, nv = nv, nh
+    if orient == 3:
+        hv = nh + nv
+        if nd >= 3:
+            return 8
+        if nd == 2:
+            return 7 if hv >= 1 else 6
+        if nd == 1:
+            return 5 if hv >= 2 else (4 if hv == 1 else 3)
+        return 2 if hv >= 2 else (1 if hv == 1 else 0)
+    if nh == 2:
+        return 8
+    if nh == 1:
+        return 7 if nv >= 1 else (6 if nd >= 1 else 5)
+    if nv == 2:
+        return 4
+    if nv == 1:
+        return 3
+    if nd >= 2:
+        return 2
+    return 1 if nd == 1 else 0
+
+
+def test_the_coders_context_tables_are_its_branches():
+    for o in range(4):
+        for nh in range(3):
+            for nv in range(3):
+                for nd in range(5):
+                    assert coder.SIG_TABLE[o * 45 + nh * 15 + nv * 5 + nd] == _sig_context_as_it_was(o, nh, nv, nd)
+    for hc in (-1, 0, 1):
+        for vc in (-1, 0, 1):
+            flip = 1 if hc < 0 or (hc == 0 and vc < 0) else 0
+            h, v = (-hc, -vc) if flip else (hc, vc)
+            sctx = (0 if v == 0 else 1) if h == 0 else (4 if v == 1 else (3 if v == 0 else 2))
+            assert coder.SIGN_TABLE[(hc + 1) * 3 + vc + 1] == sctx * 2 + flip
