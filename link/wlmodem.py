@@ -63,6 +63,18 @@ received packets and failures through `call_soon_threadsafe`.  On every
 opening the modem is connected, configured and its transmit queue flushed
 (a stale packet is worse than none).  `flush()` empties both queues, so that
 `flush(); send(stop)` puts a packet ahead of everything queued.
+
+`queue_length()` answers at once, without asking the modem: a driver that
+keeps at most one packet waiting in the modem polls it every 0.2 s or so.
+The worker asks (`wcl`) after every run of packets handed to the modem and
+after a flush, then every QUEUE_REFRESH_S while the modem's queue is not
+known empty (an empty queue cannot fill by itself: then nothing is asked);
+the answer is the modem's last count plus every packet handed over since
+(acknowledged after that count, being handed over, or still waiting for the
+worker), and after `flush()` only the packets sent after it.  So it never
+counts less than the modem holds, and counts more only until the next
+refresh after the modem transmitted (at most QUEUE_REFRESH_S late).  With
+the emulated modems (link/m64serial.py) all of this runs with no hardware.
 """
 
 from __future__ import annotations
@@ -91,6 +103,7 @@ CHANNELS = range(1, 8)
 DEFAULT_CHANNEL = 4
 DIAG_S = 2.0
 UNANSWERED_LIMIT = 3  # diagnostic requests in a row without an answer: the modem is gone
+QUEUE_REFRESH_S = 0.2  # between two `wcl` while the modem's transmit queue is not known empty
 
 
 @dataclass
@@ -149,6 +162,13 @@ class _WlModemDriver(_Driver):
         self._wake_r, self._wake_w = -1, -1
         self._thread: threading.Thread | None = None
         self._abandoned = False  # the opening was cancelled while its thread still ran
+        # The transmit queue's length (queue_length()), shared with the event loop under _lock:
+        self._lock = threading.Lock()
+        self._in_hand: str | None = None  # the op the worker is carrying out
+        self._known_length = 0  # the modem's last answer to `wcl` (0 after opening: flushed)
+        self._acked_since = 0  # packets the modem acknowledged after that answer
+        self._flushing = False  # a flush asked for and not yet done
+        self._next_refresh = 0.0
 
     # -- opening (in a thread: wlmodem and pyserial block) ---------------------
 
@@ -228,9 +248,12 @@ class _WlModemDriver(_Driver):
                         raise TransportError(f"the modem on {ep.path} stopped answering "
                                              f"({UNANSWERED_LIMIT} diagnostic requests unanswered)")
                     next_diag = now + ep.diag_s
+                elif self._queue_unknown() and now >= self._next_refresh:
+                    self._refresh_queue_length()
                 if self._ops or (self.io is not None and self.io.buffered):
                     continue
-                timeout = max(0.0, next_diag - time.monotonic())
+                wake_at = min(next_diag, self._next_refresh) if self._queue_unknown() else next_diag
+                timeout = max(0.0, wake_at - time.monotonic())
                 ready, _, _ = select.select([self.port.fileno(), self._wake_r], [], [], timeout)
                 if self._wake_r in ready:
                     try:
@@ -246,14 +269,28 @@ class _WlModemDriver(_Driver):
 
     def _do_ops(self) -> None:
         ep = self.endpoint
-        while self._ops and not self._stop.is_set():
-            op, packet = self._ops.popleft()
+        handed = False
+        while not self._stop.is_set():
+            with self._lock:
+                if not self._ops:
+                    break
+                op, packet = self._ops.popleft()
+                self._in_hand = op
+            handed = True
             try:
                 done = self.modem.cmd_flush_queue() if op == "flush" else self.modem.cmd_queue_packet(packet)
             except WlProtocolParseError as exc:  # a garbled answer: not an acknowledgement
                 ep.modem_stats.parse_errors += 1
                 log.debug("%s: unparsable answer from the modem: %s", ep.url, exc)
                 done = False
+            with self._lock:
+                self._in_hand = None
+                if op == "flush":
+                    if done:
+                        self._known_length, self._acked_since = 0, 0
+                    self._flushing = any(o == "flush" for o, _ in self._ops)
+                elif done:
+                    self._acked_since += 1
             if op == "flush":
                 if done:
                     ep.modem_stats.queue_length = 0
@@ -269,6 +306,38 @@ class _WlModemDriver(_Driver):
                     log.warning("%s: the modem refused a packet (transmit queue full? %s waiting at last count)",
                                 ep.url, ep.modem_stats.queue_length)
                     ep._refusing = True
+        if handed and not self._stop.is_set():
+            self._refresh_queue_length()
+
+    def _queue_unknown(self) -> bool:
+        """Whether the modem's transmit queue may hold packets (so is worth asking about)."""
+        return self._known_length > 0 or self._acked_since > 0
+
+    def _refresh_queue_length(self) -> None:
+        """Ask the modem (`wcl`) how many packets wait in its transmit queue."""
+        self._next_refresh = time.monotonic() + QUEUE_REFRESH_S
+        try:
+            length = self.modem.cmd_get_queue_length()
+        except (WlProtocolParseError, ValueError, IndexError, TypeError) as exc:  # a malformed answer
+            self.endpoint.modem_stats.parse_errors += 1
+            log.debug("%s: malformed queue length: %s", self.endpoint.url, exc)
+            return
+        self._note_queue_length(length)
+
+    def _note_queue_length(self, length: int) -> None:
+        if length < 0:  # no answer
+            return
+        with self._lock:  # every acknowledgement so far came before this answer
+            self._known_length, self._acked_since = length, 0
+        self.endpoint.modem_stats.queue_length = length
+
+    def queue_length(self) -> int:
+        with self._lock:
+            pending = sum(1 for op, _ in self._ops if op == "queue")
+            if self._flushing:
+                return pending
+            in_hand = 1 if self._in_hand == "queue" else 0
+            return self._known_length + self._acked_since + in_hand + pending
 
     def _read_packets(self) -> None:
         ep = self.endpoint
@@ -295,8 +364,7 @@ class _WlModemDriver(_Driver):
             stats.parse_errors += 1
             log.debug("%s: malformed diagnostic: %s", ep.url, exc)
             return True
-        if length >= 0:
-            stats.queue_length = length
+        self._note_queue_length(length)
         if not diag:
             return False
         stats.diagnostic = diag
@@ -327,13 +395,16 @@ class _WlModemDriver(_Driver):
     def write(self, data: bytes) -> None:
         if self._thread is None or not self._thread.is_alive():
             raise TransportError(f"modem port {self.endpoint.path} is not open")
-        self._ops.append(("queue", bytes(data)))
+        with self._lock:
+            self._ops.append(("queue", bytes(data)))
         self._wake()
 
     def flush(self) -> int:
-        dropped = sum(1 for op, _ in self._ops if op == "queue")
-        self._ops.clear()
-        self._ops.append(("flush", None))
+        with self._lock:
+            dropped = sum(1 for op, _ in self._ops if op == "queue")
+            self._ops.clear()
+            self._ops.append(("flush", None))
+            self._flushing = True
         self._wake()
         return dropped
 
@@ -407,6 +478,18 @@ class WlModemEndpoint(Endpoint):
         dropped = driver.flush()
         self.modem_stats.packets_flushed += dropped
         return dropped
+
+    def queue_length(self) -> int | None:
+        """Packets waiting in the modem's transmit queue, at once and without asking
+        the modem: its last `wcl` answer (refreshed after every packet handed to it,
+        after a flush, and every QUEUE_REFRESH_S while not known empty) plus every
+        packet handed over since; after `flush()`, only the packets sent after it.
+        Never less than the modem holds; more by the packets it transmitted since
+        the last refresh.  None while the port is not open."""
+        driver = self._driver
+        if not isinstance(driver, _WlModemDriver) or not self.is_up:
+            return None
+        return driver.queue_length()
 
     @property
     def link_up(self) -> bool | None:
