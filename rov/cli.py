@@ -61,14 +61,18 @@ def _add_rov(subparsers) -> None:
         "--mavlink udpin:0.0.0.0:14550 --camera sim",
     )
     p.add_argument("--link", required=True, metavar="URL",
-                   help="modem link: udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1]")
+                   help="modem link: udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1]; "
+                   "wlmodem:///dev/tty...?role=b&channel=4 runs the acoustic profile (docs/PROTOCOL.md §9)")
     p.add_argument("--mavlink", metavar="URL",
                    help="ArduSub as pymavlink takes it (udpin:0.0.0.0:14550, tcp:127.0.0.1:5760, /dev/ttyACM0); "
                    "default: a simulated vehicle in-process")
     p.add_argument("--camera", default="sim", metavar="SPEC",
                    help="sim (default), a folder of images, folder:PATH, or opencv:N")
-    p.add_argument("--failsafe", type=positive, default=3.0, metavar="S",
-                   help="seconds without a valid poll before the vehicle stops (default 3)")
+    p.add_argument("--failsafe", type=positive, default=None, metavar="S",
+                   help="seconds without a valid poll before the vehicle stops (default 3; acoustic: 60, "
+                   "without an authentic packet from the operator)")
+    p.add_argument("--failsafe-action", choices=("hold", "surface"), default="hold",
+                   help="acoustic profile: what the failsafe does: hold position (default) or surface")
     p.add_argument("--system-id", type=int, default=255, metavar="N", help="our MAVLink system id (default 255)")
     p.add_argument("--budget", type=int, default=2000, metavar="BYTES",
                    help="image budget until the operator sets one (default 2000)")
@@ -104,7 +108,15 @@ def run_rov(args) -> int:
     except TransportError as exc:
         raise CommandError(str(exc)) from None
     key = link_key(args)  # None: --insecure, protocol version 1.1
-    check_frame_size(endpoint, key)
+    acoustic = args.link.startswith("wlmodem:")
+    if acoustic and key is None:
+        raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
+    if not acoustic:
+        check_frame_size(endpoint, key)
+        if args.failsafe_action != "hold":
+            raise CommandError("--failsafe-action is the acoustic profile's (a wlmodem:// link); "
+                               "the radio profile's failsafe holds")
+    failsafe = args.failsafe if args.failsafe is not None else (60.0 if acoustic else 3.0)
     try:
         camera = open_camera(args.camera)
     except (CameraError, ValueError) as exc:
@@ -129,11 +141,20 @@ def run_rov(args) -> int:
             await endpoint.start()
         except TransportError as exc:
             raise CommandError(str(exc)) from None
-        node = RovNode(endpoint, bridge, camera.capture, failsafe_s=args.failsafe, default_settings=settings, key=key)
-        version = ("link version 2, every frame authenticated" if key is not None else
-                   "INSECURE: link version 1.1, frames not authenticated")
+        if acoustic:
+            from rovlink.rov.acoustic import AcousticNode
+
+            node = AcousticNode(endpoint, bridge, camera.capture, key, failsafe_s=failsafe,
+                                failsafe_action=args.failsafe_action)
+            version = (f"acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; "
+                       f"failsafe: {args.failsafe_action} position" if args.failsafe_action == "hold" else
+                       "acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: surface")
+        else:
+            node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key)
+            version = ("link version 2, every frame authenticated" if key is not None else
+                       "INSECURE: link version 1.1, frames not authenticated")
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
-              f"camera {args.camera}, failsafe {args.failsafe:g} s; {version}", file=sys.stderr, flush=True)
+              f"camera {args.camera}, failsafe {failsafe:g} s; {version}", file=sys.stderr, flush=True)
         task = asyncio.create_task(node.run())
         try:
             if args.duration:

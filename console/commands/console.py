@@ -15,7 +15,8 @@ def add_parser(subparsers) -> None:
         epilog="example: rovlink console --link serial:///dev/ttyUSB0?baud=9600&crlf=1",
     )
     p.add_argument("--link", required=True, metavar="URL",
-                   help="udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1][&mtu=N]")
+                   help="udp://HOST:PORT?peer=HOST:PORT or serial:///dev/tty...?baud=N[&crlf=1][&mtu=N]; "
+                   "wlmodem:///dev/tty...?role=a&channel=4: the acoustic profile (docs/PROTOCOL.md §9)")
     add_server_arguments(p)
     add_gcs_arguments(p)
     p.add_argument("--bitrate", type=positive, default=1900.0, metavar="BPS",
@@ -50,6 +51,8 @@ def run(args) -> int:
     except TransportError as exc:
         raise CommandError(str(exc)) from None
     key = link_key(args)
+    if args.link.startswith("wlmodem:"):
+        return _run_acoustic(args, endpoint, key)
     check_frame_size(endpoint, key)
     record = None if args.no_record else (args.record or default_record_path())
 
@@ -72,6 +75,61 @@ def run(args) -> int:
         finally:
             await link.stop(endpoint.close())
             operator.close()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def _run_acoustic(args, endpoint, key) -> int:
+    """The acoustic profile: supervisory orders, status and thumbnails (docs/PROTOCOL.md §9)."""
+    import asyncio
+    import sys
+
+    from rovlink.command import CommandError
+    from rovlink.console.acoustic.session import AcousticSession
+    from rovlink.console.acoustic.web import create_acoustic_app
+    from rovlink.console.linkthread import LinkThread
+    from rovlink.console.web.app import serve
+    from rovlink.console.web.guard import AccessPolicy
+    from rovlink.link.transport import TransportError
+
+    from .serve import _stop_on_signals, public_host
+
+    if key is None:
+        raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
+    if args.gcs:
+        raise CommandError("--gcs is not served on the acoustic profile yet")
+
+    async def main() -> None:
+        link = LinkThread().start()
+        try:
+            await link.call(endpoint.start())
+        except TransportError as exc:
+            await link.stop()
+            raise CommandError(str(exc)) from None
+        session = AcousticSession(endpoint, key)
+        link.spawn(session.run(), name="acoustic operator")
+        policy = AccessPolicy.for_server(args.host, args.allow_host)
+        app = create_acoustic_app(session, policy=policy)
+        url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
+        print(f"rovlink console on {args.link}: acoustic profile, every packet authenticated\n"
+              f"  operator page: {url}\n  Ctrl-C stops.", flush=True)
+        stop = _stop_on_signals()
+        server = asyncio.create_task(serve(app, host=args.host, port=args.port))
+        waiter = asyncio.create_task(stop.wait())
+        try:
+            await asyncio.wait([server, waiter], return_when=asyncio.FIRST_COMPLETED)
+            if server.done() and server.exception() is not None:
+                exc = server.exception()
+                raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
+        finally:
+            server.cancel()
+            await asyncio.gather(server, return_exceptions=True)
+            await link.stop(endpoint.close())
+        print("rovlink console: stopped", file=sys.stderr)
 
     try:
         asyncio.run(main())

@@ -1,0 +1,240 @@
+"""The ROV program on the acoustic link (docs/PROTOCOL.md §9): supervisory orders,
+status and thumbnails over a Water Linked Modem-M64.
+
+Goals: every order the operator gives runs once and its fate goes back; the
+modem always has the next thing worth sending and never more than one packet
+queued, so a STOP or a status is never stuck behind a queue; the vehicle holds
+position (or surfaces, if so configured) when the operator falls silent for
+the failsafe time (60 s by default: a packet a second, seconds of latency).
+
+Plan: one asyncio loop.  Packets from the modem go to the sans-I/O
+`AcousticRov`; its events become bridge calls (the same `AutopilotBridge` the
+radio node uses: brake, modes, arming, go-to tickets); a 10 Hz task copies the
+bridge's snapshot into the machine's status, reports go-to tickets (accepted,
+arrived, failed) and, whenever the modem's transmit queue is empty, hands it
+the machine's next packet.  Thumbnails are captured, shrunk to 80x60 grey and
+DEBT-encoded in a worker thread.
+
+Decisions:
+- "Queue empty" is the modem's own count when the endpoint can say it
+  (`queue_length()`, the real modem and the emulator on a pty); any other
+  endpoint gets at most one packet a second (the modem's rate).
+- HOLD asks POS_HOLD with a position estimate, else DEPTH_HOLD; the failsafe's
+  hold does the same; its "surface" asks SURFACE.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import math
+import time
+
+import numpy as np
+
+from rovlink.link import acoustic as ac
+from rovlink.link.messages import Mode
+from rovlink.link.transport import Endpoint
+
+log = logging.getLogger("rovlink.rov.acoustic")
+
+THUMB_SIZE = (80, 60)  # width, height
+PACKET = 8
+
+
+def thumbnail(image: np.ndarray, size: tuple[int, int] = THUMB_SIZE) -> np.ndarray:
+    """A grey thumbnail of `size` (w, h): the mean of each block of the picture."""
+    image = np.asarray(image)
+    grey = image.astype(np.float32).mean(axis=2) if image.ndim == 3 else image.astype(np.float32)
+    w, h = size
+    rows = np.linspace(0, grey.shape[0], h + 1).astype(int)
+    cols = np.linspace(0, grey.shape[1], w + 1).astype(int)
+    out = np.add.reduceat(np.add.reduceat(grey, rows[:-1], axis=0), cols[:-1], axis=1)
+    out /= np.outer(np.diff(rows), np.diff(cols))
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+class AcousticNode:
+    def __init__(self, endpoint: Endpoint, bridge, grab, key: bytes, *, failsafe_s: float = 60.0,
+                 failsafe_action: str = "hold", encode=None, pace_s: float = 1.0) -> None:
+        self.endpoint = endpoint
+        self.bridge = bridge
+        self.grab = grab
+        self.pace_s = pace_s
+        if encode is None:
+            from rovlink import debt
+
+            encode = debt.encode
+        self._encode = encode
+        if failsafe_action not in ("hold", "surface"):
+            raise ValueError("the failsafe action is hold or surface")
+        self.machine = ac.AcousticRov(key, failsafe_s=int(round(failsafe_s)),
+                                      failsafe_action=ac.FAILSAFE_SURFACE if failsafe_action == "surface"
+                                      else ac.FAILSAFE_HOLD)
+        self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="thumbnail")
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._goto: tuple[int, object] | None = None  # (oid, ticket) being flown
+        self._tickets: dict[int, object] = {}  # oid -> ticket of an arm/mode/hold/surface request
+        self._last_sent = -math.inf
+        self.log: list[str] = []
+
+    async def run(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        pump = asyncio.create_task(self._pump())
+        try:
+            while True:
+                try:
+                    async with asyncio.timeout(0.1):
+                        data = await self.endpoint.recv()
+                except TimeoutError:
+                    data = None
+                now = time.monotonic()
+                if data:
+                    for i in range(0, len(data) - PACKET + 1, PACKET):
+                        self._on_events(self.machine.receive(bytes(data[i:i + PACKET]), now), now)
+        finally:
+            pump.cancel()
+            self._worker.shutdown(wait=False, cancel_futures=True)
+
+    async def _pump(self) -> None:
+        while True:
+            now = time.monotonic()
+            self._refresh_status()
+            self._check_tickets()
+            self._on_events(self.machine.tick(now), now)
+            if self.machine.wants_flush:
+                self.machine.wants_flush = False
+                flush = getattr(self.endpoint, "flush", None)
+                if flush is not None:
+                    flush()
+            if self._modem_ready(now):
+                packet = self.machine.next_packet(now)
+                if packet is not None:
+                    self.endpoint.send(packet)
+                    self._last_sent = now
+            await asyncio.sleep(0.1)
+
+    def _modem_ready(self, now: float) -> bool:
+        queue_length = getattr(self.endpoint, "queue_length", None)
+        if queue_length is not None:
+            n = queue_length()
+            return n is not None and n == 0
+        return now - self._last_sent >= self.pace_s
+
+    # -- the vehicle -----------------------------------------------------------
+
+    def _refresh_status(self) -> None:
+        s = self.bridge.snapshot()
+        self.machine.update_status(ac.VehicleState(
+            x_m=s.x_m, y_m=s.y_m, z_m=s.z_m, heading_deg=math.degrees(s.yaw_rad) % 360.0,
+            armed=s.armed, mode=s.mode, autopilot=s.autopilot_alive, position_valid=s.position_valid,
+            attitude_valid=s.attitude_valid, battery_v=s.battery_v or 0.0,
+            going=self._goto is not None))
+
+    def _check_tickets(self) -> None:
+        if self._goto is not None:
+            oid, ticket = self._goto
+            if ticket.status == "failed":
+                self._goto = None
+                self.machine.order_outcome(oid, ac.R_REFUSED if ticket.reject_reason == 2 else ac.R_IMPOSSIBLE)
+                self._note(f"go-to {oid} failed: {ticket.reason}")
+            elif ticket.status == "cancelled":
+                self._goto = None
+                self.machine.order_outcome(oid, ac.R_ABORTED)
+                self._note(f"go-to {oid} cancelled: {ticket.reason}")
+            elif getattr(ticket, "reached", False):
+                self._goto = None
+                self.machine.order_outcome(oid, ac.R_DONE)
+                self._note(f"go-to {oid} arrived")
+        for oid, ticket in list(self._tickets.items()):
+            if ticket.done:
+                del self._tickets[oid]
+                if ticket.status == "accepted":
+                    self.machine.order_outcome(oid, ac.R_DONE)
+                else:
+                    self.machine.order_outcome(oid, ac.R_REFUSED)
+                    self._note(f"order {oid} refused: {ticket.reason}")
+
+    def _hold_mode(self) -> int:
+        return int(Mode.POS_HOLD if self.bridge.snapshot().position_valid else Mode.DEPTH_HOLD)
+
+    def _on_events(self, events: list, now: float) -> None:
+        for event in events:
+            if isinstance(event, ac.Stop):
+                self._goto = None
+                self.bridge.brake()
+                if event.new:
+                    self._note("STOP: brake" if event.stop_no is not None else "brake at start")
+            elif isinstance(event, ac.Hold):
+                self._goto = None
+                self._tickets[event.oid] = self.bridge.request_mode(self._hold_mode())
+                self._note(f"order {event.oid}: hold")
+            elif isinstance(event, ac.Surface):
+                self._goto = None
+                self._tickets[event.oid] = self.bridge.request_mode(int(Mode.SURFACE))
+                self._note(f"order {event.oid}: surface")
+            elif isinstance(event, (ac.Arm, ac.Disarm)):
+                self._tickets[event.oid] = self.bridge.request_arm(isinstance(event, ac.Arm))
+                self._note(f"order {event.oid}: {'arm' if isinstance(event, ac.Arm) else 'disarm'}")
+            elif isinstance(event, ac.SetMode):
+                self._goto = None
+                self._tickets[event.oid] = self.bridge.request_mode(int(event.mode))
+                self._note(f"order {event.oid}: mode {event.mode}")
+            elif isinstance(event, ac.GoToWanted):
+                t = event.target
+                self._goto = (event.oid, self.bridge.goto(
+                    t.x_dm / 10.0, t.y_dm / 10.0, t.z_dm / 10.0,
+                    math.radians(t.yaw_cdeg / 100.0) if t.yaw_set else None,
+                    relative=t.relative, body=t.body_frame))
+                self._note(f"go-to {event.oid}: ({t.x_dm / 10:.1f}, {t.y_dm / 10:.1f}, {t.z_dm / 10:.1f}) m"
+                           f"{' relative' if t.relative else ''}")
+                self._check_tickets()  # refused at once (impossible now): say so in the next status
+            elif isinstance(event, ac.ThumbnailWanted):
+                self._thumbnail(event.oid, event.settings)
+            elif isinstance(event, ac.FailsafeEntered):
+                self._goto = None
+                surface = event.action == ac.FAILSAFE_SURFACE
+                self._note(f"FAILSAFE: nothing from the operator for {self.machine.failsafe_s} s: "
+                           f"{'surface' if surface else 'hold position'}")
+                self.bridge.failsafe(True)
+                if surface:
+                    self.bridge.request_mode(int(Mode.SURFACE))
+            elif isinstance(event, ac.FailsafeCleared):
+                self._note("failsafe cleared: the operator is heard again")
+                self.bridge.failsafe(False)
+
+    # -- thumbnails ------------------------------------------------------------
+
+    def _thumbnail(self, oid: int, order) -> None:
+        snap = self.bridge.snapshot()
+        loop = self._loop
+
+        def work() -> bytes:
+            small = thumbnail(self.grab(snap))
+            roi = order.clipped_roi()
+            budget = order.budget  # of DEBT stream; the object is [N:2] and the stream
+            try:
+                stream = self._encode(small, budget, roi=roi, shift=order.shift if roi else 0, mono=True)
+            except ValueError:
+                stream = self._encode(small, budget, mono=True)
+            stream = bytes(stream)[:ac.MAX_OBJECT - 2]
+            return len(stream).to_bytes(2, "big") + stream
+
+        def done(f: concurrent.futures.Future) -> None:
+            if f.cancelled() or loop is None or loop.is_closed():
+                return
+            if f.exception() is not None:
+                self._note(f"thumbnail {oid} not encoded: {f.exception()}")
+                return
+            try:
+                loop.call_soon_threadsafe(self.machine.thumbnail_ready, oid, f.result())
+            except RuntimeError:
+                pass
+
+        self._worker.submit(work).add_done_callback(done)
+
+    def _note(self, text: str) -> None:
+        log.info("%s", text)
+        self.log.append(text)
+        del self.log[:-200]
