@@ -44,7 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from .jit import _inline, _jit
-from .rangecoder import PROB_ONE, _code, _save
+from .rangecoder import _code, _save, new_model
 
 # Context layout.  A band class is component class (0 luma/grey, 1 chroma)
 # times 8 plus resolution level (0 = low band, j = level-j details), plus 16
@@ -282,7 +282,7 @@ def _sign_part(sig, sgn, i):
 
 
 @_inline
-def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w, y, x, p,
+def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs,  binfo, b, off, h, w, y, x, p,
                      cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp):
     # A coefficient just found significant: its sign, then its state.  The
     # sign is predicted from the signs of the horizontal and vertical
@@ -331,7 +331,7 @@ def _new_significant(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b
             sctx = 6 if abs(same - other) >= 2 else 5
     # (`neg` is a placeholder of one element when decoding: never index it then.)
     nb = (neg[c] if mode == 0 else 0) ^ flip
-    a0, a1, a2, a3, a4, s = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+    a0, a1, a2, a3, a4, s = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                   CTX_SIGN + cls * 7 + sctx, nb)
     if s < 0:
         return a0, a1, a2, a3, a4, -1
@@ -365,8 +365,7 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     Returns 1 when all planes were coded, 0 when the byte limit (encoder) or
     the end of the certain data (decoder) stopped it first."""
     ncoef = cfloor.shape[0]
-    probs = np.full(2 * NCTX, PROB_ONE // 2, dtype=np.int64)  # per context its fast and slow estimates
-    counts = np.zeros(NCTX, dtype=np.int64)
+    probs = new_model(NCTX)
     lis = np.empty(max(int(seg[kmax + 1]), 1), dtype=np.int64)
     lis_len = np.zeros(kmax + 1, dtype=np.int64)
     sig = np.zeros(ncoef, dtype=np.uint8)
@@ -375,16 +374,17 @@ def run(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg
     stack = np.empty((4 * (kmax + 2), 3), dtype=np.int64)
     cy4 = np.empty(4, dtype=np.int64)
     cx4 = np.empty(4, dtype=np.int64)
+    cv4 = np.empty(4, dtype=np.int64)
     nsig = np.zeros(node_floor.shape[0], dtype=np.uint8)
     return _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-                     kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs, counts, lis, lis_len,
-                     sig, sigplane, lsp, stack, cy4, cx4, nsig)
+                     kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs,  lis, lis_len,
+                     sig, sigplane, lsp, stack, cy4, cx4, cv4, nsig)
 
 
 @_jit
 def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, nw, seg,
-              kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs, counts, lis, lis_len,
-              sig, sigplane, lsp, stack, cy4, cx4, nsig):
+              kmax, top, buf, st, rec, pk, sgn, cdef, node_def, probs,  lis, lis_len,
+              sig, sigplane, lsp, stack, cy4, cx4, cv4, nsig):
     nb = binfo.shape[0]
     a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
     nlsp = 0
@@ -430,7 +430,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     c = off + y * w + x
                     ctx = CTX_SIG + cls * 20 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
-                                                  counts, ctx, bit)
+                                                   ctx, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
                         return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
@@ -439,7 +439,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         j += 1
                         continue
                     a0, a1, a2, a3, a4, r = _new_significant(
-                        mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w, y, x, p,
+                        mode, a0, a1, a2, a3, a4, lim, buf, probs,  binfo, b, off, h, w, y, x, p,
                         cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
@@ -457,7 +457,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     r = 1
                 else:
                     ctx = CTX_SET + cls * 128 + kk * 16 + sctx + _first_block(nsig, sig, noff, nw, binfo, b, k, y, x)
-                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   ctx, bit)
                 if r < 0:
                     _save(st, a0, a1, a2, a3, a4)
@@ -496,20 +496,24 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     # planes) cannot be it: so when every tested child before
                     # the last one that can be tested was insignificant, that
                     # one is significant and costs no decision.
+                    # (Each child's floor byte is kept in cv4, -1 when it
+                    # is skipped, for the pass below.)
                     last = -1
                     for t in range(nchild):
                         v = _node_at(cfloor, node_floor, binfo, noff, nw, b, ck, cy4[t], cx4[t])
                         dd = _node_at(cdef, node_def, binfo, noff, nw, b, ck, cy4[t], cx4[t])
-                        if not ((v & 127) > p or p > top - dd):
+                        if (v & 127) > p or p > top - dd:
+                            cv4[t] = -1
+                        else:
+                            cv4[t] = v
                             last = t
                     any_sig = False
                     for t in range(nchild):
                         yy = cy4[t]
                         xx = cx4[t]
                         packed = (b << 40) | (yy << 20) | xx
-                        v = _node_at(cfloor, node_floor, binfo, noff, nw, b, ck, yy, xx)
-                        dd = _node_at(cdef, node_def, binfo, noff, nw, b, ck, yy, xx)
-                        if (v & 127) > p or p > top - dd:
+                        v = cv4[t]
+                        if v < 0:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
                             continue
@@ -530,7 +534,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                     nsig, sig, noff, nw, binfo, b, ck, yy, xx) + _first_block(
                                     nsig, sig, noff, nw, binfo, b, ck, yy, xx)
                             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
-                                                          counts, ctx, cbit)
+                                                           ctx, cbit)
                             if r < 0:
                                 _save(st, a0, a1, a2, a3, a4)
                                 return _drop_unfinished(lsp, nbefore, nlsp, rec, pk)
@@ -544,7 +548,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         if ck == 0:
                             c = off + yy * w + xx
                             a0, a1, a2, a3, a4, r = _new_significant(
-                                mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, binfo, b, off, h, w,
+                                mode, a0, a1, a2, a3, a4, lim, buf, probs,  binfo, b, off, h, w,
                                 yy, xx, p, cls, neg, sig, sgn, rec, pk, sigplane, lsp, nlsp)
                             if r < 0:
                                 _save(st, a0, a1, a2, a3, a4)
@@ -568,7 +572,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
             if mode == 0:
                 bit = (mag[c] >> p) & 1
             first = 1 if sigplane[c] == p + 1 else 0
-            a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+            a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                           CTX_REF + (np.int64(ccls[c]) + (16 if cfloor[c] >= 128 else 0)) * 2 + first, bit)
             if r < 0:
                 # One refinement can move a value away from the truth; a group

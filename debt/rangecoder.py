@@ -68,17 +68,37 @@ def _shift_low_t(low, cache, cache_size, pos, buf):
 
 
 @_inline
-def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
+def _rate(n):
+    # RATE[n] without a memory access (on the decoder's critical path).
+    return (1 + (1 if n >= 1 else 0) + (1 if n >= 3 else 0) + (1 if n >= 7 else 0) + (1 if n >= 16 else 0)
+            + (1 if n >= 64 else 0) + (1 if n >= 192 else 0))
+
+
+MODEL_INIT = (PROB_ONE // 2) | (PROB_ONE // 2) << 16
+
+
+def new_model(ncontexts: int) -> np.ndarray:
+    """Fresh adaptive state for `ncontexts` contexts, one int64 each: the fast
+    estimate in bits 0-15, the slow one in bits 16-31, the decisions seen
+    (up to RATE_LAST) from bit 32: one load and one store a decision."""
+    return np.full(ncontexts, MODEL_INIT, dtype=np.int64)
+
+
+@_inline
+def _code(mode, a0, a1, a2, a3, a4, lim, buf, model, ctx, bit):
     """Encode `bit` (mode 0) or decode one (mode 1) in context `ctx`.
 
     The coder state travels as scalars (five times faster than an array):
     encoder (low, range, cache, cache size, bytes out), decoder (range,
     lowest code, highest code, next byte, unused); `lim` is the encoder's
-    byte limit or the number of bytes the decoder holds.  Returns the new
-    state and the bit, or -1 when the encoder reached its byte limit or the
-    decoder cannot be sure of the decision from the bytes it has."""
-    i = ctx << 1       # the two estimates side by side (one cache line)
-    p = (probs[i] + probs[i + 1]) >> 1
+    byte limit or the number of bytes the decoder holds; `model` is
+    `new_model`'s.  Returns the new state and the bit, or -1 when the
+    encoder reached its byte limit or the decoder cannot be sure of the
+    decision from the bytes it has."""
+    m = model[ctx]
+    pf = m & 0xFFFF
+    ps = (m >> 16) & 0xFFFF
+    p = (pf + ps) >> 1
     if mode == 0:
         if a4 >= lim:
             return a0, a1, a2, a3, a4, -1
@@ -113,13 +133,11 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
                 a1 = a1 << 8
                 a2 = (a2 << 8) | 0xFF
             a3 += 1
-    n = counts[ctx]
-    slow = RATE[n]
+    n = m >> 32
+    slow = _rate(n)
     fast = slow if slow < FAST_CAP else FAST_CAP
     if n < RATE_LAST:
-        counts[ctx] = n + 1
-    pf = probs[i]
-    ps = probs[i + 1]
+        n += 1
     if bit == 0:
         pf += (PROB_ONE - pf) >> fast
         ps += (PROB_ONE - ps) >> slow
@@ -128,8 +146,7 @@ def _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts, ctx, bit):
         ps -= ps >> slow
     pf = min(max(pf, 32), PROB_ONE - 32)     # kept off the ends (no branch)
     ps = min(max(ps, 32), PROB_ONE - 32)
-    probs[i] = pf
-    probs[i + 1] = ps
+    model[ctx] = pf | (ps << 16) | (n << 32)
     return a0, a1, a2, a3, a4, bit
 
 

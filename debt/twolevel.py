@@ -41,7 +41,7 @@ import numpy as np
 
 from . import rangecoder
 from .jit import _jit
-from .rangecoder import PROB_ONE, _code, _save
+from .rangecoder import _code, _save, new_model
 
 NLEV_CTX = 8             # levels 1..7+ have contexts of their own
 CTX_MIX = 0                                   # + min(lev, 7) * 256 + neighbours
@@ -145,7 +145,7 @@ def _siblings(dec, off, lh, lw, lev, y, x):
 
 
 @_jit
-def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
+def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs):
     a0, a1, a2, a3, a4, lim = st[0], st[1], st[2], st[3], st[4], st[5]
     for lev in range(top, -1, -1):
         for y in range(lh[lev]):
@@ -166,7 +166,7 @@ def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
                     bit = 0
                     if mode == 0:
                         bit = 1 if truth[i] == 2 else 0
-                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   CTX_MIX + min(lev, NLEV_CTX - 1) * 256 + nbr, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
@@ -179,7 +179,7 @@ def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
                         continue
                     if mode == 0:
                         bit = truth[i]
-                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   CTX_VAL + min(lev, 3) * 256 + nbr, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
@@ -198,7 +198,7 @@ def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
                     bit = 0
                     if mode == 0:
                         bit = truth[i]
-                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs, counts,
+                    a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   CTX_PIX + ctx, bit)
                     if r < 0:
                         _save(st, a0, a1, a2, a3, a4)
@@ -211,9 +211,8 @@ def _traverse(mode, truth, dec, off, lh, lw, top, buf, st, probs, counts):
 def _work(height: int, width: int):
     lh, lw, off, top = _levels(height, width)
     dec = np.full(int(off[-1]), -1, dtype=np.int8)
-    probs = np.full(2 * NCTX, PROB_ONE // 2, dtype=np.int64)
-    counts = np.zeros(NCTX, dtype=np.int64)
-    return lh, lw, off, top, dec, probs, counts
+    probs = new_model(NCTX)
+    return lh, lw, off, top, dec, probs
 
 
 def colour_bytes(colour: bool) -> int:
@@ -229,11 +228,11 @@ def encode_payload(found, colour: bool, limit: int) -> bytes | None:
     if room < 0:
         return None
     height, width = bits.shape
-    lh, lw, off, top, dec, probs, counts = _work(height, width)
+    lh, lw, off, top, dec, probs = _work(height, width)
     truth = _pyramid(bits, lh, lw, off)
     buf = np.zeros(room + 64, dtype=np.uint8)
     st = rangecoder.encoder_state(room + 1)
-    if not _traverse(0, truth, dec, off, lh, lw, top, buf, st, probs, counts):
+    if not _traverse(0, truth, dec, off, lh, lw, top, buf, st, probs):
         return None
     n = min(rangecoder.flush(st, buf), buf.shape[0])
     payload = bytes(buf[1:n])
@@ -250,10 +249,10 @@ def _decode_blocks(payload: bytes, height: int, width: int, colour: bool):
     if len(payload) < 2 * nc:
         return None
     data = np.frombuffer(payload, dtype=np.uint8, offset=2 * nc).copy()
-    lh, lw, off, top, dec, probs, counts = _work(height, width)
+    lh, lw, off, top, dec, probs = _work(height, width)
     st = rangecoder.decoder_state(data)
     buf = data if data.size else np.zeros(1, dtype=np.uint8)
-    complete = _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs, counts)
+    complete = _traverse(1, np.zeros(1, dtype=np.int8), dec, off, lh, lw, top, buf, st, probs)
     return tuple(payload[:nc]), tuple(payload[nc:2 * nc]), dec, complete, (lh, lw, off, top)
 
 

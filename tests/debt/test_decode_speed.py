@@ -1,10 +1,11 @@
 """Decoding made faster must show every picture bit for bit as before.
 
-Streams and decoded pictures (whole and a prefix) of the project's samples
-and a rippled texture (its packet streams), with and without a region of
-interest, against digests made by the code before the decoder was sped up
-(issue 23); and the rewritten kernels against step-by-step references kept
-here (the inverse 9/7 lifting as it was, the colour conversion in numpy)."""
+Streams and decoded pictures (whole and a prefix) of the project's samples,
+a rippled texture (its packet streams) and two-level pictures (the mask and
+the mask with its residual), with and without a region of interest,
+against digests made by the code before the decoder was sped up (issue
+23); and the rewritten kernels against step-by-step references kept here
+(the inverse 9/7 lifting as it was, the colour conversion in numpy)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from rovlink.debt import codec, coder, kernels, samples
+from rovlink.debt import codec, coder, kernels, rangecoder, samples
 from rovlink.debt.transform import _A, _B, _C, _D
 
 # (picture, budget, region?) -> (stream, picture of its first third, picture): sha256[:16]
@@ -48,6 +49,9 @@ DIGESTS = {
     ('ripples colour', 2000, True): ('66661e5e2591e5a9', 'b8bd46c014427f7e', 'b00ce212750f9f33'),
     ('ripples colour', 4000, False): ('be8be289186e3234', '66bd552d9521d93a', 'dfa920901e6826f2'),
     ('ripples colour', 4000, True): ('7be5b8c079c80789', '0ec4dd6129e40b3f', 'f8dda30fc9ae7512'),
+    ('two-level', 200, False): ('b462de83307e9b69', '00e91d6a4606c1dc', '07ae47be46c3fd07'),
+    ('soft', 200, False): ('f9aadf49727c5f5d', '5b579411ca7c0200', 'e383c9d152939d3a'),
+    ('soft', 1000, False): ('106ae4fe39ea33c1', '4a4e2049bac39782', '814e852a0bd1e915'),
 }
 
 
@@ -61,9 +65,19 @@ def _ripples(colour: bool) -> np.ndarray:
     return np.stack([g, np.clip(g.astype(int) - 20, 0, 255).astype(np.uint8), 255 - g], axis=-1)
 
 
+def _two_level(soft: bool) -> np.ndarray:
+    yy, xx = np.mgrid[0:120, 0:160]
+    img = np.where((xx - 80) ** 2 + (yy - 60) ** 2 < 40 ** 2, 250, 5).astype(np.uint8)
+    if soft:     # a two-level mask and its residual
+        img[10, :] = np.arange(160) % 256
+    return img
+
+
 def _picture(name: str) -> np.ndarray:
     if name.startswith("ripples"):
         return _ripples(name.endswith("colour"))
+    if name in ("two-level", "soft"):
+        return _two_level(name == "soft")
     return samples.sample(name)
 
 
@@ -215,6 +229,13 @@ def _sig_context_as_it_was(orient, nh, nv, nd):
     if nd >= 2:
         return 2
     return 1 if nd == 1 else 0
+
+
+def test_the_adaptation_rate_and_the_packed_model():
+    assert [rangecoder._rate(n) for n in range(rangecoder.RATE_LAST + 1)] == list(rangecoder.RATE)
+    model = rangecoder.new_model(3)
+    assert list(model & 0xFFFF) == list((model >> 16) & 0xFFFF) == [rangecoder.PROB_ONE // 2] * 3
+    assert list(model >> 32) == [0, 0, 0]
 
 
 def test_the_coders_context_tables_are_its_branches():
