@@ -60,6 +60,19 @@ class AcousticSession:
         self.alert = False
         self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
+        self._subscribers: list = []
+
+    def subscribe(self, callback):
+        """callback(topic, payload) for every order fate ("order") and alert ("log"); returns the unsubscribe."""
+        self._subscribers.append(callback)
+        return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
+
+    def _publish(self, topic: str, payload: dict) -> None:
+        for cb in list(self._subscribers):
+            try:
+                cb(topic, payload)
+            except Exception:  # a subscriber's bug never stops the link
+                log.exception("acoustic subscriber failed")
 
     # -- the link --------------------------------------------------------------
 
@@ -123,6 +136,7 @@ class AcousticSession:
                 rec = self.orders.get(e.oid)
                 if rec is not None and (rec["state"] != e.state or rec["reason"] != e.reason):
                     rec.update(state=e.state, reason=e.reason, settled_at=now)
+                    self._publish("order", {"kind": rec["text"], "state": e.state + (f": {e.reason}" if e.reason else "")})
                     self._note(f"{rec['text']}: {e.state}" + (f" ({e.reason})" if e.reason else ""),
                                "warn" if e.state in ("rejected", "aborted", "unknown", "cancelled") else "info")
             elif isinstance(e, ac.StopConfirmed):

@@ -100,8 +100,6 @@ def _run_acoustic(args, endpoint, key) -> int:
 
     if key is None:
         raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
-    if args.gcs:
-        raise CommandError("--gcs is not served on the acoustic profile yet")
 
     async def main() -> None:
         link = LinkThread().start()
@@ -115,8 +113,21 @@ def _run_acoustic(args, endpoint, key) -> int:
         policy = AccessPolicy.for_server(args.host, args.allow_host)
         app = create_acoustic_app(session, policy=policy)
         url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
+        gateway = None
+        if args.gcs:
+            from rovlink.console.acoustic.gcs import AcousticCommands, AcousticGcsView
+            from rovlink.console.gcs import GcsGateway
+
+            try:
+                gateway = GcsGateway(args.gcs, AcousticGcsView(session), AcousticCommands(session),
+                                     home=args.gcs_home).start()
+            except (OSError, ValueError) as exc:
+                await link.stop(endpoint.close())
+                raise CommandError(f"--gcs: {exc}") from None
         print(f"rovlink console on {args.link}: acoustic profile, every packet authenticated\n"
-              f"  operator page: {url}\n  Ctrl-C stops.", flush=True)
+              f"  operator page: {url}" + (f"\n  ground station: {', '.join(args.gcs)} (MAVLink 2, ArduSub; "
+                                           "targets and STOP, no sticks)" if args.gcs else "")
+              + "\n  Ctrl-C stops.", flush=True)
         stop = _stop_on_signals()
         server = asyncio.create_task(serve(app, host=args.host, port=args.port))
         waiter = asyncio.create_task(stop.wait())
@@ -126,6 +137,8 @@ def _run_acoustic(args, endpoint, key) -> int:
                 exc = server.exception()
                 raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
         finally:
+            if gateway is not None:
+                gateway.stop()
             server.cancel()
             await asyncio.gather(server, return_exceptions=True)
             await link.stop(endpoint.close())

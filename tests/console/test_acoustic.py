@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from rovlink.link.m64 import Delivery, M64Params
+from rovlink.link.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 
@@ -98,18 +99,18 @@ def acoustic(tmp_path_factory):
     pair = M64SerialPair(str(tmp / "op-modem"), str(tmp / "rov-modem"), params=FAST, seed=3)
     radio = HostileRadio(pair.channel)
     pair.start()
-    port = free_tcp_port()
+    port, gcs_port = free_tcp_port(), free_udp_port()
     rov = subprocess.Popen(ROVLINK + ["rov", "--link", f"wlmodem://{tmp}/rov-modem?role=b&channel=4",
                                       "--key", str(key), "-v"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     console = subprocess.Popen(ROVLINK + ["console", "--link", f"wlmodem://{tmp}/op-modem?role=a&channel=4",
                                           "--key", str(key), "--port", str(port), "--viser-port", str(free_tcp_port()),
-                                          "--no-record"],
+                                          "--no-record", "--gcs", f"udpout:127.0.0.1:{gcs_port}"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)
     base = f"http://127.0.0.1:{port}"
     try:
         assert wait_for(lambda: get(base + "/api/state")["status"], 120), "no status from the ROV over the modems"
-        yield base, radio, rov, console
+        yield base, radio, rov, console, gcs_port
     finally:
         for proc in (console, rov):
             if proc.poll() is None:
@@ -126,7 +127,7 @@ def acoustic(tmp_path_factory):
 def test_a_pilot_supervises_the_rov_through_the_acoustic_page(acoustic):
     from playwright.sync_api import sync_playwright
 
-    base, radio, rov, console = acoustic
+    base, radio, rov, console, _ = acoustic
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1366, "height": 768})
@@ -196,3 +197,35 @@ def test_a_pilot_supervises_the_rov_through_the_acoustic_page(acoustic):
     assert [o["state"] for o in after["orders"]] == [o["state"] for o in before["orders"]]
     assert after["link"]["state"] == "up"
     assert rov.poll() is None and console.poll() is None
+
+
+def test_a_ground_station_sees_the_status_and_stops_the_rov_over_the_acoustic_link(acoustic):
+    """QGroundControl's part, with pymavlink: the HEARTBEAT says what the last status
+    said, MANUAL_CONTROL moves nothing (no sticks at 64 bit/s), and DO_PAUSE_CONTINUE
+    is the STOP, answered ACCEPTED once the ROV confirms it."""
+    from pymavlink import mavutil
+
+    base, _, _, _, gcs_port = acoustic
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", dialect="ardupilotmega", source_system=255)
+    try:
+        hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30)
+        assert hb is not None and hb.type == mavutil.mavlink.MAV_TYPE_SUBMARINE
+        armed = bool(hb.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        assert armed == get(base + "/api/state")["status"]["armed"]
+        before = get(base + "/api/state")["status"]
+        for _ in range(20):
+            gcs.mav.manual_control_send(1, 1000, 0, 500, 0, 0)
+            time.sleep(0.1)
+        gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 0, 0, 0, 0, 0, 0, 0, 0)
+        results = []
+        end = time.monotonic() + 60
+        while time.monotonic() < end and mavutil.mavlink.MAV_RESULT_ACCEPTED not in results:
+            ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=2)
+            if ack is not None and ack.command == mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
+                results.append(ack.result)
+        assert results[0] == mavutil.mavlink.MAV_RESULT_IN_PROGRESS and results[-1] == mavutil.mavlink.MAV_RESULT_ACCEPTED
+        after = get(base + "/api/state")
+        assert after["stop"]["state"] == "confirmed"
+        assert abs(after["status"]["x_m"] - before["x_m"]) < 0.6  # the stick stream moved nothing
+    finally:
+        gcs.close()
