@@ -40,7 +40,7 @@ Decisions where the brief was silent (all written into §9):
   session within 10 s.  An operator that hears UPLINK 0 re-HELLOs: a gap of
   16 lost uplink frames cannot otherwise be noticed while the downlink works.
 - The ROV fills every slot it has nothing else for with a STATUS (the turns
-  pass anyway; the air is free); the 6 s period applies while a thumbnail is
+  pass anyway; the air is free); the 5 s period applies while a thumbnail is
   being sent.
 - Consecutive THUMB orders never share T: the operator skips one OID when
   the next one has the previous thumbnail's low bit.

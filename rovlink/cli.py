@@ -49,6 +49,7 @@ BENCHMARKS = {
     "link": "rovlink.link.bench",
     "console": "rovlink.console.bench.console",
     "debt": "rovlink.debt.bench",
+    "camera": "rovlink.rov.camerabench",
 }
 
 
