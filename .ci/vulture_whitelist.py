@@ -101,3 +101,15 @@ pytestmark  # unused variable (tests/console/test_restarts.py:32)
 pytestmark  # unused variable (tests/console/test_truth.py:23)
 pytestmark  # unused variable (tests/test_packaging.py:30)
 cleared_wall  # a field of LogEntry (console/session/state.py): the page reads it
+# The acoustic profile's counters, kept for diagnostics (link/acoustic.py Counters) and
+# what its machines and its bench expose to their callers.
+_.stale_syncs  # unused attribute (link/acoustic.py)
+_.data_packets  # unused attribute (link/acoustic.py)
+_.data_ignored  # unused attribute (link/acoustic.py)
+_.thumbnails_verified  # unused attribute (link/acoustic.py)
+_.orders_taken  # unused attribute (link/acoustic.py)
+_.orders_stale  # unused attribute (link/acoustic.py)
+_.stops_taken  # unused attribute (link/acoustic.py)
+_.unpaired  # unused attribute (link/acoustic.py)
+_.last_status  # unused attribute (link/acoustic.py: AcousticOperator's last STATUS, for callers)
+_.up_s  # unused attribute (link/acoustic_bench.py)

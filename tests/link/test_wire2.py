@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rovlink.link.auth import OperatorChain, PollIn, RovChain
+from rovlink.link.auth import OperatorChain, RovChain
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import Master
 from rovlink.link.messages import NO_IMAGE_DATA, Mode, NoOrder, Poll, ProtocolError, Reply, Velocity
