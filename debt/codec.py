@@ -20,6 +20,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from . import coder, kernels, rangecoder, twolevel
@@ -201,15 +203,19 @@ def _image(comps: list[np.ndarray], colour: bool, reversible: bool, rotation: np
 
 def _packets(a: np.ndarray, plan, forward: bool) -> None:
     """Split (or merge back) the regions of plan.splits with one more 9/7
-    level each, in place in the Mallat array `a` (see plan.packet_tree):
-    coarse splits first when analysing, last when synthesising."""
+    level each, in place in the Mallat arrays `a` (components, height,
+    width; see plan.packet_tree): coarse splits first when analysing, last
+    when synthesising.  One compiled pass (`kernels.packets97`) over every
+    region of every component."""
     if not plan.splits:
         return
-    none = np.zeros(4, dtype=np.int64)
-    for (y0, x0), (bh, bw), _depth in (plan.splits if forward else reversed(plan.splits)):
-        region = np.ascontiguousarray(a[y0:y0 + bh, x0:x0 + bw])
-        (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
-        a[y0:y0 + bh, x0:x0 + bw] = region
+    kernels.packets97(a, _split_table(plan.splits), forward)
+
+
+@lru_cache(maxsize=16)
+def _split_table(splits: tuple) -> np.ndarray:
+    # plan.splits as int64 rows (y0, x0, height, width), in their order.
+    return np.array([(y0, x0, bh, bw) for (y0, x0), (bh, bw), _depth in splits], dtype=np.int64).reshape(-1, 4)
 
 
 def _analysed(img: np.ndarray, colour: bool, plan, shared: dict | None):
@@ -278,9 +284,7 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
             limit = max(limit - ROTATION_BYTES, 0)
         if plan.splits:
             flat = flat.copy()
-            hw = height * width
-            for c in range(ncomp):
-                _packets(flat[c * hw:(c + 1) * hw].reshape(height, width), plan, forward=True)
+            _packets(flat.reshape(ncomp, height, width), plan, forward=True)
         # The same top as the lossless path's, found in the gathering pass.
         top_by_def = np.zeros(MAX_SHIFT + 1, dtype=np.int64)
         kernels.gather97(flat, plan.pos, plan.scale, mag, neg, plan.cdef8, top_by_def)
@@ -589,10 +593,10 @@ def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotati
     hw = height * width
     flat = np.zeros(ncomp * hw, dtype=np.float64)
     kernels.reconstruct97(rec, pk, sgn, plan.pos, plan.inv_scale, flat)
+    _packets(flat.reshape(ncomp, height, width), plan, forward=False)
     comps = []
     for c in range(ncomp):
         a = flat[c * hw:(c + 1) * hw].reshape(height, width)
-        _packets(a, plan, forward=False)
         kernels.inverse97(a, plan.levels, plan.roi)
         comps.append(a)
     return _image(comps, colour, False, rotation)

@@ -58,25 +58,6 @@ def _lift_run(row, up, dn, coef):
 
 
 @_jit_plain
-def _cols_step(a, r0, r1, s, e, start, coef):
-    # The same along rows r0..r1-1 over the column segment [s, e); the
-    # mirrored edges are taken out of the inner loop.
-    if e - s < 2:
-        return
-    first = s + ((start - s) & 1)
-    for r in range(r0, r1):
-        x = first
-        if x == s:
-            a[r, s] += 2.0 * coef * a[r, s + 1]
-            x += 2
-        while x + 1 < e:
-            a[r, x] += coef * (a[r, x - 1] + a[r, x + 1])
-            x += 2
-        if x < e:
-            a[r, x] += 2.0 * coef * a[r, x - 1]
-
-
-@_jit_plain
 def _vertical(a, h, w, roi, start, coef):
     # One lifting step down the columns.  With a region (roi[0] < roi[2] and
     # roi[1] < roi[3]: x0, y0, x1, y1 at this level) its columns are lifted
@@ -93,28 +74,6 @@ def _vertical(a, h, w, roi, start, coef):
         _rows_step(a, 0, h, 0, w, start, coef)
 
 
-@_jit_plain
-def _horizontal(a, h, w, hl, roi, start, coef):
-    # One lifting step along the rows, once the rows are split into low
-    # [0, hl) and high [hl, h): the region's rows (low rows ceil(y0/2) ..
-    # ceil(y1/2), high rows hl + floor(y0/2) .. hl + floor(y1/2)) in three
-    # segments, left of, over and right of it; the other rows whole.
-    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
-    if not (x0 < x1 and y0 < y1):
-        _cols_step(a, 0, h, 0, w, start, coef)
-        return
-    if h > 1:
-        bands = ((0, hl, (y0 + 1) // 2, (y1 + 1) // 2), (hl, h, hl + y0 // 2, hl + y1 // 2))
-    else:
-        bands = ((0, 1, 0, 1), (1, 1, 1, 1))
-    for lo, hi, i0, i1 in bands:
-        _cols_step(a, lo, i0, 0, w, start, coef)
-        _cols_step(a, i0, i1, 0, x0, start, coef)
-        _cols_step(a, i0, i1, x0, x1, start, coef)
-        _cols_step(a, i0, i1, x1, w, start, coef)
-        _cols_step(a, i1, hi, 0, w, start, coef)
-
-
 @_jit
 def forward97(a, levels, roi):
     """In-place multilevel CDF 9/7 analysis of a 2-D float64 array.
@@ -125,7 +84,8 @@ def forward97(a, levels, roi):
     the region's low-pass samples, (ceil(x0/2), ceil(y0/2), ceil(x1/2),
     ceil(y1/2))."""
     h, w = a.shape
-    tmp = np.empty(max(h, w), dtype=np.float64)
+    lo = np.empty(max(h, w), dtype=np.float64)
+    hi = np.empty(max(h, w), dtype=np.float64)
     rows = np.empty((h, w), dtype=np.float64)
     cur = roi.copy()
     for _ in range(levels):
@@ -136,24 +96,18 @@ def forward97(a, levels, roi):
             _vertical(a, h, w, cur, 0, _B)
             _vertical(a, h, w, cur, 1, _C)
             _vertical(a, h, w, cur, 0, _D)
-            # De-interleave whole rows (contiguous copies, not columns).
-            for r in range(h):
-                dst = (r >> 1) if r % 2 == 0 else hl + (r >> 1)
-                for x in range(w):
-                    rows[dst, x] = a[r, x]
+            # De-interleave whole rows (contiguous copies, not columns): the
+            # horizontal step reads the rows in their new order into `rows`.
+            if w > 1:
+                _forward_rows(a, rows, h, w, hl, wl, cur, lo, hi, True)
+            else:
+                for r in range(h):
+                    rows[(r >> 1) if r % 2 == 0 else hl + (r >> 1), 0] = a[r, 0]
             for r in range(h):
                 for x in range(w):
                     a[r, x] = rows[r, x]
-        if w > 1:
-            _horizontal(a, h, w, hl, cur, 1, _A)
-            _horizontal(a, h, w, hl, cur, 0, _B)
-            _horizontal(a, h, w, hl, cur, 1, _C)
-            _horizontal(a, h, w, hl, cur, 0, _D)
-            for r in range(h):
-                for x in range(w):
-                    tmp[(x >> 1) if x % 2 == 0 else wl + (x >> 1)] = a[r, x]
-                for x in range(w):
-                    a[r, x] = tmp[x]
+        elif w > 1:
+            _forward_rows(a, a, h, w, hl, wl, cur, lo, hi, False)
         h, w = hl, wl
         for i in range(4):
             cur[i] = (cur[i] + 1) // 2
@@ -205,7 +159,8 @@ def _inverse_rows(a, h, w, hl, wl, roi, lo, hi):
     # independent, so row by row equals step by step): the row's low and
     # high columns copied apart, the four lifting steps (`_lift_split`),
     # and the samples written back interleaved.  With a region, its rows
-    # (as `_horizontal`) are lifted in three segments, left of, over and
+    # (low rows ceil(y0/2) .. ceil(y1/2), high rows hl + floor(y0/2) ..
+    # hl + floor(y1/2)) are lifted in three segments, left of, over and
     # right of it.
     x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
     has = x0 < x1 and y0 < y1
@@ -232,6 +187,55 @@ def _inverse_rows(a, h, w, hl, wl, roi, lo, hi):
             a[r, 2 * i + 1] = hi[i]
         if wl > nh:
             a[r, 2 * nh] = lo[nh]
+
+
+@_jit_plain
+def _forward_row(lo, hi, s, e):
+    # The four analysis lifting steps along one split row segment.
+    _lift_split(lo, hi, s, e, 1, _A)
+    _lift_split(lo, hi, s, e, 0, _B)
+    _lift_split(lo, hi, s, e, 1, _C)
+    _lift_split(lo, hi, s, e, 0, _D)
+
+
+@_jit_plain
+def _forward_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
+    # Horizontal step of one analysis level, row by row, as `_inverse_rows`
+    # undoes it: the row's even and odd samples copied apart, the four
+    # lifting steps on them (`_lift_split`: what lifting the interleaved
+    # row in place did, the same operations in the same order, so the same
+    # values, but vectorised), written back low columns then high ones.
+    # Rows are independent, and so are a region's three segments (no filter
+    # crosses their edges): segment by segment equals step by step.  Row r
+    # of `out` is made from row r of `a`, or with `split` from the row the
+    # vertical step's de-interleaving puts there (`out` then another array).
+    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
+    has = x0 < x1 and y0 < y1
+    lo0 = (y0 + 1) // 2
+    lo1 = (y1 + 1) // 2
+    hi0 = hl + y0 // 2
+    hi1 = hl + y1 // 2
+    if h <= 1:
+        lo0, lo1, hi0, hi1 = 0, 1, 1, 1
+    nh = w - wl
+    for r in range(h):
+        row = a[(2 * r if r < hl else 2 * (r - hl) + 1) if split else r]
+        for i in range(nh):
+            lo[i] = row[2 * i]
+            hi[i] = row[2 * i + 1]
+        if wl > nh:
+            lo[nh] = row[2 * nh]
+        if has and ((lo0 <= r < lo1 and r < hl) or (hi0 <= r < hi1 and r >= hl)):
+            _forward_row(lo, hi, 0, x0)
+            _forward_row(lo, hi, x0, x1)
+            _forward_row(lo, hi, x1, w)
+        else:
+            _forward_row(lo, hi, 0, w)
+        dst = out[r]
+        for i in range(wl):
+            dst[i] = lo[i]
+        for i in range(nh):
+            dst[wl + i] = hi[i]
 
 
 @_jit
@@ -272,6 +276,32 @@ def inverse97(a, levels, roi):
             _vertical(a, h, w, cur, 1, -_C)
             _vertical(a, h, w, cur, 0, -_B)
             _vertical(a, h, w, cur, 1, -_A)
+
+
+@_jit
+def packets97(a, splits, forward):
+    """Wavelet packets in place in Mallat arrays `a` (components, height,
+    width): each region of `splits` (rows y0, x0, height, width) one more
+    9/7 level (`forward97`; `inverse97` when not `forward`, the regions in
+    reverse order), through a contiguous copy, as one call per region did."""
+    none = np.zeros(4, dtype=np.int64)
+    n = splits.shape[0]
+    for c in range(a.shape[0]):
+        comp = a[c]
+        for k in range(n):
+            i = k if forward else n - 1 - k
+            y0, x0, bh, bw = splits[i, 0], splits[i, 1], splits[i, 2], splits[i, 3]
+            region = np.empty((bh, bw), dtype=np.float64)
+            for y in range(bh):
+                for x in range(bw):
+                    region[y, x] = comp[y0 + y, x0 + x]
+            if forward:
+                forward97(region, 1, none)
+            else:
+                inverse97(region, 1, none)
+            for y in range(bh):
+                for x in range(bw):
+                    comp[y0 + y, x0 + x] = region[y, x]
 
 
 @_jit

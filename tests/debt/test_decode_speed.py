@@ -188,6 +188,64 @@ def test_inverse97_gives_the_lifting_step_by_step_bit_for_bit(seed):
         assert np.array_equal(a.view(np.int64), want.view(np.int64)), (h, w, levels, roi)
 
 
+def _forward97_as_it_was(a, levels, roi):
+    # The analysis as it was: each lifting step over the interleaved rows
+    # and columns, then the samples de-interleaved.
+    h, w = a.shape
+    cur = tuple(int(v) for v in roi)
+    for _ in range(levels):
+        hl, wl = (h + 1) // 2, (w + 1) // 2
+        if h > 1:
+            for start, coef in ((1, _A), (0, _B), (1, _C), (0, _D)):
+                _vertical(a, h, w, cur, start, coef)
+            order = [2 * r if r < hl else 2 * (r - hl) + 1 for r in range(h)]
+            a[:h, :w] = a[order, :w]
+        if w > 1:
+            for start, coef in ((1, _A), (0, _B), (1, _C), (0, _D)):
+                _horizontal(a, h, w, hl, cur, start, coef)
+            order = [2 * x if x < wl else 2 * (x - wl) + 1 for x in range(w)]
+            a[:h, :w] = a[:h, order]
+        h, w = hl, wl
+        cur = tuple((v + 1) // 2 for v in cur)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_forward97_gives_the_lifting_step_by_step_bit_for_bit(seed):
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(6):
+        h, w = (int(v) for v in rng.integers(1, 48, 2))
+        levels = int(rng.integers(1, 6))
+        if rng.random() < 0.6:
+            x0, y0 = int(rng.integers(0, w)), int(rng.integers(0, h))
+            roi = np.array([x0, y0, int(rng.integers(x0 + 1, w + 1)), int(rng.integers(y0 + 1, h + 1))], dtype=np.int64)
+        else:
+            roi = np.zeros(4, dtype=np.int64)
+        a = rng.normal(size=(h, w)) * 100
+        want = a.copy()
+        _forward97_as_it_was(want, levels, roi)
+        kernels.forward97(a, levels, roi)
+        assert np.array_equal(a.view(np.int64), want.view(np.int64)), (h, w, levels, roi)
+
+
+@pytest.mark.parametrize("packets", [(1,), (1, 2), (1, 1, 2)])
+@pytest.mark.parametrize("forward", [True, False])
+def test_packets_in_one_pass_are_one_call_per_region(packets, forward):
+    from rovlink.debt.plan import plan_for
+
+    plan = plan_for(75, 101, 3, False, None, 0, None, packets)
+    rng = np.random.default_rng(len(packets))
+    a = rng.normal(size=(3, 75, 101)) * 50
+    want = a.copy()
+    none = np.zeros(4, dtype=np.int64)
+    for c in range(3):
+        for (y0, x0), (bh, bw), _depth in (plan.splits if forward else reversed(plan.splits)):
+            region = np.ascontiguousarray(want[c, y0:y0 + bh, x0:x0 + bw])
+            (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
+            want[c, y0:y0 + bh, x0:x0 + bw] = region
+    codec._packets(a, plan, forward)
+    assert np.array_equal(a.view(np.int64), want.view(np.int64))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_colour_and_grey_conversions_are_numpys_bit_for_bit(seed):
     rng = np.random.default_rng(seed)
