@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from rovlink.bench import emit, format_table
 
 from . import acoustic as ac
-from .acoustic_sim import AcousticSim, real_camera
+from .acoustic_sim import AcousticSim, budget_camera
 
 ROWS = ((0.0, 1.0), (0.10, 1.0), (0.30, 1.0), (0.10, 3.0), (0.30, 3.0))
 REPEATS = 4
@@ -65,7 +65,7 @@ def _median(values: list[float]) -> float | None:
     return statistics.median(values) if values else None
 
 
-def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Figures, camera=real_camera,
+def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Figures, camera=budget_camera,
                 busy: bool = True) -> None:
     rng = random.Random(seed ^ 0x5A5A)
     made: dict[str, float | None] = {"status": None}

@@ -6,8 +6,8 @@ drive them over `wlmodem`: a machine is asked for a packet only when its
 modem's transmit queue is empty (`queue_length`), and the modem is flushed
 first when it `wants_flush` (a STOP, a SYNC).  Around them, the least a test
 or the bench needs: a vehicle that flies a go-to at 0.5 m/s and takes the
-other orders at once, and a camera that codes an 80x60 grey DEBT thumbnail
-(or hands a fixed object).
+other orders at once, and a camera that makes thumbnail objects of the size DEBT
+makes for the budget asked (or hands a fixed object).
 
 Plan: a loop over simulated time that jumps to the next thing that can
 happen (a packet arrives or leaves, a scheduled callback, the ROV's
@@ -18,7 +18,6 @@ time (`op_log`, `rov_log`) and handed to optional callbacks.
 
 from __future__ import annotations
 
-import functools
 import heapq
 import math
 import os
@@ -33,21 +32,13 @@ GOTO_SPEED = 0.5  # m/s
 SURFACE_SPEED = 0.25  # m/s up
 
 
-@functools.lru_cache(maxsize=16)
-def debt_thumbnail(budget: int, roi: tuple[int, int, int, int] | None, shift: int, seed: int = 3) -> bytes:
-    """An 80x60 grey picture of the simulated seabed as a DEBT object [N:2][stream]."""
-    import numpy as np
-
-    from rovlink import debt
-    from rovlink.debt.samples import seabed
-
-    grey = seabed(ac.THUMB_H, ac.THUMB_W, seed=seed).mean(axis=2).astype(np.uint8)
-    stream = debt.encode(grey, budget, roi=roi, shift=shift if roi else 0, mono=True)
+def budget_camera(settings: ac.ThumbRequest) -> bytes:
+    """A thumbnail object of the size DEBT makes for the settings' budget ([N:2] and
+    BUDGET bytes: DEBT fills its budget), its bytes stand-ins.  What a picture shows is
+    not the link's business (and `link` knows nothing of the codec); the two-process
+    test (tests/console/test_acoustic.py) decodes a real one."""
+    stream = random.Random(settings.oid).randbytes(settings.budget)
     return len(stream).to_bytes(2, "big") + stream
-
-
-def real_camera(settings: ac.ThumbRequest) -> bytes:
-    return debt_thumbnail(settings.budget, settings.clipped_roi(), settings.shift)
 
 
 def fixed_camera(size: int = 200, seed: int = 7) -> Callable[[ac.ThumbRequest], bytes]:
@@ -164,7 +155,7 @@ class AcousticSim:
         self.operator = ac.AcousticOperator(self.key, random_bytes=rng.randbytes)
         self.rov = self._new_rov()
         self.vehicle = vehicle or SimVehicle()
-        self.camera = camera or real_camera
+        self.camera = camera or budget_camera
         self.step_s = step_s
         self.now = start
         self.op_log: list[tuple[float, object]] = []
