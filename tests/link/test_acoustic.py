@@ -266,7 +266,16 @@ def test_stop_goes_first_ahead_of_an_order_and_a_thumbnail_under_way():
 def test_a_thumbnail_is_decoded_and_verified():
     from rovlink import debt
 
-    sim = _synced(seed=4, camera=None)  # the real camera: an 80x60 grey DEBT picture
+    import numpy as np
+
+    from rovlink.debt.samples import seabed
+
+    def camera(settings):  # an 80x60 grey DEBT picture of the simulated seabed
+        grey = seabed(ac.THUMB_H, ac.THUMB_W, seed=3).mean(axis=2).astype(np.uint8)
+        stream = debt.encode(grey, settings.budget, mono=True)
+        return len(stream).to_bytes(2, "big") + stream
+
+    sim = _synced(seed=4, camera=camera)
     oid = sim.order(ac.ThumbRequest(0, budget=198))
     sim.run_until(sim.now + 80)
     (_, done), = sim.events(ac.ThumbnailComplete)
