@@ -131,6 +131,7 @@ def series(path: str | Path) -> Series:
     frames, received, images = [], [], []
     commanded: list = [(0.0, (0.0, 0.0, 0.0, 0.0))]  # the wish is neutral until the pilot moves
     last_poll = None
+    last_wish = None  # the last VELOCITY's wish (a version 2 NONE poll repeats it)
     replies = FrameDecoder()
     extra = 0  # bytes after a poll's payload: COUNT and TAG in protocol 2
     for r in records[1:]:
@@ -146,15 +147,26 @@ def series(path: str | Path) -> Series:
                 # The poll as the master made it (version 2 may leave parts out of the frame, §8.1).
                 poll = Poll.decode(bytes.fromhex(r["poll"]) if "poll" in r else data[2:len(data) - 2 - extra])
                 order = poll.order
-                last_poll = (t + 8 * len(data) / bitrate + delay,
-                             (order.vx / VELOCITY_FULL, order.vy / VELOCITY_FULL, order.vz / VELOCITY_FULL, order.vyaw / VELOCITY_FULL)) \
-                    if hasattr(order, "vyaw") else None
+                if hasattr(order, "vyaw"):
+                    wish = (order.vx / VELOCITY_FULL, order.vy / VELOCITY_FULL, order.vz / VELOCITY_FULL,
+                            order.vyaw / VELOCITY_FULL)
+                elif extra and order.code == 0:
+                    wish = last_wish  # version 2: a NONE poll repeats the last wish the ROV took (§8.1)
+                else:
+                    wish = last_wish = None
+                last_wish = wish
+                last_poll = (t + 8 * len(data) / bitrate + delay, wish) if wish is not None else None
             except ProtocolError:
                 last_poll = None
         elif k == "rx":
             data = bytes.fromhex(r["hex"])
             frames.append((t, "rx", len(data)))
-            if replies.feed(data) and last_poll is not None:
+            if not extra and replies.feed(data) and last_poll is not None:
+                received.append(last_poll)
+                last_poll = None
+        elif k == "reply" and extra and not r.get("sync"):
+            # Version 2: an authentic, timely reply (its frame has no CRC to find it by, §8.1).
+            if last_poll is not None:
                 received.append(last_poll)
                 last_poll = None
         elif k == "wish":

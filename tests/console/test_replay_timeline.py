@@ -29,7 +29,9 @@ from .conftest import wait_for
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
-    """A session of ~8 s: armed, driving and turning, three images shown."""
+    """A session of ~8 s: armed, driving and turning, three images shown (then pictures
+    off, so that the session is long enough for the timeline's tests whatever the link's
+    picture rate)."""
     path = tmp_path_factory.mktemp("replay") / "session.jsonl"
 
     async def session() -> None:
@@ -43,9 +45,12 @@ def recording(tmp_path_factory):
                 await asyncio.sleep(0.05)
             op.arm(True)
             op.set_velocity(0.8, 0.0, 0.0, 0.3)
+            started = time.monotonic()
             while op.image_state()["images_completed"] < 3:
                 assert time.monotonic() < deadline, "no images came"
                 await asyncio.sleep(0.05)
+            op.set_image_settings(budget_bytes=0)
+            await asyncio.sleep(max(0.3, 6.0 - (time.monotonic() - started)))
             op.set_velocity(0.0, 0.0, 0.0, 0.0)
             await asyncio.sleep(0.3)
 
