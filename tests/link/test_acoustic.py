@@ -264,10 +264,9 @@ def test_stop_goes_first_ahead_of_an_order_and_a_thumbnail_under_way():
 
 
 def test_a_thumbnail_is_decoded_and_verified():
-    from rovlink import debt
-
     import numpy as np
 
+    from rovlink import debt
     from rovlink.debt.samples import seabed
 
     def camera(settings):  # an 80x60 grey DEBT picture of the simulated seabed
