@@ -21,10 +21,9 @@ from __future__ import annotations
 
 import math
 import random
-import statistics
 from dataclasses import dataclass, field
 
-from rovlink.bench import emit, format_table
+from rovlink.bench import emit, format_table, median, quantile
 
 from . import acoustic as ac
 from .acoustic_sim import AcousticSim, budget_camera
@@ -54,15 +53,6 @@ class Figures:
     up_s: float = 0.0
 
 
-def _q(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    values = sorted(values)
-    return values[min(len(values) - 1, max(0, int(round(q * (len(values) - 1)))))]
-
-
-def _median(values: list[float]) -> float | None:
-    return statistics.median(values) if values else None
 
 
 def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Figures, camera=budget_camera,
@@ -168,18 +158,18 @@ def _row(loss: float, burst: float, duration_s: float, seed: int) -> tuple[dict,
     entry = {
         "loss": loss, "burst": burst, "seconds": REPEATS * duration_s,
         "stops": fig.stops_pressed,
-        "stop_at_rov_s_p50": _median(fig.stop_at_rov_s), "stop_at_rov_s_p95": _q(fig.stop_at_rov_s, 0.95),
-        "stop_confirmed_s_p50": _median(fig.stop_confirmed_s), "stop_confirmed_s_p95": _q(fig.stop_confirmed_s, 0.95),
+        "stop_at_rov_s_p50": median(fig.stop_at_rov_s), "stop_at_rov_s_p95": quantile(fig.stop_at_rov_s, 0.95),
+        "stop_confirmed_s_p50": median(fig.stop_confirmed_s), "stop_confirmed_s_p95": quantile(fig.stop_confirmed_s, 0.95),
         "stops_confirmed": len(fig.stop_confirmed_s),
-        "status_age_s_p50": _median(ages), "status_age_s_p95": _q(ages, 0.95), "status_age_s_max": max(ages, default=None),
+        "status_age_s_p50": median(ages), "status_age_s_p95": quantile(ages, 0.95), "status_age_s_max": max(ages, default=None),
         "status_age_share_over_10s": sum(a > 10.0 for a in ages) / len(ages) if ages else None,
         "gotos": fig.gotos, "gotos_taken": fig.gotos_taken, "gotos_done": fig.gotos_done,
-        "goto_taken_s_p50": _median(fig.goto_taken_s), "goto_taken_s_p95": _q(fig.goto_taken_s, 0.95),
+        "goto_taken_s_p50": median(fig.goto_taken_s), "goto_taken_s_p95": quantile(fig.goto_taken_s, 0.95),
         "thumbnails": len(fig.thumb_s), "thumbnails_asked": fig.thumbs_asked,
-        "thumbnail_s_p50": _median(fig.thumb_s), "thumbnail_s_p95": _q(fig.thumb_s, 0.95),
+        "thumbnail_s_p50": median(fig.thumb_s), "thumbnail_s_p95": quantile(fig.thumb_s, 0.95),
         "thumbnail_mismatches": fig.thumb_mismatches + alone.thumb_mismatches,
         "alone_thumbnails": len(alone.thumb_s),
-        "alone_thumbnail_s_p50": _median(alone.thumb_s), "alone_thumbnail_s_p95": _q(alone.thumb_s, 0.95),
+        "alone_thumbnail_s_p50": median(alone.thumb_s), "alone_thumbnail_s_p95": quantile(alone.thumb_s, 0.95),
         "alone_status_age_s_max": max(alone.status_age_s, default=None),
         "alone_status_age_share_over_10s": (sum(a > 10.0 for a in alone.status_age_s) / len(alone.status_age_s)
                                             if alone.status_age_s else None),

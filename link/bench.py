@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import math
 import random
-import statistics
 from dataclasses import dataclass, field
 
-from rovlink.bench import emit, format_table
+from rovlink.bench import emit, format_table, median, quantile
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress, Master
 from rovlink.link.messages import VELOCITY_FULL
@@ -56,16 +55,6 @@ class Session:
     hellos: int = 0
 
 
-def _quantile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    values = sorted(values)
-    k = min(len(values) - 1, max(0, int(round(q * (len(values) - 1)))))
-    return values[k]
-
-
-def _median(values: list[float]) -> float | None:
-    return statistics.median(values) if values else None
 
 
 def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: int, *, bitrate: float = 1900.0,
@@ -257,15 +246,15 @@ def run(args) -> int:
                 "mode": mode,
                 "ber": ber,
                 "floor_s": floor_s,
-                "idle_image_s_median": _median(idle.image_s),
-                "idle_image_s_p95": _quantile(idle.image_s, 0.95),
-                "steering_image_s_median": _median(steer.image_s),
-                "steering_image_s_p95": _quantile(steer.image_s, 0.95),
-                "steering_first_500B_s_median": _median(steer.first_bytes_s),
-                "poll_interval_s_median": _median(intervals),
-                "poll_interval_s_p95": _quantile(intervals, 0.95),
-                "wish_latency_s_median": _median(steer.wish_latency_s),
-                "wish_latency_s_p95": _quantile(steer.wish_latency_s, 0.95),
+                "idle_image_s_median": median(idle.image_s),
+                "idle_image_s_p95": quantile(idle.image_s, 0.95),
+                "steering_image_s_median": median(steer.image_s),
+                "steering_image_s_p95": quantile(steer.image_s, 0.95),
+                "steering_first_500B_s_median": median(steer.first_bytes_s),
+                "poll_interval_s_median": median(intervals),
+                "poll_interval_s_p95": quantile(intervals, 0.95),
+                "wish_latency_s_median": median(steer.wish_latency_s),
+                "wish_latency_s_p95": quantile(steer.wish_latency_s, 0.95),
                 "idle_images_completed": idle.images_completed,
                 "idle_images_finished": idle.images_completed + idle.images_abandoned,
                 "steering_images_completed": steer.images_completed,
@@ -300,7 +289,7 @@ def run(args) -> int:
                     "velocity_lapses_per_hour": sess.velocity_lapses / hours,
                     "hellos_per_hour": sess.hellos / hours,
                     "replies_lost_share": sess.replies_lost / sess.polls if sess.polls else None,
-                    "wish_latency_s_p95": _quantile(sess.wish_latency_s, 0.95),
+                    "wish_latency_s_p95": quantile(sess.wish_latency_s, 0.95),
                 }
                 loss_results.append(entry)
                 loss_rows.append([mode, f"{loss:.0%}", "bursts of 3" if burst > 1 else "independent",

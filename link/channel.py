@@ -36,6 +36,16 @@ from typing import IO, Callable
 SIDES = ("a", "b")
 
 
+def event_log(log: Callable[[dict], None] | IO[str] | None) -> Callable[[dict], None] | None:
+    """What a channel model writes its events to: a callable taking each record, or a
+    text file given one JSON line per record, or nothing."""
+    if log is None:
+        return None
+    if callable(log):
+        return log
+    return lambda record: log.write(json.dumps(record, separators=(",", ":")) + "\n")
+
+
 @dataclass(frozen=True)
 class LinkParams:
     """One direction of the channel."""
@@ -114,21 +124,13 @@ class Channel:
         self.half_duplex = half_duplex
         self.rng = random.Random(seed)
         self.counters = ChannelCounters()
-        self._log = self._make_log(log)
+        self._log = event_log(log)
         self._tx_free = {"a": -math.inf, "b": -math.inf}
         self._queued: dict[str, list[tuple[float, int]]] = {"a": [], "b": []}  # (transmit end, bytes)
         self._air: dict[str, list[tuple[float, float]]] = {"a": [], "b": []}  # on-air intervals
         self._arrivals: list[tuple[float, int, _InFlight]] = []
         self._seq = 0
         self._in_burst = {"a": False, "b": False}  # Gilbert-Elliott state per sending side
-
-    @staticmethod
-    def _make_log(log):
-        if log is None:
-            return None
-        if callable(log):
-            return log
-        return lambda record: log.write(json.dumps(record, separators=(",", ":")) + "\n")
 
     def _emit(self, record: dict) -> None:
         if self._log is not None:

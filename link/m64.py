@@ -85,14 +85,13 @@ Model (M64Params; every figure a parameter):
 from __future__ import annotations
 
 import heapq
-import json
 import math
 import random
 from collections import deque
 from dataclasses import dataclass
 from typing import IO, Callable
 
-from .channel import ChannelCounters, Delivery
+from .channel import ChannelCounters, Delivery, event_log
 
 SIDES = ("a", "b")
 PACKET_BYTES = 8
@@ -192,7 +191,7 @@ class M64Channel:
         # One stream per direction: what a loses does not depend on when b talks.
         self.rng = {side: random.Random(root.getrandbits(64)) for side in SIDES}
         self.counters = M64Counters()
-        self._log = self._make_log(log)
+        self._log = event_log(log)
         self._queue: dict[str, deque[tuple[bytes, float]]] = {"a": deque(), "b": deque()}
         self._bad = {"a": False, "b": False}  # Gilbert-Elliott state per direction
         self._arrivals: list[tuple[float, int, _InFlight]] = []
@@ -201,14 +200,6 @@ class M64Channel:
         self._turn = {"a": 0, "b": 0}  # index of each side's next turn not yet taken
         if start is not None:
             self._begin(start)
-
-    @staticmethod
-    def _make_log(log):
-        if log is None:
-            return None
-        if callable(log):
-            return log
-        return lambda record: log.write(json.dumps(record, separators=(",", ":")) + "\n")
 
     def _emit(self, record: dict) -> None:
         if self._log is not None:

@@ -5,8 +5,21 @@ console/bench/)."""
 from __future__ import annotations
 
 import json
+import statistics
 import sys
 from typing import Any, Sequence
+
+
+def quantile(values: Sequence[float], q: float) -> float | None:
+    """The q-quantile of `values` (the nearest rank), None when there are none."""
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, max(0, int(round(q * (len(ordered) - 1)))))]
+
+
+def median(values: Sequence[float]) -> float | None:
+    return statistics.median(values) if values else None
 
 
 def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
