@@ -98,8 +98,12 @@ async def _measure(seconds: float, telemetry_hz: float) -> dict:
                 pilot = control.Caller(desk.take(None, "bench").id)
                 desk.submit(control.Arm(True), pilot)
                 await asyncio.sleep(2.0)
-                desk.submit(control.Drive(0.4, 0.0, 0.0, 0.15), pilot)
-                await asyncio.sleep(max(0.0, seconds - 2.0))
+                # Held as a pilot holds a stick: the wish again every second, so
+                # that the desk's lease (a silent script loses control) holds.
+                end = time.time() + max(0.0, seconds - 2.0)
+                while time.time() < end:
+                    desk.submit(control.Drive(0.4, 0.0, 0.0, 0.15), pilot)
+                    await asyncio.sleep(min(1.0, max(0.0, end - time.time())))
                 desk.submit(control.Drive(), pilot)
                 rec = await page.evaluate("window.__rovlinkBench")
                 await browser.close()
