@@ -199,9 +199,12 @@ def _plots(out_dir: str, sessions: dict[str, Session]) -> list[str]:
     os.makedirs(out_dir, exist_ok=True)
     written = []
     fig, ax = plt.subplots(figsize=(7, 4))
+    every = [v for sess in sessions.values() for v in sess.image_s]
+    lo, hi = (min(every), max(every)) if every else (0.0, 1.0)
+    bins = [lo - 0.5 + (hi - lo + 1.0) * k / 80 for k in range(81)]  # the same bins for every protocol
     for name, sess in sessions.items():
         if sess.image_s:
-            ax.hist(sess.image_s, bins=30, alpha=0.5, label=f"{name} ({len(sess.image_s)} pictures)")
+            ax.hist(sess.image_s, bins=bins, alpha=0.6, label=f"{name} ({len(sess.image_s)} pictures)")
     ax.set_xlabel(f"seconds to deliver a {OBJECT_BYTES}-byte picture while steering (BER 7e-6)")
     ax.set_ylabel("pictures")
     ax.legend()
