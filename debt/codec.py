@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -165,6 +166,30 @@ def rotation_matrix(angles: bytes) -> np.ndarray:
 SQRT3 = float(np.sqrt(3.0))
 
 
+# Work arrays of an encode, kept per thread and reused by the next encode
+# (`_work`): a camera picture's encode made ~20 arrays of 0.2-1.8 MB, and
+# when the allocator handed their memory back to the system in between,
+# every encode faulted its pages in anew (~2000 page faults, 2-3 ms of a
+# 7 ms encode).  Only arrays that die within the call that takes them
+# (nothing returned or kept refers to them); one a name and thread (so
+# concurrent encodes never share one), grown when a bigger picture comes.
+_WORK = threading.local()
+
+
+def _work(name: str, shape, dtype) -> np.ndarray:
+    """A per-thread work array `name` of `shape` and `dtype`, contents left
+    over from its last use."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape, dtype=np.int64))
+    arrays = getattr(_WORK, "arrays", None)
+    if arrays is None:
+        arrays = _WORK.arrays = {}
+    held = arrays.get(name)
+    if held is None or held.dtype != dtype or held.size < size:
+        held = arrays[name] = np.empty(max(size, 1), dtype=dtype)
+    return held[:size].reshape(shape)
+
+
 def _components(img: np.ndarray, colour: bool, reversible: bool, rotation: np.ndarray | None = None) -> list[np.ndarray]:
     if reversible:
         x = img.astype(np.int64)
@@ -179,6 +204,21 @@ def _components(img: np.ndarray, colour: bool, reversible: bool, rotation: np.nd
     # then gives the luma's range (what the band scales are made for).
     y = (x - 128.0) @ (rotation.T / SQRT3)
     return [np.ascontiguousarray(y[..., i]) for i in range(3)]
+
+
+def _components97_into(img: np.ndarray, colour: bool, rotation, out: np.ndarray) -> None:
+    """`_components(img, colour, False, rotation)` written into `out`
+    (components, height, width), the same values, its temporaries the
+    thread's work arrays (`_work`)."""
+    shifted = _work("shifted", img.shape, np.float64)
+    np.subtract(img, 128.0, out=shifted)        # img.astype(float64) - 128.0, exactly
+    if not colour:
+        out[0] = shifted
+        return
+    rotated = _work("rotated", img.shape, np.float64)
+    np.matmul(shifted, rotation.T / SQRT3, out=rotated)
+    for i in range(3):
+        out[i] = rotated[..., i]
 
 
 def _image(comps: list[np.ndarray], colour: bool, reversible: bool, rotation: np.ndarray | None = None) -> np.ndarray:
@@ -231,12 +271,12 @@ def _analysed(img: np.ndarray, colour: bool, plan, shared: dict | None):
     rotation = b""
     if colour:
         rotation = colour_rotation(img)
-    comps = _components(img, colour, False, rotation_matrix(rotation) if rotation else None)
-    flat = np.empty(len(comps) * hw, dtype=np.float64)
-    for c, comp in enumerate(comps):
-        a = flat[c * hw:(c + 1) * hw].reshape(height, width)
-        a[...] = comp
-        kernels.forward97(a, plan.levels, plan.roi)
+    ncomp = 3 if colour else 1
+    flat = np.empty(ncomp * hw, dtype=np.float64)
+    _components97_into(img, colour, rotation_matrix(rotation) if rotation else None,
+                       flat.reshape(ncomp, height, width))
+    for c in range(ncomp):
+        kernels.forward97(flat[c * hw:(c + 1) * hw].reshape(height, width), plan.levels, plan.roi)
     if shared is not None:
         shared[key] = (rotation, flat)
     return rotation, flat
@@ -249,18 +289,20 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     the squared error the decoder's picture will have, summed, as the
     coefficients tell it (`_coefficient_error`); with `views` too, a function
     that makes the picture the decoder will show from the encoder's own state
-    (`_picture97`, no decoding pass).  `shared`: see `_analysed`."""
+    (`_picture97`, no decoding pass), or given a picture the squared error
+    against it (`_squared_error97`, the picture not made).  `shared`: see
+    `_analysed`."""
     height, width = img.shape[:2]
     ncomp = 3 if colour else 1
     plan = plan_for(height, width, ncomp, reversible, roi, shift, levels, packets)
     lay = plan.lay
     n = max(lay.ncoef, 1)
-    mag = np.zeros(n, dtype=np.int64)
-    neg = np.zeros(n, dtype=np.uint8)
     rotation = b""
     room = limit
     flat = None
     if reversible:
+        mag = np.zeros(n, dtype=np.int64)
+        neg = np.zeros(n, dtype=np.uint8)
         comps = _components(img, colour, reversible)
         comp_bands = [forward(c, plan.levels, "53") for c in comps]
         for b in range(len(lay.shapes)):
@@ -283,18 +325,27 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
         if rotation:
             limit = max(limit - ROTATION_BYTES, 0)
         if plan.splits:
-            flat = flat.copy()
+            split = _work("split", flat.shape, np.float64)
+            split[...] = flat
+            flat = split
             _packets(flat.reshape(ncomp, height, width), plan, forward=True)
+        # gather97 sets every coefficient's magnitude and sign (all n of them
+        # but for a picture without any: the one zero the coder still gets).
+        mag = _work("mag", n, np.int64)
+        neg = _work("neg", n, np.uint8)
+        mag[plan.pos.shape[0]:] = 0
+        neg[plan.pos.shape[0]:] = 0
         # The same top as the lossless path's, found in the gathering pass.
         top_by_def = np.zeros(MAX_SHIFT + 1, dtype=np.int64)
         kernels.gather97(flat, plan.pos, plan.scale, mag, neg, plan.cdef8, top_by_def)
         top = kernels.top_plane(top_by_def)
     header = Header(width, height, colour, reversible, top, roi, shift)
-    node_max = np.zeros(max(lay.nnodes, 1), dtype=np.int64)
+    node_max = _work("node_max", max(lay.nnodes, 1), np.int64)
+    node_max[...] = 0
     kernels.max_pyramid(mag, lay.binfo, lay.noff, lay.nw, node_max)
     buf = np.zeros(limit + 64, dtype=np.uint8)
     st = rangecoder.encoder_state(limit + 1)
-    rec = np.zeros_like(mag)
+    rec = np.zeros(n, dtype=np.int64)    # kept by `views`: its own
     pk = np.full(n, -1, dtype=np.int8)
     sgn = np.zeros(n, dtype=np.uint8)
     complete = coder.run(0, mag, neg, plan.cfloor8, plan.ccls, node_max, plan.node_floor,
@@ -304,7 +355,13 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
         errors.append(_coefficient_error(flat, plan, rec, pk))
         if views is not None:
             angles = rotation_matrix(rotation) if rotation else None
-            views.append(lambda: _picture97(rec, pk, sgn, plan, height, width, colour, angles))
+
+            def view(against=None):
+                comps = _components97(rec, pk, sgn, plan, height, width, colour)
+                if against is None:
+                    return _image(comps, colour, False, angles)
+                return _squared_error97(comps, angles, against)
+            views.append(view)
     if complete:
         n = rangecoder.flush(st, buf)
         n = min(n, buf.shape[0])
@@ -368,14 +425,15 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
         # dyadic one, told apart by their coefficients' error
         # (`_coefficient_error`), off by a few per cent, so when within CLOSE
         # of each other by the pictures the decoder will show, made from the
-        # encoder's own state (`_picture97`: no decoding pass).
+        # encoder's own state (`_picture97`: no decoding pass; their squared
+        # errors summed without making them, `_squared_error97`).
         packet_errors: list = []
         packet_views: list = []
         other = _packet_stream(img, colour, _packets_for(8.0 * limit / img.size), limit, packet_errors, shared,
                                packet_views)
         a, b = errors[-1], packet_errors[-1]
         if max(a, b) <= min(a, b) * CLOSE:
-            if _error(packet_views[-1](), img) < _error(views[-1](), img):
+            if packet_views[-1](img) < views[-1](img):
                 stream = other
         elif b < a:
             stream = other
@@ -589,6 +647,11 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
 def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotation) -> np.ndarray:
     """The 9/7 picture of the coder's state: each coefficient at its
     reconstruction point (`kernels.reconstruct97`), the transform inverted."""
+    return _image(_components97(rec, pk, sgn, plan, height, width, colour), colour, False, rotation)
+
+
+def _components97(rec, pk, sgn, plan, height: int, width: int, colour: bool) -> list[np.ndarray]:
+    # The picture's components (before `_image`) from the coder's state.
     ncomp = 3 if colour else 1
     hw = height * width
     flat = np.zeros(ncomp * hw, dtype=np.float64)
@@ -599,7 +662,18 @@ def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotati
         a = flat[c * hw:(c + 1) * hw].reshape(height, width)
         kernels.inverse97(a, plan.levels, plan.roi)
         comps.append(a)
-    return _image(comps, colour, False, rotation)
+    return comps
+
+
+def _squared_error97(comps: list[np.ndarray], rotation, img: np.ndarray) -> int:
+    """The squared error, summed (an exact integer), of the picture `_image`
+    makes of the 9/7 components `comps` against `img`, without making it
+    (`kernels.rgb_squared_error`, `kernels.grey_squared_error`): `_error`
+    times the samples, so the same order between pictures of one size."""
+    img = np.ascontiguousarray(img)
+    if img.ndim == 3:
+        return int(kernels.rgb_squared_error(*comps, rotation * SQRT3, 128.0, img))
+    return int(kernels.grey_squared_error(comps[0], 128.0, img))
 
 
 def _decode_mask_and_residual(h: Header, body: bytes) -> np.ndarray:
