@@ -496,7 +496,8 @@ def _textured(img: np.ndarray, colour: bool) -> bool:
     height, width = img.shape[:2]
     if height < 16 or width < 16:
         return False
-    luma = (img @ ICT[0] if colour else img).astype(np.float64)   # the offset changes no variance
+    # The offset changes no variance.  (A colour picture's product is float64 already: no copy.)
+    luma = np.asarray(img @ ICT[0], dtype=np.float64) if colour else img.astype(np.float64)
     none = np.zeros(4, dtype=np.int64)
     kernels.forward97(luma, 1, none)
     hl, wl = -(-height // 2), -(-width // 2)
@@ -651,10 +652,12 @@ def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotati
 
 
 def _components97(rec, pk, sgn, plan, height: int, width: int, colour: bool) -> list[np.ndarray]:
-    # The picture's components (before `_image`) from the coder's state.
+    # The picture's components (before `_image`) from the coder's state, in
+    # the thread's work array "picture" (`_work`): used up by the caller.
     ncomp = 3 if colour else 1
     hw = height * width
-    flat = np.zeros(ncomp * hw, dtype=np.float64)
+    flat = _work("picture", ncomp * hw, np.float64)
+    flat[...] = 0.0
     kernels.reconstruct97(rec, pk, sgn, plan.pos, plan.inv_scale, flat)
     _packets(flat.reshape(ncomp, height, width), plan, forward=False)
     comps = []
