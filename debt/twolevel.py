@@ -329,7 +329,7 @@ def mostly_two_colours(img: np.ndarray, colour: bool):
         # A photograph fails on every 13th pixel already (a whole count costs
         # 6 ms on 320x240, a sixth of an encode): those pixels' colours made
         # first, and the whole picture's only when they pass.
-        sample = img.reshape(-1, 3)[::13].astype(np.int64)
+        sample = img.reshape(-1, 3)[::13].astype(np.int32)     # 24 bits: int32 sorts faster
         sample = (sample[:, 0] << 16) | (sample[:, 1] << 8) | sample[:, 2]
         _, few = np.unique(sample, return_counts=True)
         if few.shape[0] > 2 and np.sort(few)[-2:].sum() < (MOSTLY - 0.1) * sample.shape[0]:
