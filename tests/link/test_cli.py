@@ -93,6 +93,36 @@ def test_channel_process_carries_frames_with_delay_and_logs(tmp_path):
     assert all("t" in e for e in events)
 
 
+def test_channel_takes_its_queue_by_name(tmp_path):
+    """--queue is the transmit queue: a 30-byte queue drops the second of two 24-byte
+    frames sent at once.  The options reach the model by name (a field added to it, the
+    loss's burst, once took --queue's place)."""
+    ports = [free_udp_port() for _ in range(4)]
+    a_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    a_user.bind(("127.0.0.1", ports[0]))
+    log = tmp_path / "channel.jsonl"
+    proc = subprocess.Popen(
+        ROVLINK + ["channel", "--a", f"udp://127.0.0.1:{ports[1]}?peer=127.0.0.1:{ports[0]}",
+                   "--b", f"udp://127.0.0.1:{ports[2]}?peer=127.0.0.1:{ports[3]}",
+                   "--queue", "30", "--log", str(log), "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr.readline().startswith("channel: ")
+        frame = encode_frame(bytes(range(20)))
+        a_user.sendto(frame, ("127.0.0.1", ports[1]))
+        a_user.sendto(frame, ("127.0.0.1", ports[1]))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and '"drop"' not in (log.read_text() if log.exists() else ""):
+            time.sleep(0.05)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=10)
+        a_user.close()
+    events = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [e["why"] for e in events if e["ev"] == "drop"] == ["queue full"]
+    assert sum(1 for e in events if e["ev"] == "tx") == 1
+
+
 def test_bench_link_prints_a_table_and_json(tmp_path):
     out = rovlink("bench", "link", "--duration", "120", "--loss-duration", "300", "--out", str(tmp_path / "plots"))
     assert out.returncode == 0, out.stderr
