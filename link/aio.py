@@ -30,7 +30,7 @@ def _now() -> float:
     return asyncio.get_running_loop().time()
 
 
-async def _recv(endpoint: Endpoint, timeout_s: float | None) -> bytes | None:
+async def recv_within(endpoint: Endpoint, timeout_s: float | None) -> bytes | None:
     """Next bytes from endpoint, or None after timeout_s.
 
     asyncio.timeout rather than wait_for: in Python 3.11 wait_for swallows a
@@ -90,7 +90,7 @@ async def run_master(
         with guard:
             deadline = master.deadline()
         wait = idle_poll_s if deadline is None else max(0.0, deadline - clock())
-        data = await _recv(endpoint, wait)
+        data = await recv_within(endpoint, wait)
         # Whatever else already arrived too, before polling again.
         while data is not None:
             now = clock()
@@ -110,7 +110,7 @@ async def run_slave(
 ) -> None:
     """Answer polls as they come; check the failsafe every `tick_s`."""
     while True:
-        data = await _recv(endpoint, tick_s)
+        data = await recv_within(endpoint, tick_s)
         if data is None:
             now = _now()
             _hand(on_events, slave.tick(now), now)

@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 from rovlink.link import acoustic as ac
+from rovlink.link.aio import recv_within
 from rovlink.link.messages import Mode
 from rovlink.link.transport import Endpoint
 
@@ -84,11 +85,7 @@ class AcousticNode:
         pump = asyncio.create_task(self._pump())
         try:
             while True:
-                try:
-                    async with asyncio.timeout(0.1):
-                        data = await self.endpoint.recv()
-                except TimeoutError:
-                    data = None
+                data = await recv_within(self.endpoint, 0.1)
                 now = time.monotonic()
                 if data:
                     for i in range(0, len(data) - PACKET + 1, PACKET):

@@ -26,6 +26,7 @@ import threading
 import time
 
 from rovlink.link import acoustic as ac
+from rovlink.link.aio import recv_within
 from rovlink.link.messages import Mode
 
 log = logging.getLogger("rovlink.console.acoustic")
@@ -80,10 +81,8 @@ class AcousticSession:
         pump = asyncio.create_task(self._pump())
         try:
             while True:
-                try:
-                    async with asyncio.timeout(0.1):
-                        data = await self.endpoint.recv()
-                except TimeoutError:
+                data = await recv_within(self.endpoint, 0.1)
+                if not data:
                     continue
                 now = self.clock()
                 for i in range(0, len(data) - PACKET + 1, PACKET):
