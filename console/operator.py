@@ -117,7 +117,7 @@ class Operator:
         self.wall0 = time.time()
         self._initial_settings = image_settings
         # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
-        debt.warm_up_in_background("debt-warm-up (console)")
+        self._warm_up = debt.warm_up_in_background("debt-warm-up (console)")
         self._decoder = DaemonWorker("debt-decode")
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
@@ -280,6 +280,15 @@ class Operator:
     def close(self) -> None:
         self.recorder.close()
         self._decoder.shutdown()
+
+    def wait_debt_idle(self, timeout: float = 300.0) -> bool:
+        """Wait until nothing of DEBT runs in this operator's threads: its
+        warm-up done and every decode handed over so far finished (True), or
+        `timeout` seconds (False).  For a caller that needs a quiet moment,
+        such as the memory benchmark around tracemalloc's start and stop."""
+        deadline = time.monotonic() + timeout
+        self._warm_up.join(timeout)
+        return not self._warm_up.is_alive() and self._decoder.wait_idle(max(deadline - time.monotonic(), 0.0))
 
     # ------------------------------------------------------------------
     # What happened on the link (the master's events, or a replay's)

@@ -21,6 +21,7 @@ optional part is missing); Ctrl-C exits with 130 and no traceback.
 
 from __future__ import annotations
 
+import faulthandler
 import importlib
 import sys
 from typing import Sequence
@@ -99,6 +100,13 @@ def build_parser(argv: Sequence[str] = ()) -> Parser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    # A crash in compiled code (numba, a C extension) then leaves every
+    # thread's Python stack on stderr instead of a bare "Segmentation fault".
+    if not faulthandler.is_enabled():
+        try:
+            faulthandler.enable()
+        except (ValueError, OSError, AttributeError):  # no usable stderr
+            pass
     args = build_parser(argv).parse_args(argv)
     try:
         result = args.func(args)

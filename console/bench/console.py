@@ -99,6 +99,15 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
 
     sim.at(0.0, pilot)
     sim.at(5.0, orders)
+    # tracemalloc starts and stops only while no other thread runs DEBT.  Its
+    # compiled kernels allocate through PyMem_RawMalloc (numba's runtime) with
+    # the GIL released, and Python 3.11's tracemalloc.stop() races such
+    # allocations (CPython gh-128679, fixed in 3.12.9 and 3.13.2): this
+    # benchmark died with SIGSEGV about one run in fifteen while the console's
+    # decode thread or DEBT's warm-up ran.  Between the two, the simulation
+    # (this thread) is all that hands the decoder work.
+    if not operator.wait_debt_idle():
+        raise RuntimeError("DEBT's warm-up or a decode did not finish within 300 s")
     gc.collect()
     tracemalloc.start()
     samples = []
@@ -112,6 +121,8 @@ def _memory_session(duration_s: float, sample_every_s: float, seed: int) -> dict
         current, _ = tracemalloc.get_traced_memory()
         samples.append((t, current / 2**20))
     wall = time.perf_counter() - wall0
+    if not operator.wait_debt_idle():
+        raise RuntimeError("a decode did not finish within 300 s")
     tracemalloc.stop()
     operator.close()
     size = record.stat().st_size

@@ -77,7 +77,8 @@ class DaemonWorker:
     def __init__(self, name: str) -> None:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._closed = False
-        threading.Thread(target=self._run, name=name, daemon=True).start()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
 
     def submit(self, fn: Callable[[], Any]) -> concurrent.futures.Future:
         if self._closed:
@@ -90,6 +91,21 @@ class DaemonWorker:
         """Stop after the job in hand; queued jobs are dropped (a daemon thread: nobody waits)."""
         self._closed = True
         self._queue.put(None)
+
+    def wait_idle(self, timeout: float) -> bool:
+        """Wait until every call submitted so far has run (True), or `timeout`
+        seconds (False).  A worker shut down is idle once its thread ended."""
+        if self._closed:
+            self._thread.join(timeout)
+            return not self._thread.is_alive()
+        try:
+            self.submit(lambda: None).result(timeout)
+        except concurrent.futures.TimeoutError:
+            return False
+        except (concurrent.futures.CancelledError, RuntimeError):  # shut down meanwhile
+            self._thread.join(timeout)
+            return not self._thread.is_alive()
+        return True
 
     def _run(self) -> None:
         while (item := self._queue.get()) is not None:
