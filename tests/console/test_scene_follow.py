@@ -308,12 +308,17 @@ def test_follow_camera_keeps_the_vehicle_in_view_while_it_drives_50_m(live, view
             camera = reports.latest()
             # What the browser shows now contains the vehicle where it is now.
             assert camera.sees(vehicle_corners(now)), (travelled, camera, now)
+            # ...from near by, as the pilot left it (not a wide shot from afar).
+            assert np.linalg.norm(camera.position - now) <= 2 * chase.FOLLOW_DISTANCE_M, (camera, now)
             checked += 1
     assert travelled >= 50.0, f"the vehicle drove only {travelled:.1f} m"
     displacement = float(np.linalg.norm(last[:2] - start[:2]))
     assert displacement > 30.0
-    # A camera left where it was would have lost it long ago.
-    assert initial.sees(vehicle_corners(start)) and not initial.sees(vehicle_corners(last))
+    # A camera left where it was would now film it from afar, or not at all (whether
+    # the far vehicle is still inside the first view depends on the path the turn
+    # made: a CI run ended 46 m down that view, 17 pixels tall).
+    assert initial.sees(vehicle_corners(start))
+    assert np.linalg.norm(initial.position - last) > 3 * chase.FOLLOW_DISTANCE_M
     assert checked > 50
     # Cheap: a few camera moves a second, not one per pose update (20 Hz).
     assert 10 < view.updates - updates0 <= (time.monotonic() - t0) / chase.CHASE_PERIOD_S + 2
