@@ -921,6 +921,17 @@ def _clamp16(value: float) -> int:
     return max(-32768, min(32767, int(round(value))))
 
 
+def modem_idle(endpoint, now: float, last_sent: float, pace_s: float) -> bool:
+    """May the next packet go to `endpoint` now (§9 Queues: one packet in the
+    modem at a time)?  A modem that tells its queue (link.wlmodem): when that is
+    empty (unknown: no).  Another endpoint (a pty or socket to the emulator):
+    `pace_s` after the last packet handed at `last_sent`."""
+    queue_length = getattr(endpoint, "queue_length", None)
+    if queue_length is not None:
+        return queue_length() == 0
+    return now - last_sent >= pace_s
+
+
 # ---------------------------------------------------------------------------
 # The operator's end
 # ---------------------------------------------------------------------------
@@ -1077,6 +1088,18 @@ class AcousticOperator(_End):
     @property
     def ready(self) -> bool:
         return self._ready and not self.stop_active
+
+    @property
+    def sending_oid(self) -> int | None:
+        """The OID of the order on the air (sent and resent until a STATUS names
+        it), or None."""
+        return None if self._outstanding is None else self._outstanding[0]
+
+    @property
+    def orders_waiting(self) -> int:
+        """Orders given and not yet settled: the one on the air and those queued
+        behind it."""
+        return (self._outstanding is not None) + len(self._queue)
 
     def send_order(self, body: Order | GoTo | ThumbRequest, now: float) -> int:
         """Queue an order (its `oid` is replaced); returns the OID it carries."""

@@ -123,11 +123,11 @@ def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Fi
             fig.up_s += SAMPLE_S
         if not op.ready:
             continue
-        if not thumb and op._outstanding is None and not op._queue:
+        if not thumb and not op.orders_waiting:
             thumb.update(oid=op.send_order(ac.ThumbRequest(0, budget=THUMB_BUDGET), now), sent=now)
             fig.thumbs_asked += 1
             continue
-        if busy and phase in ("start", "idle") and now >= phase_at and op._outstanding is None and not op._queue:
+        if busy and phase in ("start", "idle") and now >= phase_at and not op.orders_waiting:
             angle = rng.uniform(0, 2 * math.pi)
             target = ac.GoTo(0, int(GOTO_M * 10 * math.cos(angle)), int(GOTO_M * 10 * math.sin(angle)), 0,
                              relative=True)

@@ -105,19 +105,12 @@ class AcousticNode:
                 flush = getattr(self.endpoint, "flush", None)
                 if flush is not None:
                     flush()
-            if self._modem_ready(now):
+            if ac.modem_idle(self.endpoint, now, self._last_sent, self.pace_s):
                 packet = self.machine.next_packet(now)
                 if packet is not None:
                     self.endpoint.send(packet)
                     self._last_sent = now
             await asyncio.sleep(0.1)
-
-    def _modem_ready(self, now: float) -> bool:
-        queue_length = getattr(self.endpoint, "queue_length", None)
-        if queue_length is not None:
-            n = queue_length()
-            return n is not None and n == 0
-        return now - self._last_sent >= self.pace_s
 
     # -- the vehicle -----------------------------------------------------------
 

@@ -3,6 +3,7 @@ loopback ports, waiting for a condition, and reading the console's API."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import socket
@@ -69,3 +70,18 @@ def local_test_client(app, **kwargs):
             return super().websocket_connect(urljoin("ws://127.0.0.1", url), *args, **kw)
 
     return LocalTestClient(app, base_url="http://127.0.0.1", **kwargs)
+
+
+def run_async(coro, timeout: float):
+    """Run `coro` on a new event loop; a TimeoutError after `timeout` seconds."""
+    return asyncio.run(asyncio.wait_for(coro, timeout))
+
+
+async def until(cond, timeout: float, what: str = "condition") -> None:
+    """Wait, on the running loop, until `cond()` is true; AssertionError
+    naming `what` after `timeout` seconds."""
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not cond():
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        await asyncio.sleep(0.01)

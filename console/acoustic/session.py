@@ -102,18 +102,13 @@ class AcousticSession:
                     flush = getattr(self.endpoint, "flush", None)
                     if flush is not None:
                         flush()
-                packet = self.op.next_packet(now) if self._modem_ready(now) else None
+                ready = self.op.wants_flush or ac.modem_idle(self.endpoint, now, self._last_sent, self.pace_s)
+                packet = self.op.next_packet(now) if ready else None
             if packet is not None:
                 self.endpoint.send(packet)
                 self._last_sent = now
                 self.packets_out += 1
             await asyncio.sleep(0.1)
-
-    def _modem_ready(self, now: float) -> bool:
-        queue_length = getattr(self.endpoint, "queue_length", None)
-        if queue_length is not None:
-            return queue_length() == 0 or self.op.wants_flush
-        return now - self._last_sent >= self.pace_s or self.op.wants_flush
 
     # -- what happened ---------------------------------------------------------
 
@@ -240,8 +235,7 @@ class AcousticSession:
 
     def _shown(self, rec: dict) -> dict:
         out = dict(rec)
-        outstanding = getattr(self.op, "_outstanding", None)
-        if rec["state"] == "queued" and outstanding is not None and outstanding[0] == rec["oid"]:
+        if rec["state"] == "queued" and self.op.sending_oid == rec["oid"]:
             out["state"] = "sending"  # on the air, repeated until a status names it
         return out
 

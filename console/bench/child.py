@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import signal
+import subprocess
 import sys
 
 PR_SET_PDEATHSIG = 1
@@ -23,3 +24,16 @@ def die_with_parent() -> None:
             ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
         except (OSError, AttributeError):
             pass
+
+
+def end_child(proc: subprocess.Popen, *, first=signal.SIGTERM, grace_s: float = 30.0) -> None:
+    """End a benchmark's child: `first` (SIGINT lets it shut down as after
+    Ctrl-C), then SIGKILL when it has not ended within `grace_s`; reaped."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(first)
+    try:
+        proc.wait(grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

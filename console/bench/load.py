@@ -31,7 +31,7 @@ import time
 import urllib.request
 from pathlib import Path
 
-from .child import die_with_parent
+from .child import die_with_parent, end_child
 
 UPLOAD_BYTES = 200 * 1024 * 1024
 
@@ -217,12 +217,7 @@ def measure_load(seconds: float, readers: int, uploads: int, ber: float) -> dict
 
         marks = asyncio.run(phases())
     finally:
-        demo.send_signal(signal.SIGINT)
-        try:
-            demo.wait(30)
-        except subprocess.TimeoutExpired:
-            demo.kill()
-            demo.wait()
+        end_child(demo, first=signal.SIGINT)
     tx, rx = _polls(record)
     # Both counts cover the whole run: the channel log has a clock of its own.
     channel = _channel_losses(Path(str(record).replace(".jsonl", "") + ".channel.jsonl"))

@@ -22,7 +22,7 @@ import threading
 import time
 import urllib.request
 
-from .child import die_with_parent
+from .child import die_with_parent, end_child
 from .page import CHROMIUM, CHROMIUM_ARGS
 
 KEYS = ("w", "d", "s", "a", "e", "q", "r", "f")
@@ -123,12 +123,7 @@ def measure_pilot(minutes: float = 10.0) -> dict:
         link = _get(base + "/api/link")
     finally:
         stop.set()
-        if demo.poll() is None:
-            demo.terminate()
-            try:
-                demo.wait(30)
-            except subprocess.TimeoutExpired:
-                demo.kill()
+        end_child(demo)
         log_file.close()
     from .load import _channel_losses
 

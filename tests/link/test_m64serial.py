@@ -28,6 +28,9 @@ from rovlink.link.m64 import M64Loss, M64Params
 from rovlink.link.m64serial import M64SerialError, M64SerialPair, take_sentence
 from rovlink.link.wlmodem import open_wlmodem
 
+from ..helpers import run_async
+from ..helpers import until as wait_until
+
 ROVLINK = [sys.executable, "-m", "rovlink"]
 LOGGER = "rovlink.link.m64serial"
 WLMODEM_LOGGER = "rovlink.link.wlmodem"
@@ -35,15 +38,11 @@ FAST = M64Params(round_s=0.1, b_offset_s=0.05, latency_s=0.15, sync_s=0.3)
 
 
 def run(coro, timeout=30):
-    return asyncio.run(asyncio.wait_for(coro, timeout))
+    return run_async(coro, timeout)
 
 
-async def until(cond, timeout=8.0, what="condition"):
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not cond():
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.01)
+def until(cond, timeout=8.0, what="condition"):
+    return wait_until(cond, timeout, what)
 
 
 @pytest.fixture

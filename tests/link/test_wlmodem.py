@@ -27,20 +27,19 @@ import pytest
 from rovlink.link.transport import TransportError
 from rovlink.link.wlmodem import PACKET_BYTES, WlModemEndpoint, open_wlmodem
 
+from ..helpers import run_async
+from ..helpers import until as wait_until
+
 LOGGER = "rovlink.link.wlmodem"
 TRANSPORT_LOGGER = "rovlink.link.transport"
 
 
 def run(coro, timeout=25):
-    return asyncio.run(asyncio.wait_for(coro, timeout))
+    return run_async(coro, timeout)
 
 
-async def until(cond, timeout=5.0, what="condition"):
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not cond():
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.01)
+def until(cond, timeout=5.0, what="condition"):
+    return wait_until(cond, timeout, what)
 
 
 def crc8(data: bytes) -> int:
