@@ -125,6 +125,7 @@ class AcousticSession:
                 self._note("ROV restarted (new BOOT): the fate of an order in flight is unknown"
                            if e.restarted else "link synchronised", "alert" if e.restarted else "info")
             elif isinstance(e, ac.StatusReceived):
+                self._status_changes(self.status, e.status)
                 self.status, self.status_at, self.status_arrival = e.status, e.at, now
             elif isinstance(e, ac.OrderFate):
                 rec = self.orders.get(e.oid)
@@ -156,6 +157,32 @@ class AcousticSession:
                 self.alert = e.alert
             elif isinstance(e, ac.Resyncing):
                 self._note(f"link lost ({e.why}): synchronising again", "alert")
+
+    def _status_changes(self, was: ac.Status | None, now: ac.Status) -> None:
+        """What a STATUS tells that the last one did not, into the log: the
+        FAILSAFE (shown in one STATUS after a spell, so that it is never missed),
+        the ROV not hearing us, the autopilot lost.  The status table shows only
+        the present; the log keeps what happened."""
+        def changed(flag: str) -> bool | None:
+            value = getattr(now, flag)
+            return value if was is None or getattr(was, flag) != value else None
+
+        failsafe = changed("failsafe")
+        if failsafe:
+            action = "surfaces" if (self.synced or {}).get("failsafe_action") == "surface" else "holds position"
+            self._note(f"ROV in FAILSAFE: it heard nothing from us for its failsafe time and {action}", "alert")
+        elif failsafe is False:
+            self._note("ROV out of FAILSAFE: it hears us again (HOLD stays until a new order)", "warn")
+        hears = changed("uplink")
+        if hears is False:
+            self._note("ROV does NOT hear us: it took nothing from us for 10 s", "alert")
+        elif hears and was is not None:
+            self._note("ROV hears us again")
+        autopilot = changed("autopilot")
+        if autopilot is False:
+            self._note("ROV reports its autopilot LOST: orders cannot be carried out", "alert")
+        elif autopilot and was is not None:
+            self._note("ROV's autopilot is back")
 
     def _thumb_update(self, oid: int, obj: bytes, verified: bool, now: float) -> None:
         total = int.from_bytes(obj[:2], "big") + 2 if len(obj) >= 2 else None
