@@ -51,6 +51,10 @@ def read_records(path: str | Path) -> Iterator[dict]:
             if first:
                 if record.get("k") != "meta":
                     raise RecordingError(f"{path}: not a rovlink recording (no meta record first)")
+                if record.get("profile", "radio") != "radio":
+                    raise RecordingError(
+                        f"{path}: a recording of the {record.get('profile')} link (its packets, statuses and "
+                        "log as JSON lines, docs/PROTOCOL.md §9); replay and its plots read radio sessions only")
                 first = False
             yield record
     if first:

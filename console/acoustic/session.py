@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import dataclasses
 import io
 import logging
 import math
 import threading
 import time
 
+from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
 from rovlink.link.messages import Mode
@@ -40,7 +42,13 @@ ORDER_OPS = {"hold": ac.OP_HOLD, "surface": ac.OP_SURFACE, "arm": ac.OP_ARM, "di
 
 
 class AcousticSession:
-    def __init__(self, endpoint, key: bytes, *, clock=time.monotonic, pace_s: float = 1.0) -> None:
+    """The operator's end of the acoustic link as the page, the ground station
+    and the recording see it.  `record`: a JSON-lines file of the session
+    ("meta" first, then every packet sent and received as hex, every STATUS
+    taken and every line of the log, each with its session time `t`), or None."""
+
+    def __init__(self, endpoint, key: bytes, *, clock=time.monotonic, pace_s: float = 1.0,
+                 record=None) -> None:
         self.endpoint = endpoint
         self.clock = clock
         self.pace_s = pace_s
@@ -62,6 +70,16 @@ class AcousticSession:
         self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
         self._subscribers: list = []
+        self.recorder = Recorder(record, {"profile": "acoustic", "pace_s": pace_s,
+                                          "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                                          "wall0": round(time.time(), 3)})
+
+    def close(self) -> None:
+        """Close the recording (the link itself belongs to whoever opened it)."""
+        self.recorder.close()
+
+    def _t(self, now: float) -> float:
+        return round(now - self._start, 3)
 
     def subscribe(self, callback):
         """callback(topic, payload) for every order fate ("order") and alert ("log"); returns the unsubscribe."""
@@ -86,9 +104,11 @@ class AcousticSession:
                     continue
                 now = self.clock()
                 for i in range(0, len(data) - PACKET + 1, PACKET):
+                    packet = bytes(data[i:i + PACKET])
                     with self._lock:
                         self.packets_in += 1
-                        events = self.op.receive(bytes(data[i:i + PACKET]), now)
+                        self.recorder.write({"k": "rx", "t": self._t(now), "hex": packet.hex()})
+                        events = self.op.receive(packet, now)
                         self._handle(events, now)
         finally:
             pump.cancel()
@@ -108,12 +128,15 @@ class AcousticSession:
                 self.endpoint.send(packet)
                 self._last_sent = now
                 self.packets_out += 1
+                self.recorder.write({"k": "tx", "t": self._t(now), "hex": packet.hex()})
             await asyncio.sleep(0.1)
 
     # -- what happened ---------------------------------------------------------
 
     def _note(self, text: str, level: str = "info") -> None:
-        self.log.append({"t": round(self.clock() - self._start, 1), "text": text, "level": level})
+        now = self.clock()
+        self.log.append({"t": round(now - self._start, 1), "text": text, "level": level})
+        self.recorder.write({"k": "note", "t": self._t(now), "text": text, "level": level})
         (log.warning if level == "alert" else log.info)("%s", text)
 
     def _handle(self, events: list, now: float) -> None:
@@ -126,6 +149,8 @@ class AcousticSession:
                            if e.restarted else "link synchronised", "alert" if e.restarted else "info")
             elif isinstance(e, ac.StatusReceived):
                 self._status_changes(self.status, e.status)
+                self.recorder.write({"k": "status", "t": self._t(now), "made_t": self._t(e.at), "ctr": e.ctr,
+                                     **dataclasses.asdict(e.status)})
                 self.status, self.status_at, self.status_arrival = e.status, e.at, now
             elif isinstance(e, ac.OrderFate):
                 rec = self.orders.get(e.oid)

@@ -96,10 +96,11 @@ def _run_acoustic(args, endpoint, key) -> int:
     from rovlink.console.web.guard import AccessPolicy
     from rovlink.link.transport import TransportError
 
-    from .serve import _stop_on_signals, public_host
+    from .serve import _stop_on_signals, default_record_path, public_host
 
     if key is None:
         raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
+    record = None if args.no_record else (args.record or default_record_path())
 
     async def main() -> None:
         link = LinkThread().start()
@@ -108,7 +109,7 @@ def _run_acoustic(args, endpoint, key) -> int:
         except TransportError as exc:
             await link.stop()
             raise CommandError(str(exc)) from None
-        session = AcousticSession(endpoint, key)
+        session = AcousticSession(endpoint, key, record=record)
         link.spawn(session.run(), name="acoustic operator")
         policy = AccessPolicy.for_server(args.host, args.allow_host)
         app = create_acoustic_app(session, policy=policy)
@@ -127,6 +128,7 @@ def _run_acoustic(args, endpoint, key) -> int:
         print(f"rovlink console on {args.link}: acoustic profile, every packet authenticated\n"
               f"  operator page: {url}" + (f"\n  ground station: {', '.join(args.gcs)} (MAVLink 2, ArduSub; "
                                            "targets and STOP, no sticks)" if args.gcs else "")
+              + (f"\n  recording: {record}" if record else "")
               + "\n  Ctrl-C stops.", flush=True)
         stop = _stop_on_signals()
         server = asyncio.create_task(serve(app, host=args.host, port=args.port))
@@ -142,6 +144,7 @@ def _run_acoustic(args, endpoint, key) -> int:
             server.cancel()
             await asyncio.gather(server, return_exceptions=True)
             await link.stop(endpoint.close())
+            session.close()
         print("rovlink console: stopped", file=sys.stderr)
 
     try:

@@ -10,6 +10,7 @@ first: one console, one truth."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -48,7 +49,7 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
     rov = start_rov(tmp_path, key, 1)
     console = subprocess.Popen(ROVLINK + ["console", "--link", f"wlmodem://{tmp_path}/op-modem?role=a&channel=4",
                                           "--key", str(key), "--port", str(port), "--viser-port", str(free_tcp_port()),
-                                          "--no-record"],
+                                          "--record", str(tmp_path / "session.jsonl")],
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     # (the console's stderr: read at the end by communicate(); it logs little at its default level)
     base = f"http://127.0.0.1:{port}"
@@ -111,6 +112,23 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
             assert held["hold"]
             browser.close()
         assert console.poll() is None and rov.poll() is None
+        console.send_signal(signal.SIGINT)
+        console.communicate(timeout=30)
+        # The session's recording: every packet both ways, the statuses, the log, as the page told it.
+        records = [json.loads(line) for line in (tmp_path / "session.jsonl").read_text().splitlines()]
+        assert records[0]["k"] == "meta" and records[0]["profile"] == "acoustic"
+        kinds = {r["k"] for r in records}
+        assert {"tx", "rx", "status", "note"} <= kinds
+        notes = [r["text"] for r in records if r["k"] == "note"]
+        assert any("ROV in FAILSAFE" in n for n in notes) and any("ROV restarted" in n for n in notes)
+        assert any(r["k"] == "status" and r["failsafe"] for r in records)
+        assert all(len(bytes.fromhex(r["hex"])) == 8 for r in records if r["k"] in ("tx", "rx"))
+        ts = [r["t"] for r in records[1:]]
+        assert ts == sorted(ts) or max(a - b for a, b in zip(ts, ts[1:])) < 0.5
+        # `rovlink plot` (and replay) read radio sessions: it says so instead of failing on the packets.
+        out = subprocess.run(ROVLINK + ["plot", str(tmp_path / "session.jsonl"), "--out", str(tmp_path)],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode != 0 and "acoustic link" in out.stderr, out.stderr
     finally:
         for proc in (console, rov):
             if proc.poll() is None:
