@@ -260,6 +260,12 @@ class AcousticSession:
     def thumbnail(self, budget: int = 198, roi: tuple[int, int, int, int] | None = None, shift: int = 4) -> dict:
         if not ac.MIN_BUDGET <= budget <= ac.MAX_BUDGET:
             raise ValueError(f"budget must be {ac.MIN_BUDGET}..{ac.MAX_BUDGET} bytes")
+        if roi is not None:
+            x0, y0, x1, y1 = roi
+            if not (0 <= x0 < x1 <= ac.THUMB_W and 0 <= y0 < y1 <= ac.THUMB_H):
+                raise ValueError(f"roi must be x0 < x1 <= {ac.THUMB_W}, y0 < y1 <= {ac.THUMB_H}, none below 0 "
+                                 f"(pixels of the {ac.THUMB_W}x{ac.THUMB_H} thumbnail, x1 and y1 exclusive), "
+                                 f"not {tuple(roi)}")
         req = ac.ThumbRequest(0, budget, roi or (0, 0, 0, 0), shift if roi else 0, True)
         bad = req.invalid()
         if bad:

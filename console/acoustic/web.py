@@ -8,9 +8,10 @@ POST /api/thumbnail        {"budget"?: 198, "roi"?: [x0, y0, x1, y1] in 80x60 pi
 GET  /api/thumbnail.png    the thumbnail as it stands (404 before any)
 
 Bad requests get 422 with the field named, orders the link cannot take now
-(no status yet, a STOP unconfirmed) 409 with the reason.  The same request
-guard as the radio console's (Host names, access token off loopback, body
-size) stands in front.
+(no status yet, a STOP unconfirmed) 409 with the reason, a POST from another
+site's page 403; every error body has `detail` and `message`.  The same
+request guard (Host names, access token off loopback, body size) and error
+answers (console/web/errors.py) as the radio console's.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from fastapi import FastAPI, HTTPException
 from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, Field
 
+from rovlink.console.web import errors
 from rovlink.console.web.guard import AccessPolicy, RequestGuard
 
 from .session import AcousticSession
@@ -51,6 +53,10 @@ class ThumbIn(BaseModel):
 def create_acoustic_app(session: AcousticSession, *, policy: AccessPolicy | None = None) -> FastAPI:
     app = FastAPI(title="rovlink acoustic console", version="1",
                   summary="Supervise an ROV over a 64 bit/s acoustic link (docs/PROTOCOL.md §9)")
+    # The radio console's answers: a POST from another site's page refused (403: any
+    # page the pilot has open could otherwise send a go-to through the pilot's
+    # browser), every error as {detail, message}, a body that is no JSON object 422.
+    errors.install(app)
 
     def _do(fn, *args, **kw) -> dict:
         try:
