@@ -118,6 +118,7 @@ class Operator:
         self._initial_settings = image_settings
         # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
         self._warm_up = debt.warm_up_in_background("debt-warm-up (console)")
+        self._port_up: bool | None = None  # the endpoint's port as last seen (`_watch_port`)
         self._decoder = DaemonWorker("debt-decode")
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
@@ -257,6 +258,22 @@ class Operator:
         """Once per turn of the link loop: the timers of the session."""
         self.orders.check_requests(self.odometry.fix, t)
         self.health.watch(t)
+        self._watch_port()
+
+    def _watch_port(self) -> None:
+        """This console's own modem port going down (unplugged, its adapter gone) is
+        an alert with the transport's reason, beside the LINK LOST it causes; its
+        coming back clears it."""
+        up = getattr(self.endpoint, "is_up", None)
+        if up is None or up == self._port_up:
+            return
+        if not up:
+            why = getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "no reason given"
+            self.note(f"MODEM PORT DOWN: {why}; opening it again", "alert", cause="port")
+        elif self._port_up is not None:
+            self.note("modem port open again")
+            self.clear_alerts("port")
+        self._port_up = up
 
     def bytes_received(self, data: bytes, t: float) -> None:
         self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})

@@ -70,6 +70,7 @@ class AcousticSession:
         self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
         self._subscribers: list = []
+        self._port_up: bool | None = None  # the local modem's port as last seen (None: not yet)
         self.recorder = Recorder(record, {"profile": "acoustic", "pace_s": pace_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                           "wall0": round(time.time(), 3)})
@@ -113,10 +114,25 @@ class AcousticSession:
         finally:
             pump.cancel()
 
+    def _watch_port(self) -> None:
+        """The local modem's port going down (unplugged, its adapter gone) is said at
+        once, loudly, with the transport's reason, not 20 s later as a lost link;
+        and its coming back.  (Lock held.)"""
+        up = getattr(self.endpoint, "is_up", None)
+        if up is None or up == self._port_up:
+            return
+        if not up:
+            why = getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "no reason given"
+            self._note(f"MODEM PORT DOWN: {why}; opening it again", "alert")
+        elif self._port_up is not None:
+            self._note("modem port open again")
+        self._port_up = up
+
     async def _pump(self) -> None:
         while True:
             now = self.clock()
             with self._lock:
+                self._watch_port()
                 self._handle(self.op.tick(now), now)
                 if self.op.wants_flush:
                     flush = getattr(self.endpoint, "flush", None)
@@ -326,6 +342,9 @@ class AcousticSession:
                 "profile": "acoustic",
                 "t": round(now - self._start, 1),
                 "link": {"state": link, "since_authentic_s": None if silent is None else round(silent, 1),
+                         "port": "down" if self._port_up is False else "up",
+                         "port_error": (getattr(getattr(self.endpoint, "stats", None), "last_error", None)
+                                        if self._port_up is False else None),
                          "synced": self.synced is not None and not op.resyncing,
                          "packets_in": self.packets_in, "packets_out": self.packets_out,
                          "inauthentic": self.inauthentic, "alert": self.alert},

@@ -85,3 +85,48 @@ def test_a_post_from_another_sites_page_is_refused(api):
         assert r.status_code == 403 and "cross-site" in r.json()["message"], (path, r.text)
     assert session.stop_state["state"] == "none" and session.op.orders_waiting == 0
     assert client.post("/api/stop", headers={"Origin": "http://127.0.0.1"}).status_code == 200  # its own page
+
+
+class ModemPort:
+    """The console's modem as the session sees it: up or down, with the
+    transport's reason (link.transport.Endpoint's `is_up` and `stats.last_error`)."""
+
+    def __init__(self) -> None:
+        import types
+
+        self.is_up = True
+        self.stats = types.SimpleNamespace(last_error=None)
+        self.sent: list[bytes] = []
+
+    def send(self, packet: bytes) -> bool:
+        if self.is_up:
+            self.sent.append(packet)
+        return self.is_up
+
+
+def test_the_consoles_own_modem_port_going_down_is_said_at_once_and_its_return_too():
+    import asyncio
+
+    port = ModemPort()
+    session = AcousticSession(port, KEY)
+
+    async def scenario():
+        pump = asyncio.create_task(session._pump())
+        await asyncio.sleep(0.3)
+        assert session.state()["link"]["port"] == "up"
+        port.is_up, port.stats.last_error = False, "no serial port /dev/ttyUSB0 (is the modem's USB serial adapter plugged in?)"
+        await asyncio.sleep(0.3)
+        down = session.state()
+        port.is_up = True
+        await asyncio.sleep(0.3)
+        pump.cancel()
+        return down
+
+    down = asyncio.run(scenario())
+    assert down["link"]["port"] == "down" and "no serial port /dev/ttyUSB0" in down["link"]["port_error"]
+    texts = [(entry["level"], entry["text"]) for entry in session.state()["log"]]
+    assert ("alert", "MODEM PORT DOWN: no serial port /dev/ttyUSB0 (is the modem's USB serial adapter plugged in?);"
+                     " opening it again") in texts
+    assert ("info", "modem port open again") in texts
+    assert session.state()["link"]["port"] == "up" and session.state()["link"]["port_error"] is None
+    assert port.sent  # the HELLOs went out while the port was up

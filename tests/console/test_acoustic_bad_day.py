@@ -6,7 +6,8 @@ back: the status is marked STALE meanwhile and the failsafe spell is told on
 both pages afterwards.  It goes quiet again while the ROV process is killed and
 started again: the link is shown LOST, loudly, on both pages, and when the water
 clears the restart is told.  STOP pressed on the second page is confirmed on the
-first: one console, one truth."""
+first: one console, one truth.  Last the modems' ports vanish (adapters pulled):
+said at once on both pages.  The console's recording tells it all again."""
 
 from __future__ import annotations
 
@@ -110,6 +111,14 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
                                        timeout=60000)
             held = get(base + "/api/state")["status"]
             assert held["hold"]
+
+            # The modems' USB adapters pulled out (the emulator and its ports gone): the
+            # console's own port failing is said at once on both pages, not 20 s later.
+            pair.close()
+            for page in pages:
+                page.wait_for_function("document.getElementById('link').textContent.includes('MODEM PORT DOWN')",
+                                       timeout=15000)
+                assert "no serial port" in page.text_content("#link") or "failed" in page.text_content("#link")
             browser.close()
         assert console.poll() is None and rov.poll() is None
         console.send_signal(signal.SIGINT)
@@ -121,6 +130,7 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
         assert {"tx", "rx", "status", "note"} <= kinds
         notes = [r["text"] for r in records if r["k"] == "note"]
         assert any("ROV in FAILSAFE" in n for n in notes) and any("ROV restarted" in n for n in notes)
+        assert any(n.startswith("MODEM PORT DOWN") for n in notes)
         assert any(r["k"] == "status" and r["failsafe"] for r in records)
         assert all(len(bytes.fromhex(r["hex"])) == 8 for r in records if r["k"] in ("tx", "rx"))
         ts = [r["t"] for r in records[1:]]

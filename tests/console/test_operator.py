@@ -200,3 +200,25 @@ def test_bench_console_reports_the_heap_over_a_session():
     assert all(s["heap_mb"] > 0 for s in samples)
     assert doc["memory"]["polls"] > 200 and doc["memory"]["images_completed"] >= 5
     assert "memory_flat_over_one_hour" in doc["targets"]
+
+
+def test_the_consoles_own_modem_port_going_down_is_an_alert_with_its_reason_cleared_when_back():
+    import types
+
+    port = types.SimpleNamespace(is_up=True, max_frame=None, stats=types.SimpleNamespace(last_error=None))
+    operator = Operator(port)
+    try:
+        operator._turn(0.0)
+        port.is_up, port.stats.last_error = False, "serial read failed: [Errno 5] Input/output error"
+        operator._turn(0.1)
+        operator._turn(0.2)  # said once
+        alerts = [e for e in operator.log_entries(20) if "MODEM PORT DOWN" in e["text"]]
+        assert len(alerts) == 1 and alerts[0]["level"] == "alert"
+        assert "Input/output error" in alerts[0]["text"] and alerts[0]["cleared_wall"] is None
+        port.is_up = True
+        operator._turn(0.3)
+        entries = operator.log_entries(20)
+        assert any(e["text"] == "modem port open again" for e in entries)
+        assert [e for e in entries if "MODEM PORT DOWN" in e["text"]][0]["cleared_wall"] is not None
+    finally:
+        operator.close()
