@@ -406,11 +406,15 @@ def _copy_run(src, dst):
         dst[x] = src[x]
 
 
-@_jit
+@_jit_plain
 def max_pyramid(mag, binfo, noff, nw, out):
     """out[node] = max of `mag` over the node's block, every band and level
     (and of 0: an empty block is 0).  Level after level, each node the
-    largest of its (up to) 2x2 children below, row pair by row pair."""
+    largest of its (up to) 2x2 children below, row pair by row pair.
+    Without reference counting (it allocates nothing): with it, every row
+    slice handed to `_max_rows` cost two atomic updates, and the camera's
+    sand picture at 1000 B took 0.09 ms (dyadic) and 0.23 ms (packets, four
+    times the rows) against 0.04 and 0.065."""
     for b in range(binfo.shape[0]):
         off = binfo[b, 0]
         h = binfo[b, 1]
