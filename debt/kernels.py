@@ -642,19 +642,9 @@ def colour_moments(img, detail, pixels, total):
     exact whatever their order: accumulated in integers, a row's planes
     copied apart first so that each sum runs over contiguous samples
     (vectorised: 4x faster than pixel by pixel)."""
-    h, w = img.shape[0], img.shape[1]
+    w = img.shape[1]
     acc = np.zeros(15, dtype=np.int64)
-    cur = np.empty((3, w), dtype=np.int32)
-    nxt = np.empty((3, w), dtype=np.int32)
-    if h > 0:
-        _planes_of_row(img[0], cur)
-    for y in range(h):
-        _moments_of_row(cur[0], cur[1], cur[2], acc)
-        _differences(cur[0, 1:], cur[1, 1:], cur[2, 1:], cur[0, :w - 1], cur[1, :w - 1], cur[2, :w - 1], acc)
-        if y + 1 < h:
-            _planes_of_row(img[y + 1], nxt)
-            _differences(nxt[0], nxt[1], nxt[2], cur[0], cur[1], cur[2], acc)
-            cur, nxt = nxt, cur
+    _moment_rows(img, acc, np.empty((3, w), dtype=np.int32), np.empty((3, w), dtype=np.int32))
     for i in range(3):
         total[i] += np.float64(acc[i])
     k = 3
@@ -667,6 +657,22 @@ def colour_moments(img, detail, pixels, total):
         m[1, 0] = m[0, 1]
         m[2, 0] = m[0, 2]
         m[2, 1] = m[1, 2]
+
+
+@_jit_plain
+def _moment_rows(img, acc, cur, nxt):
+    # The rows of `colour_moments` into `acc`, without reference counting
+    # (see `_rotated_rows`).
+    h, w = img.shape[0], img.shape[1]
+    if h > 0:
+        _planes_of_row(img[0], cur)
+    for y in range(h):
+        _moments_of_row(cur[0], cur[1], cur[2], acc)
+        _differences(cur[0, 1:], cur[1, 1:], cur[2, 1:], cur[0, :w - 1], cur[1, :w - 1], cur[2, :w - 1], acc)
+        if y + 1 < h:
+            _planes_of_row(img[y + 1], nxt)
+            _differences(nxt[0], nxt[1], nxt[2], cur[0], cur[1], cur[2], acc)
+            cur, nxt = nxt, cur
 
 
 @_jit_plain
@@ -734,9 +740,17 @@ def rotated_planes(img, m, out):
     pixels) into three planes (`out`: 3 x height x width), in one pass: each
     row's planes apart first (`_centred_planes_of_row`), then each output
     plane as a sum of three scaled rows (vectorised)."""
-    h, w = img.shape[0], img.shape[1]
-    planes = np.empty((3, w), dtype=np.float64)
-    for y in range(h):
+    planes = np.empty((3, img.shape[1]), dtype=np.float64)
+    _rotated_rows(img, m, out, planes)
+
+
+@_jit_plain
+def _rotated_rows(img, m, out, planes):
+    # The rows of `rotated_planes`, without reference counting: in the
+    # allocating kernel itself every row slice handed to a helper cost two
+    # atomic updates (on the camera's 320x240 colour picture this kernel
+    # took 0.093 ms, now 0.076-0.089; `colour_moments` 0.103, now 0.075).
+    for y in range(img.shape[0]):
         _centred_planes_of_row(img[y], planes)
         for i in range(3):
             _rotate_row(planes[0], planes[1], planes[2], m[0, i], m[1, i], m[2, i], out[i, y])
