@@ -32,6 +32,9 @@ from .stack import StackConfig, VehicleSide
 log = logging.getLogger("rovlink.console.vehicleside")
 
 
+
+PORT_TAKEN = 98  # exit status: our UDP port was taken before we could bind it (EADDRINUSE)
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m rovlink.console.vehicleside",
                                 description="rovlink demo's simulated ROV side (started by `rovlink demo`)")
@@ -78,7 +81,15 @@ async def _run(args: argparse.Namespace, key: bytes | None) -> None:
                          start_depth_m=args.start_depth, key=key)
     vehicle = VehicleSide(config, endpoint)
     try:
-        await vehicle.start()
+        try:
+            await vehicle.start()
+        except TransportError as exc:
+            if "Address already in use" in str(exc):
+                # Another program took the port the demo chose for us since: it
+                # tries again with new ones (PORT_TAKEN says which failure this is).
+                print(f"vehicle side: {exc}", file=sys.stderr, flush=True)
+                raise SystemExit(PORT_TAKEN) from None
+            raise
         print("ready", flush=True)
         await done.wait()
     finally:

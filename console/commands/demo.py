@@ -6,6 +6,8 @@ from rovlink.command import non_negative, positive, probability
 
 from .serve import add_gcs_arguments, add_server_arguments
 
+PORT_TRIES = 4  # fresh UDP ports this many times when one was taken before it was bound
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
@@ -37,11 +39,13 @@ def run(args) -> int:
     require_console_extra()
     import asyncio
     import os
+    import sys
 
     from rovlink.command import CommandError
     from rovlink.console.linkthread import LinkThread
     from rovlink.console.operator import Operator
     from rovlink.console.stack import StackConfig
+    from rovlink.console.vehicleside import PORT_TAKEN
     from rovlink.link.transport import TransportError, free_udp_port, open_transport
 
     from .serve import check_ports, default_record_path, serve_operator
@@ -53,26 +57,41 @@ def run(args) -> int:
                          camera=args.camera, key=key)
     args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
     compile_codec()
-    console_port, vehicle_port = free_udp_port(), free_udp_port()
-    # The vehicle side (simulated ArduSub, bridge, camera, ROV node, emulated channel) in a
-    # process of its own, as on a real ROV: the page and the web server cannot starve it.
-    vehicle = VehicleProcess(config, udp=vehicle_port, peer=console_port)
     record = None if args.no_record else (args.record or default_record_path())
     channel_log = None if record is None else str(record).replace(".jsonl", "") + ".channel.jsonl"
-    try:
-        vehicle.ready(channel_log)
-    except CommandError:
-        vehicle.stop()
-        raise
-
-    async def main() -> None:
-        link = LinkThread().start()
+    # Two loopback UDP ports, chosen free and bound a moment later: another program
+    # may take one in between (a CI run's other tests did).  This end is bound
+    # before the vehicle side starts; either end finding its port taken means new
+    # ports, a few times, then the error.
+    link = LinkThread().start()
+    for attempt in range(1, PORT_TRIES + 1):
+        console_port, vehicle_port = free_udp_port(), free_udp_port()
         endpoint = open_transport(f"udp://127.0.0.1:{console_port}?peer=127.0.0.1:{vehicle_port}")
         try:
-            await link.call(endpoint.start())
+            link.call_sync(endpoint.start())
         except TransportError as exc:
-            await link.stop()
+            if "Address already in use" in str(exc) and attempt < PORT_TRIES:
+                print(f"rovlink demo: UDP port {console_port} was taken meanwhile; trying others", file=sys.stderr)
+                continue
+            link.stop_sync()
             raise CommandError(f"could not start the demo: {exc}") from None
+        # The vehicle side (simulated ArduSub, bridge, camera, ROV node, emulated channel) in a
+        # process of its own, as on a real ROV: the page and the web server cannot starve it.
+        vehicle = VehicleProcess(config, udp=vehicle_port, peer=console_port)
+        try:
+            vehicle.ready(channel_log)
+            break
+        except CommandError:
+            taken = vehicle.exit_status() == PORT_TAKEN
+            vehicle.stop()
+            link.call_sync(endpoint.close())
+            if taken and attempt < PORT_TRIES:
+                print(f"rovlink demo: UDP port {vehicle_port} was taken meanwhile; trying others", file=sys.stderr)
+                continue
+            link.stop_sync()
+            raise
+
+    async def main() -> None:
         operator = Operator(endpoint, bitrate_bps=config.bitrate_bps, delay_s=config.delay_s, record=record,
                             image_settings=config.image_settings)
         if key is not None:
@@ -159,6 +178,18 @@ class VehicleProcess:
             raise CommandError("the simulated vehicle side did not start"
                                + (f" (it exited with {code}; its error is above)" if code is not None else
                                   f" within {timeout_s:g} s"))
+
+    def exit_status(self, wait_s: float = 10.0) -> int | None:
+        """The vehicle side's exit status, waiting up to `wait_s` for it to end
+        (it says its error, then exits); None while it runs."""
+        import subprocess
+
+        if self.proc is None:
+            return None
+        try:
+            return self.proc.wait(wait_s)
+        except subprocess.TimeoutExpired:
+            return None
 
     def stop(self) -> None:
         import subprocess

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from rovlink import debt
+from rovlink.link.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from ..helpers import wait_until_up as wait_for
@@ -185,6 +186,23 @@ def test_demo_refuses_a_busy_port(tmp_path):
             assert not record.exists() and not record.parent.exists()
 
 
+def test_the_vehicle_side_says_when_its_udp_port_was_taken_and_exits_with_port_taken():
+    """The demo chooses two free UDP ports and binds them a moment later: another
+    program may take one meanwhile (it happened in CI).  The vehicle side then exits
+    with PORT_TAKEN, which the demo takes as "choose new ports" (up to PORT_TRIES)."""
+    import socket
+
+    from rovlink.console.vehicleside import PORT_TAKEN
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        taken = s.getsockname()[1]
+        out = subprocess.run([sys.executable, "-m", "rovlink.console.vehicleside", "--udp", str(taken),
+                              "--peer", str(free_udp_port())], input="insecure\n", capture_output=True, text=True,
+                             timeout=120)
+    assert out.returncode == PORT_TAKEN, (out.returncode, out.stderr[-1500:])
+    assert "Address already in use" in out.stderr and "Traceback" not in out.stderr
+    assert "ready" not in out.stdout
 
 
 def _children(pid: int) -> list[tuple[int, str]]:

@@ -43,9 +43,11 @@ def _ack(gcs, command: int, timeout_s: float = 15.0):
     return None, results
 
 
-def _heartbeat(gcs, predicate, timeout_s: float = 15.0):
+def _heartbeat(gcs, predicate, timeout_s: float = 15.0, proc=None):
+    """The first HEARTBEAT `predicate` takes, or None after `timeout_s` (or as soon
+    as `proc`, the program sending them, has ended)."""
     deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and (proc is None or proc.poll() is None):
         hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=2)
         if hb is not None and predicate(hb):
             return hb
@@ -61,7 +63,8 @@ def demo():
                              str(free_tcp_port()), "--no-record", "--bitrate", "9600", "--gcs", f"udpout:127.0.0.1:{port}"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        hb = _heartbeat(gcs, lambda hb: hb.system_status != M.MAV_STATE_UNINIT, 240)  # (a fresh checkout compiles the codec first)
+        hb = _heartbeat(gcs, lambda hb: hb.system_status != M.MAV_STATE_UNINIT, 240,  # (a fresh checkout compiles
+                        proc)                                                         # the codec first)
         assert hb is not None, "no HEARTBEAT with a vehicle state from the gateway"
         yield gcs, f"http://127.0.0.1:{web}"
     finally:
