@@ -4,6 +4,7 @@ waiting for a condition, and a hostile radio between the two emulated modems."""
 from __future__ import annotations
 
 import json
+import subprocess
 import threading
 import time
 import urllib.request
@@ -71,3 +72,17 @@ class HostileRadio:
     def replay(self, packets: list[bytes]) -> None:
         with self._lock:
             self._replay += packets
+
+
+def end_processes(*procs: subprocess.Popen) -> None:
+    """SIGTERM to those still running, then their output read to the end (a pipe
+    left full would hold them); SIGKILL for any that lingers 20 s."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+    for proc in procs:
+        try:
+            proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()

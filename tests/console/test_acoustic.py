@@ -21,7 +21,7 @@ from rovlink.link.m64 import M64Params
 from rovlink.link.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
-from .acoustic_rig import HostileRadio, get, post, wait_for
+from .acoustic_rig import HostileRadio, end_processes, get, post, wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.processes, pytest.mark.slow, needs_chromium]
 ROVLINK = [sys.executable, "-m", "rovlink"]
@@ -51,15 +51,7 @@ def acoustic(tmp_path_factory):
         assert wait_for(lambda: get(base + "/api/state")["status"], 120), "no status from the ROV over the modems"
         yield base, radio, rov, console, gcs_port
     finally:
-        for proc in (console, rov):
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in (console, rov):
-            try:
-                proc.communicate(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.communicate()
+        end_processes(console, rov)
         pair.close()
 
 

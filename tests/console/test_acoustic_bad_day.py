@@ -21,7 +21,7 @@ import pytest
 from rovlink.link.m64 import M64Params
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
-from .acoustic_rig import HostileRadio, get, wait_for
+from .acoustic_rig import HostileRadio, end_processes, get, wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.processes, pytest.mark.slow, needs_chromium]
 ROVLINK = [sys.executable, "-m", "rovlink"]
@@ -140,13 +140,5 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
                              capture_output=True, text=True, timeout=60)
         assert out.returncode != 0 and "acoustic link" in out.stderr, out.stderr
     finally:
-        for proc in (console, rov):
-            if proc.poll() is None:
-                proc.terminate()
-        for proc in (console, rov):
-            try:
-                proc.communicate(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.communicate()
+        end_processes(console, rov)
         pair.close()
