@@ -139,6 +139,20 @@ class GroundStation:
         self.conn.close()
 
 
+def _why(procs: Processes) -> str:
+    """What the console says now, in full (pytest cuts a dict short): for a failed wait."""
+    import json
+
+    try:
+        state = get_json(procs.base + "/api/state")
+        control = get_json(procs.base + "/api/control")
+    except OSError as exc:
+        return f"console unreachable: {exc}\n{procs.logs_text()}"
+    pose = {k: v for k, v in state["pose"].items() if k not in ("trail", "path")}
+    return json.dumps({"pose": pose, "velocity_wish": state["velocity_wish"], "control": control,
+                       "log": [e["text"] for e in state["log"]][-12:]}, indent=1, default=str)
+
+
 def _moved_m(a: dict, b: dict) -> float:
     return math.hypot(b["x_m"] - a["x_m"], b["y_m"] - a["y_m"])
 
@@ -261,7 +275,8 @@ def test_a_page_taking_control_with_its_stick_held_drives_only_once_it_is_centre
                                        "'You have control.'")
                 page.evaluate("() => { window.testPad.axes[1] = -0.8; }")  # forward again
                 start = _fresh_pose(procs)
-                assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), procs.pose()
+                # (A CI run once saw no metre in 20 s here, and the message cut short; now it says it all.)
+                assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), _why(procs)
                 page.evaluate("() => { window.testPad.axes[1] = 0; }")
             finally:
                 browser.close()
