@@ -223,8 +223,10 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         assert turned > 20, ghost  # it did turn
         # Between looks 50 ms apart: the turn at its rate (~62 deg/s) and the small corrections each
         # new pose brings, never the wish of now applied over the pose's whole age (a second or so of
-        # full yaw at once: over 1000 deg/s between two looks).
-        assert max(steps) < 300, (max(steps), ghost)
+        # full yaw at once, ~60 degrees: over 1000 deg/s between two looks).  Under a CI run's load a
+        # look can come late and the next one early: a correction then read 339 deg/s once (the
+        # limit was 300); a jump still reads well above 600.
+        assert max(steps) < 600, (max(steps), ghost)
     finally:
         gcs.close()
         procs.close()
