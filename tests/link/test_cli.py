@@ -52,18 +52,27 @@ def test_bad_transport_url_is_a_one_line_error():
         "rovlink channel: error: unknown transport 'tcp' in 'tcp://x:1': use udp://, serial://, wlmodem:// or inproc://"]
 
 
-def test_channel_process_carries_frames_with_delay_and_logs(tmp_path):
+def _channel(tmp_path, *options: str):
+    """`rovlink channel` between two UDP users bound on loopback, logging to
+    tmp_path/channel.jsonl: (ports, a_user, b_user, log, proc).  Ports: a_user,
+    the channel's a end, its b end, b_user."""
     ports = [free_udp_port() for _ in range(4)]
-    a_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    a_user.bind(("127.0.0.1", ports[0]))
-    b_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    b_user.bind(("127.0.0.1", ports[3]))
+    users = []
+    for port in (ports[0], ports[3]):
+        user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        user.bind(("127.0.0.1", port))
+        users.append(user)
     log = tmp_path / "channel.jsonl"
     proc = subprocess.Popen(
         ROVLINK + ["channel", "--a", f"udp://127.0.0.1:{ports[1]}?peer=127.0.0.1:{ports[0]}",
                    "--b", f"udp://127.0.0.1:{ports[2]}?peer=127.0.0.1:{ports[3]}",
-                   "--bitrate", "1900", "--delay", "0.085", "--log", str(log), "--quiet"],
+                   *options, "--log", str(log), "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return ports, users[0], users[1], log, proc
+
+
+def test_channel_process_carries_frames_with_delay_and_logs(tmp_path):
+    ports, a_user, b_user, log, proc = _channel(tmp_path, "--bitrate", "1900", "--delay", "0.085")
     try:
         banner = proc.stderr.readline()  # printed once both ends are bound (a fixed sleep flaked under load)
         assert banner.startswith("channel: "), banner
@@ -97,15 +106,7 @@ def test_channel_takes_its_queue_by_name(tmp_path):
     """--queue is the transmit queue: a 30-byte queue drops the second of two 24-byte
     frames sent at once.  The options reach the model by name (a field added to it, the
     loss's burst, once took --queue's place)."""
-    ports = [free_udp_port() for _ in range(4)]
-    a_user = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    a_user.bind(("127.0.0.1", ports[0]))
-    log = tmp_path / "channel.jsonl"
-    proc = subprocess.Popen(
-        ROVLINK + ["channel", "--a", f"udp://127.0.0.1:{ports[1]}?peer=127.0.0.1:{ports[0]}",
-                   "--b", f"udp://127.0.0.1:{ports[2]}?peer=127.0.0.1:{ports[3]}",
-                   "--queue", "30", "--log", str(log), "--quiet"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ports, a_user, b_user, log, proc = _channel(tmp_path, "--queue", "30")
     try:
         assert proc.stderr.readline().startswith("channel: ")
         frame = encode_frame(bytes(range(20)))
@@ -118,6 +119,7 @@ def test_channel_takes_its_queue_by_name(tmp_path):
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=10)
         a_user.close()
+        b_user.close()
     events = [json.loads(line) for line in log.read_text().splitlines()]
     assert [e["why"] for e in events if e["ev"] == "drop"] == ["queue full"]
     assert sum(1 for e in events if e["ev"] == "tx") == 1
