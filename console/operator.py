@@ -64,7 +64,7 @@ from rovlink.link.messages import (
     Velocity,
 )
 from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synced
-from rovlink.link.transport import Endpoint
+from rovlink.link.transport import Endpoint, port_change
 
 from .session.goto import GoToWatch, resolve_target
 from .session.health import LinkHealth
@@ -264,16 +264,14 @@ class Operator:
         """This console's own modem port going down (unplugged, its adapter gone) is
         an alert with the transport's reason, beside the LINK LOST it causes; its
         coming back clears it."""
-        up = getattr(self.endpoint, "is_up", None)
-        if up is None or up == self._port_up:
+        self._port_up, news = port_change(self.endpoint, self._port_up)
+        if news is None:
             return
-        if not up:
-            why = getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "no reason given"
-            self.note(f"MODEM PORT DOWN: {why}; opening it again", "alert", cause="port")
-        elif self._port_up is not None:
-            self.note("modem port open again")
+        if not self._port_up:
+            self.note(news, "alert", cause="port")
+        else:
+            self.note(news)
             self.clear_alerts("port")
-        self._port_up = up
 
     def bytes_received(self, data: bytes, t: float) -> None:
         self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})

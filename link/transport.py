@@ -461,6 +461,20 @@ def _no_extra(query: dict, url: str) -> None:
         raise TransportError(f"unknown option(s) {', '.join(sorted(query))} in {url!r}")
 
 
+def port_change(endpoint, was: bool | None) -> tuple[bool | None, str | None]:
+    """The port of `endpoint` now (its `is_up`; None for an endpoint that has no
+    such notion) and, when it changed from `was`, what to tell the pilot: that it
+    went down, with the transport's reason, or that it is open again (nothing
+    for the first look at a port that is up)."""
+    up = getattr(endpoint, "is_up", None)
+    if up is None or up == was:
+        return was, None
+    if not up:
+        why = getattr(getattr(endpoint, "stats", None), "last_error", None) or "no reason given"
+        return False, f"MODEM PORT DOWN: {why}; opening it again"
+    return True, None if was is None else "modem port open again"
+
+
 def free_udp_port(host: str = "127.0.0.1") -> int:
     """A UDP port free right now on host (for tests and the demo)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

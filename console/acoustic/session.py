@@ -30,6 +30,7 @@ from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
 from rovlink.link.messages import Mode
+from rovlink.link.transport import port_change
 
 log = logging.getLogger("rovlink.console.acoustic")
 
@@ -118,15 +119,9 @@ class AcousticSession:
         """The local modem's port going down (unplugged, its adapter gone) is said at
         once, loudly, with the transport's reason, not 20 s later as a lost link;
         and its coming back.  (Lock held.)"""
-        up = getattr(self.endpoint, "is_up", None)
-        if up is None or up == self._port_up:
-            return
-        if not up:
-            why = getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "no reason given"
-            self._note(f"MODEM PORT DOWN: {why}; opening it again", "alert")
-        elif self._port_up is not None:
-            self._note("modem port open again")
-        self._port_up = up
+        self._port_up, news = port_change(self.endpoint, self._port_up)
+        if news is not None:
+            self._note(news, "info" if self._port_up else "alert")
 
     async def _pump(self) -> None:
         while True:
