@@ -49,6 +49,9 @@ Decisions where the brief was silent (all written into §9):
   combinations (at most 64) against THUMB_END's MAC.
 - A frame whose packet would be all zero is sealed again with the next
   counter.
+- STATUS_SAME (issue 24): a STATUS whose position, heading and battery are
+  those of a full STATUS the operator's POLL says it holds goes as one packet
+  naming it; the operator takes it only naming a full STATUS it kept.
 """
 
 from __future__ import annotations
@@ -78,14 +81,16 @@ MAX_BUDGET = MAX_OBJECT - 2
 MIN_BUDGET = 10  # a DEBT header with an ROI (5 without)
 THUMB_W, THUMB_H = 80, 60
 CTR_WINDOW = 16
+BITMAP_BITS = 19  # a POLL's bitmap: IDX LOWEST_MISSING+1 .. LOWEST_MISSING+19
+SAME_REACH = 15  # a STATUS_SAME names a full STATUS at most this many counters below its own
 
 LABEL_HELLO, LABEL_SYNC, LABEL_UP, LABEL_DOWN, LABEL_THUMB = b"AH", b"AS", b"AU", b"AD", b"AT"
 
 # KINDs by direction, and how many packets each frame takes.
 UP_HELLO, UP_POLL, UP_STOP, UP_ORDER, UP_GOTO, UP_THUMB = 0, 1, 2, 3, 4, 5
-DOWN_SYNC, DOWN_STATUS, DOWN_THUMB_END = 0, 1, 2
+DOWN_SYNC, DOWN_STATUS, DOWN_THUMB_END, DOWN_STATUS_SAME = 0, 1, 2, 3
 UP_PACKETS = {UP_HELLO: 1, UP_POLL: 1, UP_STOP: 1, UP_ORDER: 1, UP_GOTO: 2, UP_THUMB: 2}
-DOWN_PACKETS = {DOWN_SYNC: 2, DOWN_STATUS: 2, DOWN_THUMB_END: 1}
+DOWN_PACKETS = {DOWN_SYNC: 2, DOWN_STATUS: 2, DOWN_THUMB_END: 1, DOWN_STATUS_SAME: 1}
 
 # ORDER ops.
 OP_HOLD, OP_SURFACE, OP_ARM, OP_DISARM, OP_MODE = 1, 2, 3, 4, 5
@@ -115,6 +120,7 @@ STATUS_THUMB_S = 5.0  # at least this often while a thumbnail is being sent: the
 STATUS_REPEAT_S = 3.0  # a repeated order/STOP gets a prompt STATUS if none started this long ago
 IN_FLIGHT_S = 4.5  # a data packet handed this long before a POLL arrived is reflected in it
 STATUS_TRANSIT_S = 3.0  # the operator dates a STATUS this long before its arrival
+SAME_TRANSIT_S = 2.5  # ... and a STATUS_SAME (one packet) this long
 KEEP_HELLOS = 4
 CHALLENGES_SEEN = 4096
 SLOT_CANDIDATES = 3
@@ -137,25 +143,35 @@ def _bit(value: int, n: int) -> bool:
 
 @dataclass(frozen=True)
 class Poll:
-    """Uplink KIND 1: keepalive and the thumbnail receiver's state."""
+    """Uplink KIND 1: keepalive, the thumbnail receiver's state and the STATUS
+    the operator holds."""
 
     t: int = 0
     lowest_missing: int = MAX_SLOTS
     have_end: bool = True
-    bitmap: int = 0  # bit 23 = IDX lowest+1 ... bit 0 = IDX lowest+24
+    bitmap: int = 0  # bit 18 = IDX lowest+1 ... bit 0 = IDX lowest+19
+    have_status: bool = False  # HELD names the full STATUS of this session the operator holds
+    held: int = 0  # its counter's low 4 bits
 
     def encode(self) -> bytes:
-        return bytes([self.t << 7 | self.lowest_missing << 1 | int(self.have_end)]) + self.bitmap.to_bytes(3, "big")
+        rest = self.have_status << 23 | self.held << BITMAP_BITS | self.bitmap
+        return bytes([self.t << 7 | self.lowest_missing << 1 | int(self.have_end)]) + rest.to_bytes(3, "big")
 
     @classmethod
     def decode(cls, body: bytes) -> Poll:
-        return cls(body[0] >> 7, body[0] >> 1 & 63, bool(body[0] & 1), int.from_bytes(body[1:4], "big"))
+        rest = int.from_bytes(body[1:4], "big")
+        return cls(body[0] >> 7, body[0] >> 1 & 63, bool(body[0] & 1), rest & (1 << BITMAP_BITS) - 1,
+                   bool(rest >> 23), rest >> BITMAP_BITS & 15)
 
-    def held(self, count: int) -> set[int]:
+    def window_end(self) -> int:
+        """The first IDX past what this POLL tells."""
+        return self.lowest_missing + 1 + BITMAP_BITS
+
+    def held_packets(self, count: int) -> set[int]:
         held = set(range(min(self.lowest_missing, count)))
-        for k in range(24):
+        for k in range(BITMAP_BITS):
             i = self.lowest_missing + 1 + k
-            if i < count and self.bitmap >> (23 - k) & 1:
+            if i < count and self.bitmap >> (BITMAP_BITS - 1 - k) & 1:
                 held.add(i)
         return held
 
@@ -330,6 +346,22 @@ class Status:
                    _bit(f, 1), _bit(f, 0), m >> 5, m >> 2 & 7, m & 3, battery, oid)
 
 
+def same_body(ref: int, status_body: bytes) -> bytes:
+    """STATUS_SAME's BODY: REF, then the STATUS bytes 8, 9 and 11 (flags, mode,
+    result, STOP_NO, OID) as they are now."""
+    return bytes([ref & 255, status_body[8], status_body[9], status_body[11]])
+
+
+def steady_bytes(status_body: bytes) -> bytes:
+    """What STATUS_SAME says is unchanged: X, Y, Z, HEADING and BATTERY."""
+    return status_body[0:8] + status_body[10:11]
+
+
+def renewed_body(full_body: bytes, same: bytes) -> bytes:
+    """The STATUS a STATUS_SAME stands for, given the full one it names."""
+    return full_body[0:8] + same[1:3] + full_body[10:11] + same[3:4]
+
+
 @dataclass(frozen=True)
 class ThumbEnd:
     """Downlink KIND 2: the thumbnail's object MAC."""
@@ -414,6 +446,8 @@ class Counters:
     data_ignored: int = 0  # not for the thumbnail wanted
     thumbnails_verified: int = 0
     thumbnail_mismatches: int = 0
+    statuses_same: int = 0  # STATUS_SAME sent (ROV) or taken (operator)
+    same_unmatched: int = 0  # a STATUS_SAME naming a full STATUS the operator does not hold
     orders_taken: int = 0
     orders_stale: int = 0  # not 1..127 ahead of the last OID (repeats among them)
     stops_taken: int = 0
@@ -623,6 +657,7 @@ class _Thumb:
     end_sent_at: float | None = None
     operator_has_end: bool = False
     done: bool = False
+    window_end: int = MAX_SLOTS  # the last POLL told of IDX below this
 
     @property
     def t(self) -> int:
@@ -673,6 +708,8 @@ class AcousticRov(_End):
         self._status_asap = False
         self._status_at = -1e9  # when the last STATUS's first packet was handed
         self.status_sent: dict[int, float] = {}  # CTR -> when made (the last 64), for diagnostics and the bench
+        self._fulls: dict[int, bytes] = {}  # full STATUSes sealed lately: CTR -> BODY
+        self._operator_holds: tuple[int, float] | None = None  # the last POLL's HELD (with HAVE_STATUS), when taken
         self.thumb: _Thumb | None = None
         self._events: list = []
 
@@ -756,6 +793,8 @@ class AcousticRov(_End):
         self._session_at = now
         self._new_session(challenge + self.boot + nonce)
         self.status_sent = {}  # counters start again
+        self._fulls = {}
+        self._operator_holds = None
         self._sync_due = SyncBody(self.boot, nonce, self.failsafe_s, self.failsafe_action)
         self._sync_taken = False  # repeated in every slot until a frame of the session is taken
         self.wants_flush = True
@@ -853,10 +892,12 @@ class AcousticRov(_End):
                            OP_MODE: lambda: SetMode(order.oid, order.arg)}[order.op]())
 
     def _poll(self, poll: Poll, now: float) -> None:
+        self._operator_holds = (poll.held, now) if poll.have_status else None
         th = self.thumb
         if th is None or th.obj is None or poll.t != th.t:
             return
-        th.acked = poll.held(th.count)
+        th.acked = poll.held_packets(th.count)
+        th.window_end = poll.window_end()
         th.operator_has_end = poll.have_end
         th.poll_at = now
         if poll.have_end and len(th.acked) == th.count and not th.done:
@@ -890,11 +931,31 @@ class AcousticRov(_End):
         status = self.status(now)
         if self._failsafe_unreported and not self.failsafe:
             self._failsafe_unreported = False  # the FAILSAFE of a spell now over has been reported once
-        ctr, packets = self._seal(DOWN_STATUS, status.encode())
+        body = status.encode()
+        self._fulls = {c: b for c, b in self._fulls.items() if self.tx_ctr - c <= SAME_REACH}
+        ref = self._named_full(body)
+        if ref is not None:
+            ctr, packets = self._seal(DOWN_STATUS_SAME, same_body(ref, body))
+            self.counters.statuses_same += 1
+        else:
+            ctr, packets = self._seal(DOWN_STATUS, body)
+            self._fulls[ctr] = body
         self.status_sent[ctr] = now
         if len(self.status_sent) > 64:
             del self.status_sent[min(self.status_sent)]
         return self._emit_frame(packets, "status")
+
+    def _named_full(self, body: bytes) -> int | None:
+        """The counter of the full STATUS the operator's last POLL names, when it was
+        made before that POLL came and says what `body` says of the position,
+        heading and battery (§9.4 STATUS_SAME); else None."""
+        if self._operator_holds is None:
+            return None
+        held, poll_at = self._operator_holds
+        for ctr, full in self._fulls.items():
+            if ctr % CTR_WINDOW == held and self.status_sent.get(ctr, poll_at) < poll_at:
+                return ctr if steady_bytes(full) == steady_bytes(body) else None
+        return None
 
     def _data_packet(self, now: float) -> bytes | None:
         th = self.thumb
@@ -904,7 +965,7 @@ class AcousticRov(_End):
             if i in th.acked:
                 continue
             sent = th.sent_at.get(i)
-            if sent is None or sent <= cutoff:
+            if sent is None or (sent <= cutoff and i < th.window_end):  # past the POLL's window: not known lost
                 th.sent_at[i] = now
                 self._last_handed = "data"
                 return data_packet(th.t, i, th.obj[i * DATA_BYTES:(i + 1) * DATA_BYTES])
@@ -948,7 +1009,7 @@ class Synced:
 @dataclass(frozen=True)
 class StatusReceived:
     status: Status
-    at: float  # when it was made, as the operator estimates it (arrival - STATUS_TRANSIT_S)
+    at: float  # when it was made, as the operator estimates it (arrival - STATUS_TRANSIT_S or SAME_TRANSIT_S)
     ctr: int
 
 
@@ -1038,6 +1099,7 @@ class AcousticOperator(_End):
         self.last_authentic_at: float | None = None
         self.last_status: Status | None = None
         self.last_status_arrival: float | None = None
+        self._held: dict[int, bytes] = {}  # full STATUSes of the session within 16 counters of the newest frame
         self._ready = False  # a STATUS in this session: the ROV's last OID is known
         self._next_oid = 1
         self._issued = 0  # the highest OID put on the air
@@ -1187,18 +1249,19 @@ class AcousticOperator(_End):
         return self._emit_frame(self._seal(UP_POLL, self._poll().encode())[1], "poll")
 
     def _poll(self) -> Poll:
+        held = {"have_status": True, "held": max(self._held) % CTR_WINDOW} if self._held else {}
         w = self.thumb
         if w is None or w.verified:
             t = w.t if w is not None else (self._last_thumb_oid or 0) & 1
-            return Poll(t, MAX_SLOTS, True, 0)
+            return Poll(t, MAX_SLOTS, True, 0, **held)
         count = w.count()
         limit = count if count is not None else MAX_SLOTS
         lowest = next((i for i in range(limit) if i not in w.slots), limit)
         bitmap = 0
-        for k in range(24):
+        for k in range(BITMAP_BITS):
             if lowest + 1 + k in w.slots:
-                bitmap |= 1 << (23 - k)
-        return Poll(w.t, min(lowest, MAX_SLOTS), w.end is not None, bitmap)
+                bitmap |= 1 << (BITMAP_BITS - 1 - k)
+        return Poll(w.t, min(lowest, MAX_SLOTS), w.end is not None, bitmap, **held)
 
     # -- receiving -------------------------------------------------------------
 
@@ -1228,6 +1291,7 @@ class AcousticOperator(_End):
             return True
         sync = SyncBody.decode(body)
         self._session_hello = number
+        self._held = {}
         self._new_session(challenge + sync.boot + sync.nonce)
         self._heard(now)
         self.resyncing = False
@@ -1252,8 +1316,18 @@ class AcousticOperator(_End):
 
     def _frame(self, kind: int, body: bytes, ctr: int, now: float, events: list) -> None:
         self._heard(now)
+        self._held = {c: b for c, b in self._held.items() if ctr - c <= SAME_REACH + 1}
         if kind == DOWN_STATUS:
-            self._status(Status.decode(body), ctr, now, events)
+            self._held[ctr] = bytes(body)
+            self._status(Status.decode(body), ctr, now - STATUS_TRANSIT_S, now, events)
+        elif kind == DOWN_STATUS_SAME:
+            full = next((b for c, b in self._held.items() if c % 256 == body[0]), None)
+            if full is None:
+                self.counters.same_unmatched += 1  # names a full STATUS we lack: our POLLs ask for one
+                self._held = {}
+                return
+            self.counters.statuses_same += 1
+            self._status(Status.decode(renewed_body(full, body)), ctr, now - SAME_TRANSIT_S, now, events)
         elif kind == DOWN_THUMB_END:
             end = ThumbEnd.decode(body)
             w = self.thumb
@@ -1261,10 +1335,10 @@ class AcousticOperator(_End):
                 w.end = (end.object_mac, self.session)
                 self._try_verify(w, events)
 
-    def _status(self, st: Status, ctr: int, now: float, events: list) -> None:
+    def _status(self, st: Status, ctr: int, made: float, now: float, events: list) -> None:
         self.last_status = st
         self.last_status_arrival = now
-        events.append(StatusReceived(st, now - STATUS_TRANSIT_S, ctr))
+        events.append(StatusReceived(st, made, ctr))
         if not st.uplink and not self.resyncing:
             self._resync("the ROV has taken nothing from us for 10 s", events)
         if not self._ready:

@@ -214,6 +214,9 @@ def run(args) -> int:
         "thumbnail_200B_alone_p95_le_60s_at_10%": _target(
             ten["alone_thumbnail_s_p95"], 60.0, ten["alone_thumbnail_s_p95"] is not None and ten["alone_thumbnail_s_p95"] <= 60.0),
     }
+    zero = find(0.0)
+    mx = zero["alone_status_age_s_max"]  # the thumbnail streaming all the while
+    targets["status_never_older_than_10s_at_0%_thumbnails_alone"] = _target(mx, 10.0, mx is not None and mx <= 10.0)
     for r in results:
         kind = "bursts" if r["burst"] > 1 else "independent"
         mx = r["status_age_s_max"]

@@ -4,6 +4,7 @@ ends, and sessions over the emulated Modem-M64 in simulated time."""
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -34,6 +35,8 @@ def _down(ctr, kind, body):
 STATUS0 = ac.Status(x_dm=125, y_dm=-30, z_dm=45, heading_cdeg=9000, armed=True, hold=True, position_valid=True,
                     attitude_valid=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, battery_dv=158)
 STATUS17 = ac.Status(hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE, stop_no2=1, oid=3)
+STATUS18 = ac.Status(armed=True, hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE,
+                     stop_no2=1, oid=3)  # STATUS17 and ARMED: a STATUS_SAME says it
 GOTO = ac.GoTo(2, 125, -30, 45, -9000, yaw_set=True)
 THUMB = ac.ThumbRequest(3, budget=198, roi=(20, 15, 60, 45), shift=4, mono=True)
 
@@ -44,7 +47,7 @@ def vectors() -> list[bytes]:
         ac.seal_hello(K, CHALLENGE),
         b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, ac.FAILSAFE_HOLD))),
         _down(0, ac.DOWN_STATUS, STATUS0.encode()),
-        _up(0, ac.UP_POLL, ac.Poll(1, 3, False, 0b011 << 21).encode()),
+        _up(0, ac.UP_POLL, ac.Poll(1, 3, False, 0b011 << 16, have_status=True, held=0).encode()),
         _up(1, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode()),
         _up(2, ac.UP_GOTO, GOTO.encode()),
         _up(3, ac.UP_THUMB, THUMB.encode()),
@@ -52,6 +55,7 @@ def vectors() -> list[bytes]:
         ac.data_packet(1, 0, OBJECT),
         _down(1, ac.DOWN_THUMB_END, ac.ThumbEnd(3, ac.object_mac(K, S, 3, OBJECT)).encode()),
         _down(17, ac.DOWN_STATUS, STATUS17.encode()),
+        _down(18, ac.DOWN_STATUS_SAME, ac.same_body(17, STATUS18.encode())),
     ]
 
 
@@ -117,7 +121,8 @@ def test_the_operator_end_makes_and_takes_the_vectors():
         events += op.receive(p, 5.0 + i)
     assert events[0] == ac.Synced(BOOT, False, 60, ac.FAILSAFE_HOLD)
     assert events[1] == ac.StatusReceived(STATUS0, 8.0 - ac.STATUS_TRANSIT_S, 0)
-    assert op.ready and op.next_packet(9.0) == _up(0, ac.UP_POLL, ac.Poll().encode())  # nothing wanted yet
+    poll = ac.Poll(have_status=True, held=0)  # nothing wanted yet; it holds STATUS 0
+    assert op.ready and op.next_packet(9.0) == _up(0, ac.UP_POLL, poll.encode())
     assert op.send_order(ac.Order(0, ac.OP_ARM), 9.0) == 1
     assert op.next_packet(10.0) == v[4]
     # The operator's own THUMB request 3, and the ROV's answer from the table.
@@ -128,7 +133,8 @@ def test_the_operator_end_makes_and_takes_the_vectors():
     got = op.receive(v[10][:8], 14.0) + op.receive(v[10][8:], 15.0)  # frames 2..16 lost: 17 is in the window
     assert got == [ac.StatusReceived(STATUS17, 15.0 - ac.STATUS_TRANSIT_S, 17),
                    ac.OrderFate(1, "unknown", "the ROV moved past it before reporting it")]  # our ARM: passed by OID 3
-    assert op.counters.inauthentic == 0
+    assert op.receive(v[11], 16.0) == [ac.StatusReceived(STATUS18, 16.0 - ac.SAME_TRANSIT_S, 18)]
+    assert op.counters.inauthentic == 0 and op.counters.statuses_same == 1
 
 
 # ---------------------------------------------------------------------------
@@ -138,7 +144,8 @@ def test_the_operator_end_makes_and_takes_the_vectors():
 u8 = st.integers(0, 255)
 i16 = st.integers(-32768, 32767)
 BODIES = st.one_of(
-    st.builds(ac.Poll, st.integers(0, 1), st.integers(0, 63), st.booleans(), st.integers(0, 2**24 - 1)),
+    st.builds(ac.Poll, st.integers(0, 1), st.integers(0, 63), st.booleans(), st.integers(0, 2**ac.BITMAP_BITS - 1),
+              st.booleans(), st.integers(0, 15)),
     st.builds(ac.StopBody, u8, u8),
     st.builds(ac.Order, u8, u8, st.integers(0, 65535)),
     st.builds(ac.GoTo, u8, i16, i16, i16, i16, st.booleans(), st.booleans(), st.booleans()),
@@ -390,3 +397,165 @@ def test_thirty_percent_loss_still_converges():
     n = sim.stop()
     sim.run_until(sim.now + 60)
     assert [e.stop_no for _, e in sim.events(ac.StopConfirmed)] == [n]
+
+
+# ---------------------------------------------------------------------------
+# STATUS_SAME: a still vehicle told in one packet, never a position it did not name
+# ---------------------------------------------------------------------------
+
+STILL = ac.VehicleState(12.5, -3.0, 4.5, 90.0, armed=True, mode=Mode.POS_HOLD, position_valid=True,
+                        attitude_valid=True, autopilot=True, battery_v=15.8)
+
+
+def _rov_in_session() -> ac.AcousticRov:
+    rov = ac.AcousticRov(K, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(STILL)
+    rov.tick(0.0)
+    rov.receive(ac.seal_hello(K, CHALLENGE), 0.0)
+    rov.next_packet(0.0), rov.next_packet(1.0)  # the SYNC
+    return rov
+
+
+def _status_frame(rov, now) -> tuple[int, bytes]:
+    """The next status frame the ROV hands: (KIND, whole frame)."""
+    first = rov.next_packet(now)
+    kind = first[0] >> 4 & 7
+    rest = b"".join(rov.next_packet(now + 1 + i) for i in range(ac.DOWN_PACKETS[kind] - 1))
+    return kind, first + rest
+
+
+def test_the_rov_sends_status_same_only_for_a_full_status_the_operator_says_it_holds():
+    rov = _rov_in_session()
+    rov.receive(_up(0, ac.UP_POLL, ac.Poll(have_status=True, held=0).encode()), 2.0)  # HELD 0: no full sent yet
+    assert _status_frame(rov, 2.0)[0] == ac.DOWN_STATUS  # CTR 0
+    assert _status_frame(rov, 4.0)[0] == ac.DOWN_STATUS  # the last POLL named nothing of ours: full again
+    rov.receive(_up(1, ac.UP_POLL, ac.Poll(have_status=True, held=1).encode()), 6.0)  # holds CTR 1
+    kind, frame = _status_frame(rov, 6.0)
+    assert kind == ac.DOWN_STATUS_SAME and frame == _down(2, ac.DOWN_STATUS_SAME, ac.same_body(1, rov.status(6.0).encode()))
+    rov.update_status(replace(STILL, armed=False))  # flags travel in STATUS_SAME too
+    kind, frame = _status_frame(rov, 7.0)
+    assert kind == ac.DOWN_STATUS_SAME and frame[2] >> 7 == 0
+    rov.update_status(replace(STILL, z_m=4.6))  # 1 dm deeper: the position is news, a full STATUS
+    assert _status_frame(rov, 8.0)[0] == ac.DOWN_STATUS  # CTR 4
+    assert _status_frame(rov, 10.0)[0] == ac.DOWN_STATUS  # HELD still names CTR 1, not the newest (4)
+    rov.receive(_up(2, ac.UP_POLL, ac.Poll(have_status=False).encode()), 12.0)
+    assert _status_frame(rov, 12.0)[0] == ac.DOWN_STATUS
+    assert rov.counters.statuses_same == 2
+
+
+def test_the_operator_takes_status_same_only_naming_the_newest_full_status_it_took():
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    op.next_packet(0.0)
+    for i, p in enumerate(_chunks(b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, 0))))):
+        op.receive(p, 1.0 + i)
+    assert ac.Poll.decode(op._poll().encode()).have_status is False  # no STATUS yet
+    same = ac.same_body(0, STATUS0.encode())
+    assert op.receive(_down(0, ac.DOWN_STATUS_SAME, same), 3.0) == []  # names a STATUS it never took
+    assert op.counters.same_unmatched == 1 and op.last_status is None
+    full = _down(1, ac.DOWN_STATUS, STATUS0.encode())
+    (got,) = op.receive(full[:8], 4.0) + op.receive(full[8:], 5.0)
+    assert got == ac.StatusReceived(STATUS0, 5.0 - ac.STATUS_TRANSIT_S, 1)
+    poll = ac.Poll.decode(op._poll().encode())
+    assert poll.have_status and poll.held == 1
+    renewed = replace(STATUS0, armed=False, result=ac.R_DONE, oid=7)
+    (got,) = op.receive(_down(2, ac.DOWN_STATUS_SAME, ac.same_body(1, renewed.encode())), 7.0)
+    assert got == ac.StatusReceived(renewed, 7.0 - ac.SAME_TRANSIT_S, 2)
+    # One naming CTR 17 (REF 17) when it holds CTR 1: ignored, and its POLLs ask for a full one.
+    assert op.receive(_down(3, ac.DOWN_STATUS_SAME, ac.same_body(17, renewed.encode())), 8.0) == []
+    assert op.counters.same_unmatched == 2 and op.last_status == renewed
+    assert not ac.Poll.decode(op._poll().encode()).have_status
+    assert op.receive(_down(4, ac.DOWN_STATUS_SAME, ac.same_body(1, renewed.encode())), 9.0) == []  # forgotten: no
+    assert op.counters.same_unmatched == 3
+
+
+def _record_truth(sim) -> tuple[dict, list]:
+    """What the ROV meant by each STATUS / STATUS_SAME it sealed, (session, CTR) ->
+    Status; and what the operator took, [(session, CTR, Status)]."""
+    intended: dict[tuple[bytes, int], ac.Status] = {}
+    taken: list[tuple[bytes, int, ac.Status]] = []
+    rov, op = sim.rov, sim.operator
+    status, seal, op_status = rov.status, rov._seal, op._status
+    last: list[ac.Status] = []
+
+    def spy_status(now):
+        last[:] = [status(now)]
+        return last[0]
+
+    def spy_seal(kind, body):
+        ctr, packets = seal(kind, body)
+        if kind in (ac.DOWN_STATUS, ac.DOWN_STATUS_SAME):
+            intended[rov.session, ctr] = last[0]
+        return ctr, packets
+
+    def spy_op_status(st, ctr, *args):
+        taken.append((op.session, ctr, st))
+        return op_status(st, ctr, *args)
+
+    rov.status, rov._seal, op._status = spy_status, spy_seal, spy_op_status
+    return intended, taken
+
+
+@pytest.mark.parametrize("loss,burst", [(0.0, 1.0), (0.1, 1.0), (0.3, 3.0)])
+def test_every_status_the_operator_takes_is_what_the_rov_meant_while_it_moves_and_holds(loss, burst):
+    sim = AcousticSim(K, seed=11, loss=loss, burst=burst, camera=fixed_camera(200))
+    intended, taken = _record_truth(sim)  # from the start: every STATUS sealed is known
+    while not sim.operator.ready:
+        sim.run_until(sim.now + 1.0)
+    for k in range(3):  # hold still with a thumbnail, then move, then hold again
+        sim.order(ac.ThumbRequest(0))
+        sim.run_until(sim.now + 50)
+        sim.order(ac.GoTo(0, 40, 30 * k, 10, relative=True))
+        sim.run_until(sim.now + 30)
+    assert len(taken) > 30
+    for session, ctr, status in taken:
+        assert status == intended[session, ctr]
+    same = sim.operator.counters.statuses_same
+    assert same > 10 and sim.rov.counters.statuses_same >= same
+    assert len({status.x_dm for _, _, status in taken}) > 3  # positions changed: full STATUSes told them
+
+
+def test_a_still_vehicle_gets_its_thumbnail_sooner_and_its_status_as_fresh():
+    def run(same: bool) -> tuple[float, float]:
+        sim = _synced(seed=12, loss=0.1)
+        if not same:  # an operator that never says it holds a STATUS: every STATUS full, as before
+            sim.operator._poll = _without_held(sim.operator._poll)
+        start = sim.now
+        oid = sim.order(ac.ThumbRequest(0, budget=198))
+        sim.run_until(sim.now + 150)
+        (t, done), = sim.events(ac.ThumbnailComplete)
+        assert done.oid == oid
+        got = [(t2, e.at) for t2, e in sim.events(ac.StatusReceived) if start < t2 < t]
+        oldest = max(got[i + 1][0] - got[i][1] for i in range(len(got) - 1))  # just before the next came
+        return t - start, oldest
+    with_same, without = run(True), run(False)
+    assert with_same[0] < without[0] - 5.0
+    assert with_same[1] <= without[1] + 0.5
+
+
+def _without_held(poll):
+    return lambda: replace(poll(), have_status=False, held=0)
+
+
+def test_a_thumbnail_packet_past_the_polls_bitmap_is_not_sent_again_until_the_bitmap_reaches_it():
+    rov = _rov_in_session()
+    order = b"".join(ac.seal_control(K, ac.LABEL_UP, S, 0, ac.UP_THUMB, ac.ThumbRequest(2, budget=198).encode()))
+    for p in _chunks(order):
+        rov.receive(p, 2.0)
+    rov.thumbnail_ready(2, fixed_camera(200)(None))  # 29 data packets, IDX 0..28
+    sent: list[int] = []
+    now = 3.0
+    for _ in range(60):
+        p = rov.next_packet(now)
+        if p[0] & 0x80:
+            sent.append(p[0] & 63)
+        now += 1.0
+    assert sent == list(range(29))  # each once, then nothing until a POLL tells
+    # Packet 1 lost: LOWEST_MISSING 1, the bitmap tells of 2..20 (all held); 21..28 lie past it.
+    rov.receive(_up(1, ac.UP_POLL, ac.Poll(0, 1, False, (1 << ac.BITMAP_BITS) - 1).encode()), now)
+    again = [p[0] & 63 for p in (rov.next_packet(now + k) for k in range(20)) if p[0] & 0x80]
+    assert again == [1]
+    # Packets 1..20 held: now 21..28 are within the bitmap, and it says 21 and 25 are missing.
+    bitmap = sum(1 << (ac.BITMAP_BITS - 1 - k) for k in range(8) if 22 + k != 25)
+    rov.receive(_up(2, ac.UP_POLL, ac.Poll(0, 21, False, bitmap).encode()), now + 20)
+    again = [p[0] & 63 for p in (rov.next_packet(now + 20 + k) for k in range(10)) if p[0] & 0x80]
+    assert again == [21, 25]
