@@ -171,3 +171,21 @@ def test_keygen_writes_a_private_key_once(tmp_path):
     other = tmp_path / "other.key"
     subprocess.run(ROVLINK + ["keygen", str(other)], check=True, capture_output=True, timeout=60)
     assert read_key_file(str(other)) != key
+
+
+def test_bench_link_acoustic_prints_a_table_and_json():
+    out = rovlink("bench", "link", "--profile", "acoustic", "--duration", "240")
+    assert out.returncode == 0, out.stderr
+    assert "STOP@ROV p50" in out.stdout and "targets:" in out.stdout and "status age under loss" in out.stdout
+    out = rovlink("bench", "link", "--profile", "acoustic", "--duration", "240", "--json")
+    doc = json.loads(out.stdout)
+    by = {(r["loss"], r["burst"]): r for r in doc["results"]}
+    assert set(by) == {(0.0, 1.0), (0.1, 1.0), (0.3, 1.0), (0.1, 3.0), (0.3, 3.0)}
+    for r in doc["results"]:  # every row: STOPs pressed and carried, thumbnails verified, no failsafe
+        assert r["stops"] > 0 and r["stop_at_rov_s_p50"] >= 1.5 and r["alone_thumbnails"] > 0 and r["failsafes"] == 0
+    # A 200-byte thumbnail is 30 packets: at one a second it cannot come sooner than 30 s.
+    assert by[(0.0, 1.0)]["alone_thumbnail_s_p50"] >= 30.0
+    assert {"stop_at_rov_p95_le_3s_at_10%", "thumbnail_200B_alone_p95_le_60s_at_10%",
+            "status_never_older_than_10s_at_0%_thumbnails_alone"} <= set(doc["targets"])
+    assert all(isinstance(t["met"], bool) for t in doc["targets"].values())
+    assert set(doc["status_age_under_loss"]) == {"10% independent", "30% independent", "10% bursts", "30% bursts"}
