@@ -149,8 +149,15 @@ def _why(procs: Processes) -> str:
     except OSError as exc:
         return f"console unreachable: {exc}\n{procs.logs_text()}"
     pose = {k: v for k, v in state["pose"].items() if k not in ("trail", "path")}
+    # Without the pictures' lines (three a second), which would hide everything else.
+    log = [e["text"] for e in get_json(procs.base + "/api/log") if not e["text"].startswith("picture #")]
     return json.dumps({"pose": pose, "velocity_wish": state["velocity_wish"], "control": control,
-                       "log": [e["text"] for e in state["log"]][-12:]}, indent=1, default=str)
+                       "log": log[-12:]}, indent=1, default=str)
+
+
+def _dead_man_since(procs: Processes, wall: float) -> bool:
+    """Whether the console's dead man has neutralised the holder's streamed wish since `wall`."""
+    return any("stopped arriving" in e["text"] and e["wall"] >= wall for e in get_json(procs.base + "/api/log"))
 
 
 def _moved_m(a: dict, b: dict) -> float:
@@ -232,6 +239,22 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         procs.close()
 
 
+def _centre_then_forward(page, procs: Processes) -> bool:
+    """The page's held pad centred (the page told "You have control."), then forward again:
+    True once the vehicle has moved a metre, False if the console's dead man neutralised the
+    stick first (the page's repeats stalled: it asks for the sticks to be centred again)."""
+    page.evaluate("() => { window.testPad.axes[1] = 0; }")  # centred
+    # (After a dead man the console asks for centring first, then logs it: this is our centring.)
+    assert wait_until_up(lambda: not get_json(procs.base + "/api/control")["centre_to_drive"], 30), _why(procs)
+    page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
+    since = time.time()
+    page.evaluate("() => { window.testPad.axes[1] = -0.8; }")  # forward again
+    start = _fresh_pose(procs)
+    assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0 or _dead_man_since(procs, since),
+                         20), _why(procs)
+    return _moved_m(start, procs.pose()["received"]) > 1.0
+
+
 # Headless Chromium has no gamepad: stand in for the Gamepad API, stick forward from the start.
 HELD_PAD = """() => {
   const pad = { id: "held pad", index: 0, connected: true, mapping: "standard", axes: [0, -0.8, 0, 0],
@@ -272,13 +295,17 @@ def test_a_page_taking_control_with_its_stick_held_drives_only_once_it_is_centre
                 assert _moved_m(held, _fresh_pose(procs)) < 0.5
                 assert get_json(procs.base + "/api/state")["velocity_wish"] == {
                     "vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}
-                page.evaluate("() => { window.testPad.axes[1] = 0; }")  # centred
-                page.wait_for_function("document.getElementById('control-text').textContent === "
-                                       "'You have control.'")
-                page.evaluate("() => { window.testPad.axes[1] = -0.8; }")  # forward again
-                start = _fresh_pose(procs)
-                # (A CI run once saw no metre in 20 s here, and the message cut short; now it says it all.)
-                assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), _why(procs)
+                # Centred, then forward again: it drives.  The page repeats the held stick every
+                # 100 ms; on a loaded machine its input loop can stall for over the console's 1 s
+                # dead man (measured: up to 2 s beside other browser tests on 2 cores), which then
+                # neutralises the wish and, the stick's state unknown, asks for the sticks to be
+                # centred again: as designed, and a pilot would be asked the same.  A CI run saw
+                # no metre in 20 s so.  The pilot centres again then; any other stillness fails.
+                for _attempt in range(4):
+                    if _centre_then_forward(page, procs):
+                        break
+                else:
+                    pytest.fail("the page's stick stalled past the dead man at every try:\n" + _why(procs))
                 page.evaluate("() => { window.testPad.axes[1] = 0; }")
             finally:
                 browser.close()
