@@ -577,13 +577,15 @@ class Master:
         return Poll(seq=seq, size=size, order=order, img=img, offset=offset), order_ids  # type: ignore[arg-type]
 
     def _nobodys_neutral(self, wish: Velocity) -> bool:
-        """A neutral wish with no request, of nobody's input, while the ROV holds
-        (or before any reply): sent as NONE, so that it releases no HOLD."""
+        """A neutral wish with no request, of nobody's input, while the ROV holds or
+        may hold (before any reply, and after a lost one: after a link outage the
+        last reply is from before the failsafe's HOLD): sent as NONE, so that it
+        releases no HOLD."""
         if self.pilot_in_force or not wish.is_neutral or wish.arm or wish.mode:
             return False
         if any(r is not None for r in self._requests.values()):
             return False  # an ARM/MODE request rides in VELOCITY polls (the first sets the reference)
-        return self._last_reply is None or self._last_reply.hold
+        return self._last_reply is None or self._last_reply.hold or self._lost_last
 
     def _may_send_orders(self, now: float) -> bool:
         """§3: no one-shot order until `start_wait_s` after the first reply."""

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import random
 
+import pytest
+
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import Master
 from rovlink.link.messages import Mode, NoOrder, Poll, Velocity
@@ -101,3 +103,40 @@ def test_a_console_neutral_after_stop_is_not_a_recentring():
     master.recentred()
     link.run_until(12.0)
     assert not slave.hold
+
+
+@pytest.mark.parametrize("v2", [False, True])
+@pytest.mark.parametrize("what", ["stop", "outage"])
+def test_nobodys_neutral_never_releases_a_hold_set_while_the_pilot_was_centred(v2, what):
+    """The pilot centred, then a STOP or a link outage past the failsafe sets HOLD and the
+    pilot leaves. Version 2 repeats the chained reply's wish for a NONE poll (§8.1); a
+    STOP's reply carries no wish and the failsafe ends the chain (a SYNC has none), so
+    nobody's NONE stays a NONE there too, and the HOLD stands."""
+    import dataclasses
+
+    from rovlink.link.messages import Stop
+    from rovlink.link.secure import SecureMaster, SecureSlave
+
+    key = bytes(range(32))
+    inner, slave = Master(rng=random.Random(5), images=False), Slave()
+    slave.update_status(ARMED)
+    master = SecureMaster(inner, key) if v2 else inner
+    channel = Channel(LinkParams(bitrate_bps=1900, delay_s=0.085), seed=5)
+    link = SimLink(master, SecureSlave(slave, key) if v2 else slave, channel)
+    link.run_until(3.0)
+    master.recentred()
+    link.run_until(5.0)
+    assert not slave.hold  # the pilot's centring released the start HOLD; the sticks stay centred
+    if what == "stop":
+        master.send_order(Stop())
+        master.set_pilot_in_force(False)  # and the holder's page closes
+    else:
+        for side in "ab":
+            channel.params[side] = dataclasses.replace(channel.params[side], loss=1.0)
+        link.run_until(9.0)  # past the 3 s failsafe
+        assert slave.hold and slave.failsafe
+        master.set_pilot_in_force(False)
+        for side in "ab":
+            channel.params[side] = dataclasses.replace(channel.params[side], loss=0.0)
+    link.run_until(25.0)
+    assert slave.hold and not slave.failsafe  # the link is back, the HOLD stands
