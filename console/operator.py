@@ -216,7 +216,7 @@ class Operator:
     def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
         """A log line. `level`: "alert" (the pilot must see it: link lost, failsafe,
         forged frames, an order refused), "warn", or "info" (routine: an image complete).
-        `cause`: the condition an alert is about ("link", "failsafe"), so that
+        `cause`: the condition an alert is about ("link", "failsafe", "port"), so that
         `clear_alerts` can mark it cleared when the condition ends."""
         line = LogLine(self.now(), text, level, cause)
         self.history.log.append(line)
@@ -272,6 +272,12 @@ class Operator:
         else:
             self.note(news)
             self.clear_alerts("port")
+
+    def port_error(self) -> str | None:
+        """The transport's reason while this console's port is down, else None."""
+        if self.endpoint is None or getattr(self.endpoint, "is_up", True):
+            return None
+        return getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "the modem port is down"
 
     def bytes_received(self, data: bytes, t: float) -> None:
         self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
@@ -727,6 +733,8 @@ class Operator:
             "images_abandoned": m.images_abandoned,
             "version": self.link_version,  # "2": every frame authenticated; "1.1": INSECURE
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
+            # Why this console's own modem port is down (None while it is up, or for a replay).
+            "port_error": self.port_error(),
         }
 
     def orders_state(self) -> list[dict]:

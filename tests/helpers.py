@@ -1,4 +1,5 @@
-"""Small things several test modules need: the browser they drive, free
+"""Small things several test modules need: the browser they drive, a
+pseudo-terminal that can vanish and return (a serial port pulled), free
 loopback ports, waiting for a condition, and reading the console's API."""
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ import json
 import os
 import socket
 import time
+import tty
 import urllib.request
 
 import pytest
@@ -31,6 +33,39 @@ class FakeClock:
 
     def __call__(self) -> float:
         return self.t
+
+
+class Pty:
+    """A pseudo-terminal reachable at a fixed path, which can vanish and return."""
+
+    def __init__(self, path):
+        self.path = path
+        self.master_fd = None
+
+    def up(self):
+        master_fd, slave_fd = os.openpty()
+        tty.setraw(slave_fd)
+        name = os.ttyname(slave_fd)
+        os.close(slave_fd)
+        if os.path.lexists(self.path):
+            os.unlink(self.path)
+        os.symlink(name, self.path)
+        self.master_fd = master_fd
+        os.set_blocking(master_fd, False)
+
+    def down(self):
+        os.unlink(self.path)
+        os.close(self.master_fd)
+        self.master_fd = None
+
+    def read(self):
+        try:
+            return os.read(self.master_fd, 4096)
+        except BlockingIOError:
+            return b""
+
+    def write(self, data):
+        os.write(self.master_fd, data)
 
 
 def free_tcp_port() -> int:

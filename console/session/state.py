@@ -122,6 +122,8 @@ class LinkState(BaseModel):
     auth_alert: bool = Field(False, description="more than 3 frames failed authentication in the last 10 s, and no reply came")
     link_up: bool = Field(description="replies arrive (state up or degraded)")
     transport_up: bool
+    port_error: str | None = Field(None, description="why this console's own modem port is down (the transport's reason); "
+                                                     "null while it is up, or for a replay")
 
 
 class VelocityWish(BaseModel):
@@ -151,7 +153,7 @@ class LogEntry(BaseModel):
     text: str
     level: Literal["alert", "warn", "info"] = Field(
         description="alert: the pilot must see it (link lost, failsafe, an order refused); info: routine")
-    cause: Literal["link", "failsafe"] | None = Field(
+    cause: Literal["link", "failsafe", "port"] | None = Field(
         None, description="a condition the alert is about; it is cleared when the condition ends")
     cleared_wall: float | None = Field(None, description="when its cause ended (clock time); null: still on, "
                                                          "or an event that has no end")

@@ -5,7 +5,6 @@ import os
 import random
 import socket
 import tempfile
-import tty
 
 import pytest
 
@@ -16,6 +15,8 @@ from rovlink.link.master import ImageComplete, Master, PoseReceived, StopConfirm
 from rovlink.link.messages import ImageSettings, Mode, Poll, Stop
 from rovlink.link.slave import BrakeRequested, OrderExecuted, Slave, Status
 from rovlink.link.transport import TransportError, free_udp_port, inproc_pair, open_transport
+
+from ..helpers import Pty
 
 HOLDING = Status(armed=True, mode=Mode.POS_HOLD, autopilot=True, position_valid=True, attitude_valid=True)
 
@@ -159,39 +160,6 @@ def test_inproc_pair():
 
     got, _, _ = run(main())
     assert got["poses"] > 5 and got["stops"] and len(got["confirmed"]) == 1
-
-
-class Pty:
-    """A pseudo-terminal reachable at a fixed path, which can vanish and return."""
-
-    def __init__(self, path):
-        self.path = path
-        self.master_fd = None
-
-    def up(self):
-        master_fd, slave_fd = os.openpty()
-        tty.setraw(slave_fd)
-        name = os.ttyname(slave_fd)
-        os.close(slave_fd)
-        if os.path.lexists(self.path):
-            os.unlink(self.path)
-        os.symlink(name, self.path)
-        self.master_fd = master_fd
-        os.set_blocking(master_fd, False)
-
-    def down(self):
-        os.unlink(self.path)
-        os.close(self.master_fd)
-        self.master_fd = None
-
-    def read(self):
-        try:
-            return os.read(self.master_fd, 4096)
-        except BlockingIOError:
-            return b""
-
-    def write(self, data):
-        os.write(self.master_fd, data)
 
 
 def test_serial_over_a_pty_with_crlf_survives_the_port_vanishing():

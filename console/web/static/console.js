@@ -31,7 +31,7 @@ const page = {
   lastPose: null,
   failsafeActive: false,
   failsafeAt: null,      // Date.now() when FAILSAFE was last reported
-  linkState: null,       // "up" | "degraded" | "lost" | "replay" | "starting"
+  linkState: null,       // "up" | "degraded" | "lost" | "replay" | "starting" | "port down"
   alerts: 0,             // alarm sounds started (the tests read it)
   audio: null,
   orderStates: {},       // id -> last state shown
@@ -392,8 +392,9 @@ function render(s) {
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
   renderFailsafe(l.failsafe || page.failsafeActive);
   setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
-  const badge = { up: ["link up", "good"], degraded: ["link degraded", "warn"], lost: ["LINK LOST", "bad"],
-                  replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
+  const badge = portDown(l) ? ["MODEM PORT DOWN", "bad"]
+    : { up: ["link up", "good"], degraded: ["link degraded", "warn"], lost: ["LINK LOST", "bad"],
+        replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
   setBadge($("link-up"), badge[0], badge[1]);
 
   renderImageProgress(s.image);
@@ -616,12 +617,26 @@ function renderTarget(t) {
 // Link state: from replies; lost is loud
 // ---------------------------------------------------------------------------
 
+// This console's own modem port gone (its USB serial adapter pulled): said at once,
+// before the replies stop long enough for LINK LOST.
+function portDown(l) {
+  return l.transport_up === false && l.port_error !== null && l.port_error !== undefined && l.state !== "replay";
+}
+
 function renderLink(l) {
   const was = page.linkState;
-  page.linkState = l.state;
-  document.body.dataset.link = l.state;
+  const down = portDown(l);
+  page.linkState = down ? "port down" : l.state;
+  document.body.dataset.link = page.linkState;
   const banner = $("link-banner");
-  if (l.state === "lost") {
+  if (down) {
+    banner.hidden = false;
+    banner.className = "";
+    $("link-banner-title").textContent = "MODEM PORT DOWN";
+    $("link-banner-text").textContent = `${l.port_error}; opening it again. No poll reaches the ROV: it stops on its failsafe`;
+    $("failsafe-inferred").hidden = true;
+    if (was !== "port down" && was !== "lost") alarm();
+  } else if (l.state === "lost") {
     banner.hidden = false;
     banner.className = "";
     $("link-banner-title").textContent = "LINK LOST";
@@ -630,7 +645,7 @@ function renderLink(l) {
     const fs = $("failsafe-inferred");
     fs.hidden = !l.failsafe_inferred;
     if (l.failsafe_inferred) fs.textContent = `ROV in FAILSAFE (inferred) since ${l.failsafe_inferred_since}`;
-    if (was !== "lost") alarm();
+    if (was !== "lost" && was !== "port down") alarm();
   } else if (l.state === "replay") {
     banner.hidden = false;
     banner.className = "replay";
@@ -639,7 +654,7 @@ function renderLink(l) {
     $("failsafe-inferred").hidden = true;
   } else {
     banner.hidden = true;
-    if (was === "lost") stopAlarm();
+    if (was === "lost" || was === "port down") stopAlarm();
   }
 }
 
