@@ -64,7 +64,7 @@ from rovlink.link.messages import (
     Velocity,
 )
 from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synced
-from rovlink.link.transport import Endpoint, port_change
+from rovlink.link.transport import Endpoint, port_change, port_down_reason
 
 from .session.goto import GoToWatch, resolve_target
 from .session.health import LinkHealth
@@ -272,12 +272,6 @@ class Operator:
         else:
             self.note(news)
             self.clear_alerts("port")
-
-    def port_error(self) -> str | None:
-        """The transport's reason while this console's port is down, else None."""
-        if self.endpoint is None or getattr(self.endpoint, "is_up", True):
-            return None
-        return getattr(getattr(self.endpoint, "stats", None), "last_error", None) or "the modem port is down"
 
     def bytes_received(self, data: bytes, t: float) -> None:
         self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
@@ -734,7 +728,7 @@ class Operator:
             "version": self.link_version,  # "2": every frame authenticated; "1.1": INSECURE
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             # Why this console's own modem port is down (None while it is up, or for a replay).
-            "port_error": self.port_error(),
+            "port_error": port_down_reason(self.endpoint),
         }
 
     def orders_state(self) -> list[dict]:

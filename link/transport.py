@@ -470,9 +470,16 @@ def port_change(endpoint, was: bool | None) -> tuple[bool | None, str | None]:
     if up is None or up == was:
         return was, None
     if not up:
-        why = getattr(getattr(endpoint, "stats", None), "last_error", None) or "no reason given"
-        return False, f"MODEM PORT DOWN: {why}; opening it again"
+        return False, f"MODEM PORT DOWN: {port_down_reason(endpoint)}; opening it again"
     return True, None if was is None else "modem port open again"
+
+
+def port_down_reason(endpoint) -> str | None:
+    """Why the port of `endpoint` is down (the transport's last error), or None
+    while it is up (or for an endpoint with no notion of a port)."""
+    if endpoint is None or getattr(endpoint, "is_up", True):
+        return None
+    return getattr(getattr(endpoint, "stats", None), "last_error", None) or "no reason given"
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:

@@ -30,7 +30,7 @@ from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
 from rovlink.link.messages import Mode
-from rovlink.link.transport import port_change
+from rovlink.link.transport import port_change, port_down_reason
 
 log = logging.getLogger("rovlink.console.acoustic")
 
@@ -338,8 +338,7 @@ class AcousticSession:
                 "t": round(now - self._start, 1),
                 "link": {"state": link, "since_authentic_s": None if silent is None else round(silent, 1),
                          "port": "down" if self._port_up is False else "up",
-                         "port_error": (getattr(getattr(self.endpoint, "stats", None), "last_error", None)
-                                        if self._port_up is False else None),
+                         "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
                          "synced": self.synced is not None and not op.resyncing,
                          "packets_in": self.packets_in, "packets_out": self.packets_out,
                          "inauthentic": self.inauthentic, "alert": self.alert},
