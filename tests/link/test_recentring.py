@@ -6,13 +6,15 @@ simulated time."""
 
 from __future__ import annotations
 
+import dataclasses
 import random
 
 import pytest
 
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import Master
-from rovlink.link.messages import Mode, NoOrder, Poll, Velocity
+from rovlink.link.messages import Mode, NoOrder, Poll, Stop, Velocity
+from rovlink.link.secure import SecureMaster, SecureSlave
 from rovlink.link.sim import SimLink
 from rovlink.link.slave import Slave, Status, VelocityCommanded
 
@@ -89,8 +91,6 @@ def test_a_recentring_between_polls_reaches_the_rov_and_releases_hold():
 def test_a_console_neutral_after_stop_is_not_a_recentring():
     """STOP with the stick held: the console sets the wish neutral, but only the
     pilot's own re-centring (recentred) releases the HOLD the STOP set."""
-    from rovlink.link.messages import Stop
-
     master, slave, link, polls, applied = _link(4)
     master.recentred()
     link.run_until(5.0)
@@ -112,11 +112,6 @@ def test_nobodys_neutral_never_releases_a_hold_set_while_the_pilot_was_centred(v
     pilot leaves. Version 2 repeats the chained reply's wish for a NONE poll (§8.1); a
     STOP's reply carries no wish and the failsafe ends the chain (a SYNC has none), so
     nobody's NONE stays a NONE there too, and the HOLD stands."""
-    import dataclasses
-
-    from rovlink.link.messages import Stop
-    from rovlink.link.secure import SecureMaster, SecureSlave
-
     key = bytes(range(32))
     inner, slave = Master(rng=random.Random(5), images=False), Slave()
     slave.update_status(ARMED)

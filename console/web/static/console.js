@@ -619,8 +619,9 @@ function renderTarget(t) {
 
 // This console's own modem port gone (its USB serial adapter pulled): said at once,
 // before the replies stop long enough for LINK LOST.
+// (port_error is the console's reason, given only while its port is down: a replay has none.)
 function portDown(l) {
-  return l.transport_up === false && l.port_error !== null && l.port_error !== undefined && l.state !== "replay";
+  return l.port_error !== null && l.port_error !== undefined;
 }
 
 function renderLink(l) {
