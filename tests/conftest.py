@@ -17,16 +17,19 @@ def debt_compiled():
     debt.warm_up()
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the group marks
 def pytest_collection_modifyitems(items):
     """With pytest-xdist (`-n 2 --dist loadgroup`, as .ci/run runs): every
     browser test in one group, so that two software-rendered Chromiums never
-    compete for this 2-core machine (the tests that run the programs as
-    processes with them), and every other module in a group of its
+    compete for this 2-core machine, and every other module in a group of its
     own (its module-scoped fixtures start once).  The groups share the two
-    workers; without xdist the marks do nothing."""
+    workers; without xdist the marks do nothing.
+
+    The marks must be on the items before xdist's hook turns them into groups
+    (tryfirst): added after it, as they were until stop 31, they grouped
+    nothing and the browser tests ran two at a time.  The tests that run the
+    programs as processes without a browser are not in the browser group: the
+    group alone is what sets the suite's wall time."""
     for item in items:
-        # Tests that run the programs as processes load the machine like a browser does:
-        # they take their turns with the browser tests, never beside them.
-        heavy = item.get_closest_marker("browser") or item.get_closest_marker("processes")
-        group = "browser" if heavy else item.module.__name__
+        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
         item.add_marker(pytest.mark.xdist_group(group))

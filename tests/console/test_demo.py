@@ -237,19 +237,3 @@ def test_the_demos_vehicle_side_runs_in_a_process_of_its_own_and_ends_with_the_c
     assert wait_for(lambda: not os.path.exists(f"/proc/{vehicle[0]}") or
                     open(f"/proc/{vehicle[0]}/stat").read().rsplit(")", 1)[1].split()[0] == "Z", 20), \
         "the vehicle side outlived the console"
-
-
-def test_the_demo_compiles_the_codec_once_saying_so_before_the_link_starts(tmp_path):
-    """A fresh install compiles DEBT on first use: the demo does it before the link
-    starts (progress said), and a second start finds it cached and says nothing."""
-    import os
-
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}  # as on a fresh install
-    code = "from rovlink.console.commands.demo import compile_codec; compile_codec()"
-    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
-    assert first.returncode == 0, first.stderr
-    lines = first.stderr.strip().splitlines()
-    assert lines[0].startswith("compiling the image codec for this machine (first run only"), lines
-    assert lines[-1].startswith("image codec ready in "), lines
-    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
-    assert again.returncode == 0 and again.stderr == "", again.stderr
