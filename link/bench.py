@@ -13,7 +13,9 @@ the real Master, Slave and Channel:
 Figures: seconds to deliver a 2000-byte image object (median, p95) beside the
 physical floor 8 x bytes / bitrate; the poll interval while steering; the
 latency from a new wish to its arrival at the ROV; images completed per image
-finished (completed or abandoned).
+finished (completed or abandoned).  Beside the targets, the floors no version 2
+of this shape can beat on the link (`_bounds`, docs/PROTOCOL.md §8 and §8.1):
+where a target lies below its floor, the bench says so with the numbers.
 """
 
 from __future__ import annotations
@@ -229,6 +231,50 @@ def _plots(out_dir: str, sessions: dict[str, Session]) -> list[str]:
     return written
 
 
+def _bounds(args, five_bursts: dict) -> dict:
+    """Floors under issue 23's two figures that version 2 misses, from the link's
+    numbers and the wire's (docs/PROTOCOL.md §8.1), for any protocol that answers
+    each poll with one frame carrying the pose (the mission's: odometry in every
+    reply) and keeps the ROV's failsafe time:
+
+    - idle: a reply frame is at most V2_MAX_FRAME bytes; with its status and the
+      smallest pose (six one-byte differences) and its tag, the picture bytes left
+      fix the fewest replies for one picture asked at a time; each reply costs at
+      least the smallest poll, its own overhead and the two intrinsic delays;
+    - failsafes: the ROV's failsafe comes when every poll of a failsafe time is
+      lost; at the shortest cycle (smallest poll and reply, no margin at all) that
+      is a run of n lost polls; a Gilbert-Elliott burst (mean `BURST` frames) runs
+      at least n frames with probability (1 - 1/BURST)^(n-1), and bursts start at
+      loss / BURST per poll sent."""
+    from rovlink.link.auth import TAG_BYTES
+    from rovlink.link.messages import FAILSAFE_S
+    from rovlink.link.wire2 import MIN_POLL_FRAME, V2_MAX_FRAME, V2_OVERHEAD, V2_REPLY_STATUS
+
+    def air(nbytes: int) -> float:
+        return 8.0 * nbytes / args.bitrate
+
+    smallest_pose = 6  # six differences of one byte: a vehicle that did not move
+    reply_overhead = V2_OVERHEAD + V2_REPLY_STATUS + smallest_pose + TAG_BYTES
+    per_reply = V2_MAX_FRAME - reply_overhead
+    replies = math.ceil(OBJECT_BYTES / per_reply)
+    cycle_overhead = air(MIN_POLL_FRAME + reply_overhead) + 2 * args.delay
+    shortest_cycle = cycle_overhead  # a reply without picture, no margin
+    n = math.floor(FAILSAFE_S / shortest_cycle)
+    bursts = five_bursts["polls_per_hour"] * five_bursts["loss"] / BURST
+    expected = bursts * (1.0 - 1.0 / BURST) ** (n - 1)
+    return {
+        "v2_idle_2000B": {
+            "replies": replies, "picture_bytes_per_reply": per_reply,
+            "seconds": air(OBJECT_BYTES) + replies * cycle_overhead,
+            "picture_bytes_needed_for_one_fewer": math.ceil(OBJECT_BYTES / (replies - 1)),
+        },
+        "v2_failsafes_at_5%_bursts": {
+            "shortest_cycle_s": shortest_cycle, "polls_in_failsafe_time": n, "bursts_per_hour": bursts,
+            "expected_per_hour": expected, "chance_of_none_in_an_hour": math.exp(-expected),
+        },
+    }
+
+
 def run(args) -> int:
     if args.profile == "acoustic":
         from rovlink.link.acoustic_bench import run as run_acoustic
@@ -291,6 +337,7 @@ def run(args) -> int:
                     "pictures_per_hour": sess.images_completed / hours,
                     "velocity_lapses_per_hour": sess.velocity_lapses / hours,
                     "hellos_per_hour": sess.hellos / hours,
+                    "polls_per_hour": sess.polls / hours,
                     "replies_lost_share": sess.replies_lost / sess.polls if sess.polls else None,
                     "wish_latency_s_p95": quantile(sess.wish_latency_s, 0.95),
                 }
@@ -340,6 +387,7 @@ def run(args) -> int:
             targets[f"v2_failsafes_le_{factor:g}x_v1.1_at_{loss:.0%}_{kind}"] = _target(
                 v2["failsafes_per_hour"], limit, v2["failsafes_per_hour"] <= limit)
 
+    bounds = _bounds(args, lossy("rovlink v2", 0.05, BURST))
     plots = _plots(args.out, steering_sessions) if args.out else []
     doc = {
         "link": {"bitrate_bps": args.bitrate, "delay_s": args.delay, "object_bytes": OBJECT_BYTES,
@@ -347,6 +395,7 @@ def run(args) -> int:
         "results": results,
         "under_loss": loss_results,
         "targets": targets,
+        "bounds": bounds,
         "plots": plots,
     }
     headers = ["mode", "BER", "idle img s", "p95", "x floor", "steer img s", "p95", "first 500B s", "poll s", "p95",
@@ -370,6 +419,19 @@ def run(args) -> int:
         value = f"{t['value']:.3g}" if isinstance(t["value"], float) else str(t["value"])
         limit = f"{t['limit']:.3g}" if isinstance(t["limit"], float) else str(t["limit"])
         lines.append(f"  {'MET   ' if t['met'] else 'MISSED'} {name}: {value} (limit {limit})")
+    idle, fs = bounds["v2_idle_2000B"], bounds["v2_failsafes_at_5%_bursts"]
+    lines += [
+        "",
+        "bounds (what no version 2 of this shape can beat on this link, docs/PROTOCOL.md §8 and §8.1):",
+        f"  idle {OBJECT_BYTES} B, a pose in every reply: at least {idle['replies']} replies of at most "
+        f"{idle['picture_bytes_per_reply']} picture bytes -> at least {idle['seconds']:.2f} s "
+        f"({idle['seconds'] / floor_s:.2f}x floor); {idle['replies'] - 1} replies would need "
+        f"{idle['picture_bytes_needed_for_one_fewer']} picture bytes each, a reply without status and pose",
+        f"  failsafes at 5 % in bursts of {BURST:g}: even at the shortest cycle ({fs['shortest_cycle_s']:.3f} s, "
+        f"no margin) {fs['polls_in_failsafe_time']} polls in a row must be lost; {fs['bursts_per_hour']:.0f} bursts "
+        f"an hour start -> at least {fs['expected_per_hour']:.1f} an hour expected "
+        f"(none in an hour: {fs['chance_of_none_in_an_hour']:.0%})",
+    ]
     if args.out:
         lines.append("")
         lines.append(f"plots: {', '.join(plots)}" if plots else

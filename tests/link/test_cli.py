@@ -129,6 +129,7 @@ def test_bench_link_prints_a_table_and_json(tmp_path):
     out = rovlink("bench", "link", "--duration", "120", "--loss-duration", "300", "--out", str(tmp_path / "plots"))
     assert out.returncode == 0, out.stderr
     assert "idle img s" in out.stdout and "steering under loss" in out.stdout and "targets:" in out.stdout
+    assert "bounds (what no version 2 of this shape can beat" in out.stdout
     # The distributions as plots in the output folder (real PNG files).
     for name in ("picture_time_steering.png", "poll_interval_steering.png"):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -151,6 +152,14 @@ def test_bench_link_prints_a_table_and_json(tmp_path):
     assert {(r["mode"], r["loss"], r["burst"]) for r in doc["under_loss"]} == {
         (m, loss, burst) for m in ("rovlink", "rovlink v2") for loss in (0.05, 0.1, 0.2) for burst in (1.0, 3.0)}
     assert all(r["failsafes_per_hour"] >= 0 and r["pictures_per_hour"] > 0 for r in doc["under_loss"])
+    # The floors printed under the two figures version 2 misses (docs/PROTOCOL.md §8, §8.1):
+    # never above what version 2 measures (a floor above a measurement would be wrong),
+    # and computed from the wire: 9 replies of at most 243 picture bytes for 2000 bytes.
+    idle = doc["bounds"]["v2_idle_2000B"]
+    assert (idle["replies"], idle["picture_bytes_per_reply"], idle["picture_bytes_needed_for_one_fewer"]) == (9, 243, 250)
+    assert v2["floor_s"] < idle["seconds"] <= by[("rovlink v2", 0.0)]["idle_image_s_median"]
+    fs = doc["bounds"]["v2_failsafes_at_5%_bursts"]
+    assert fs["polls_in_failsafe_time"] == 11 and 0 < fs["expected_per_hour"]
     assert "v2_steering_2000B_le_22s" in doc["targets"] and "v2_failsafes_le_1x_v1.1_at_10%_bursts" in doc["targets"]
     assert all(isinstance(t["met"], bool) for t in doc["targets"].values())
 
