@@ -145,6 +145,20 @@ def _lift_split(lo, hi, s, e, par, coef):
 
 
 @_jit_plain
+def _region_rows(roi, h, hl):
+    # Which rows of a level split into hl low rows then high ones a region
+    # (x0, y0, x1, y1 of the level before the split) crosses: whether there is
+    # one, then low rows ceil(y0/2) .. ceil(y1/2) and high rows hl + floor(y0/2)
+    # .. hl + floor(y1/2) (a level one row high: its single row).  A row among
+    # them is lifted in three segments, left of, over and right of the region.
+    y0, y1 = roi[1], roi[3]
+    has = roi[0] < roi[2] and y0 < y1
+    if h <= 1:
+        return has, 0, 1, 1, 1
+    return has, (y0 + 1) // 2, (y1 + 1) // 2, hl + y0 // 2, hl + y1 // 2
+
+
+@_jit_plain
 def _inverse_row(lo, hi, s, e):
     # The four inverse lifting steps along one split row segment.
     _lift_split(lo, hi, s, e, 0, -_D)
@@ -164,21 +178,15 @@ def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
     # (low rows ceil(y0/2) .. ceil(y1/2), high rows hl + floor(y0/2) ..
     # hl + floor(y1/2)) are lifted in three segments, left of, over and
     # right of it.
-    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
-    has = x0 < x1 and y0 < y1
-    lo0 = (y0 + 1) // 2
-    lo1 = (y1 + 1) // 2
-    hi0 = hl + y0 // 2
-    hi1 = hl + y1 // 2
-    if h <= 1:
-        lo0, lo1, hi0, hi1 = 0, 1, 1, 1
+    x0, x1 = roi[0], roi[2]
+    has, lo0, lo1, hi0, hi1 = _region_rows(roi, h, hl)
     nh = w - wl
     for r in range(h):
         for i in range(wl):
             lo[i] = a[r, i]
         for i in range(nh):
             hi[i] = a[r, wl + i]
-        if has and ((lo0 <= r < lo1 and r < hl) or (hi0 <= r < hi1 and r >= hl)):
+        if has and (lo0 <= r < min(lo1, hl) or max(hi0, hl) <= r < hi1):
             _inverse_row(lo, hi, 0, x0)
             _inverse_row(lo, hi, x0, x1)
             _inverse_row(lo, hi, x1, w)
@@ -212,14 +220,8 @@ def _forward_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
     # crosses their edges): segment by segment equals step by step.  Row r
     # of `out` is made from row r of `a`, or with `split` from the row the
     # vertical step's de-interleaving puts there (`out` then another array).
-    x0, y0, x1, y1 = roi[0], roi[1], roi[2], roi[3]
-    has = x0 < x1 and y0 < y1
-    lo0 = (y0 + 1) // 2
-    lo1 = (y1 + 1) // 2
-    hi0 = hl + y0 // 2
-    hi1 = hl + y1 // 2
-    if h <= 1:
-        lo0, lo1, hi0, hi1 = 0, 1, 1, 1
+    x0, x1 = roi[0], roi[2]
+    has, lo0, lo1, hi0, hi1 = _region_rows(roi, h, hl)
     nh = w - wl
     for r in range(h):
         row = a[(2 * r if r < hl else 2 * (r - hl) + 1) if split else r]
@@ -228,7 +230,7 @@ def _forward_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
             hi[i] = row[2 * i + 1]
         if wl > nh:
             lo[nh] = row[2 * nh]
-        if has and ((lo0 <= r < lo1 and r < hl) or (hi0 <= r < hi1 and r >= hl)):
+        if has and (lo0 <= r < min(lo1, hl) or max(hi0, hl) <= r < hi1):
             _forward_row(lo, hi, 0, x0)
             _forward_row(lo, hi, x0, x1)
             _forward_row(lo, hi, x1, w)
