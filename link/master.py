@@ -96,6 +96,9 @@ from .messages import (
     next_img,
 )
 
+# §5's shortest margin: the timeout's after a lost reply, in version 2 (§8.1).
+OUTAGE_MARGIN_S = 0.05
+
 
 class FrameSizes:
     """Version 1.1's frame lengths, for timeouts and the SIZE choice (version 2
@@ -352,7 +355,8 @@ class Master:
         # Version 2 (§8.1), set by link.secure: a NONE poll chained to the reply to a
         # VELOCITY poll (or to such a NONE poll) repeats that wish, so an unchanged
         # wish goes as NONE; and after a lost reply the next poll asks for no image
-        # data, so that its answer, or its loss, comes sooner (the failsafe's sake).
+        # data and waits with the shortest margin, so that its answer, or its loss,
+        # comes sooner (the failsafe's sake).
         self.repeat_by_none = False
         self.quick_after_loss = False
         self._velocity_taken: Velocity | None = None  # the wish the last reply's poll carried or repeated
@@ -491,7 +495,13 @@ class Master:
         if self._awaiting is None:
             return None
         sent_at, poll, reply_bytes = self._awaiting
-        return sent_at + self.timeout_for(self.sizes.poll(poll), reply_bytes)
+        deadline = sent_at + self.timeout_for(self.sizes.poll(poll), reply_bytes)
+        if self.quick_after_loss and self._lost_last:
+            # After a lost reply (version 2, §8.1) the poll asks for no image data and
+            # waits with the shortest margin §5 allows: a run of lost polls leaves the
+            # ROV without one for less time (its failsafe).
+            deadline -= max(0.0, self.margin_s - OUTAGE_MARGIN_S)
+        return deadline
 
     @property
     def awaiting_reply(self) -> bool:

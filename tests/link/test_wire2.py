@@ -260,6 +260,50 @@ def test_after_a_lost_reply_the_next_poll_asks_no_image_data():
     assert master.master.stats.images_completed > 0
 
 
+def test_after_a_lost_reply_the_next_poll_waits_with_the_shortest_margin():
+    """§8.1: the poll after a lost reply asks for no image data and waits for its
+    answer with §5's shortest margin (50 ms), so that a run of lost polls leaves
+    the ROV without one for less time; once a reply comes, the usual margin.
+    Version 1.1's master keeps its margin (only version 2 asks for this)."""
+    from rovlink.link.master import OUTAGE_MARGIN_S
+
+    def timeouts(master, inner):
+        seen: list = []
+        real_next = master.next_poll
+
+        def next_poll(now):
+            frame = real_next(now)  # counts the last poll's reply lost when its deadline passed
+            if frame is not None and inner._awaiting is not None and inner._awaiting[0] == now:  # a poll, no HELLO
+                sent_at, poll, reply = inner._awaiting
+                waited = master.deadline() - sent_at
+                usual = inner.timeout_for(inner.sizes.poll(poll), reply)
+                seen.append((inner.stats.replies_lost, waited, usual))
+            return frame
+
+        master.next_poll = next_poll
+        return seen
+
+    master, slave, channel, sim, _ = _link(seed=5, loss=0.1)
+    seen = timeouts(master, master.master)
+    sim.run_until(120.0)
+    pairs = list(zip(seen, seen[1:]))
+    after_loss = [(w, u) for (lost_prev, _, _), (lost, w, u) in pairs if lost > lost_prev]
+    after_reply = [(w, u) for (lost_prev, _, _), (lost, w, u) in pairs if lost == lost_prev]
+    assert after_loss and after_reply
+    margin = master.master.margin_s
+    assert all(w == pytest.approx(u - margin + OUTAGE_MARGIN_S) for w, u in after_loss)
+    assert all(w == pytest.approx(u) for w, u in after_reply)
+
+    # Version 1.1: the same channel, the usual margin after a loss too.
+    v11 = Master(rng=random.Random(5))
+    seen11 = timeouts(v11, v11)
+    sim11 = SimLink(v11, Slave(image_source=lambda img, s: bytes(range(200)) * 10),
+                    Channel(LinkParams(bitrate_bps=1900, delay_s=0.085, loss=0.1), seed=5))
+    sim11.run_until(120.0)
+    assert v11.stats.replies_lost > 0
+    assert all(w == pytest.approx(u) for _, w, u in seen11)
+
+
 def test_a_rov_and_operator_keep_the_same_reference_pose_while_it_moves():
     """Bit errors lose replies; the differences are always taken from the reply the
     poll was chained to, so every pose shown is one the ROV had, never a drifted sum."""
