@@ -19,22 +19,19 @@ def debt_compiled():
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the group marks
 def pytest_collection_modifyitems(items):
-    """With pytest-xdist (`-n 3 --dist loadgroup`, as .ci/run runs): the browser
-    tests in two groups, so that at most two software-rendered Chromiums run at
-    once on this 2-core machine, and every other module in a group of its own
-    (its module-scoped fixtures start once).  The groups share the three
-    workers; without xdist the marks do nothing.  The browser modules, in the
-    order of their names, go to the two groups in turn.
+    """With pytest-xdist (`-n 3 --dist loadgroup`, as .ci/run runs): every
+    browser test in one group, so that two software-rendered Chromiums never
+    compete for this 2-core machine (a pilot's drag or held stick then lags),
+    and every other module in a group of its own (its module-scoped fixtures
+    start once).  The browser group takes one worker from the start and sets
+    the suite's wall time; the other two workers share the rest.  Without
+    xdist the marks do nothing.
 
-    Most tests wait on the link's real time (the suite kept the two cores about
-    40 % busy with two workers), so a third worker shortens the suite.  The marks
-    must be on the items before xdist's hook turns them into groups (tryfirst):
-    added after it, as they were until stop 31, they grouped nothing."""
-    browser_modules = sorted({item.module.__name__ for item in items if item.get_closest_marker("browser")})
+    Most tests wait on the link's real time (two workers kept the two cores
+    about 40 % busy), hence three workers.  The marks must be on the items
+    before xdist's hook turns them into groups (tryfirst): added after it, as
+    they were until stop 31, they grouped nothing and the browser tests ran
+    two at a time."""
     for item in items:
-        name = item.module.__name__
-        if item.get_closest_marker("browser"):
-            group = f"browser-{browser_modules.index(name) % 2 + 1}"
-        else:
-            group = name
+        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
         item.add_marker(pytest.mark.xdist_group(group))
