@@ -8,7 +8,9 @@ retransmission, one lost trunk losing the image) two sessions are run with
 the real Master, Slave and Channel:
 
 - idle: the pilot does nothing, images stream with the idle SIZE class;
-- steering: the pilot's velocity wish changes every `change_s` (never neutral).
+- steering: the pilot's velocity wish changes every `change_s` (never neutral,
+  but centred once when a reply shows the ROV holding, as after a failsafe: the
+  page asks a pilot to, and the ROV takes no other wish until then).
 
 Figures: seconds to deliver a 2000-byte image object (median, p95) beside the
 physical floor 8 x bytes / bitrate; the poll interval while steering; the
@@ -50,6 +52,8 @@ class Session:
     images_abandoned: int = 0
     poll_times: list[float] = field(default_factory=list)
     wish_latency_s: list[float] = field(default_factory=list)
+    wish_arrived_at: list[float] = field(default_factory=list)
+    failsafe_at: list[float] = field(default_factory=list)
     replies_lost: int = 0
     polls: int = 0
     failsafes: int = 0
@@ -97,6 +101,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
     def on_slave(event, now):
         if isinstance(event, FailsafeEntered):
             result.failsafes += 1
+            result.failsafe_at.append(now)
         if isinstance(event, VelocityCommanded) and pending_wish:
             v = event.velocity
             got = (v.vx, v.vy, v.vz, v.vyaw)
@@ -105,6 +110,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
                 t, wish = pending_wish[i]
                 if wish == got:
                     result.wish_latency_s.append(now - t)
+                    result.wish_arrived_at.append(now)
                     del pending_wish[: i + 1]
                     break
 
@@ -122,6 +128,13 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
 
     if steering:
         def change(now):
+            v, reply = master.velocity, master.last_reply
+            if reply is not None and reply.hold and any((v.vx, v.vy, v.vz, v.vyaw)):
+                # The ROV holds (after a failsafe): the pilot centres the sticks, as the
+                # page asks, and steers again at the next change.
+                master.set_velocity(0, 0, 0, 0, now)
+                sim.at(now + change_s * rng.uniform(0.5, 1.5), change)
+                return
             while True:
                 wish = tuple(rng.randint(-VELOCITY_FULL, VELOCITY_FULL) for _ in range(4))
                 if any(wish) and wish != (master.velocity.vx, master.velocity.vy, master.velocity.vz,

@@ -125,6 +125,20 @@ def test_channel_takes_its_queue_by_name(tmp_path):
     assert sum(1 for e in events if e["ev"] == "tx") == 1
 
 
+def test_the_bench_pilot_centres_the_sticks_after_a_failsafe_and_steers_on():
+    """`rovlink bench link`'s steering pilot never centres the sticks by itself, but
+    does when a reply shows the ROV holding (after a failsafe), as the page asks:
+    the ROV takes no other wish until then.  So wishes keep arriving after every
+    failsafe, and the hour's figures under loss are an hour's, not its first minutes'."""
+    from rovlink.link.bench import run_session
+
+    for mode in ("rovlink", "rovlink v2"):
+        sess = run_session(mode, 0.0, True, 600.0, 3, loss=0.2, burst=3.0)
+        assert sess.failsafes >= 3
+        for fs in sess.failsafe_at:
+            assert any(fs < t <= fs + 20.0 for t in sess.wish_arrived_at), (mode, fs)
+
+
 def test_bench_link_prints_a_table_and_json(tmp_path):
     out = rovlink("bench", "link", "--duration", "120", "--loss-duration", "300", "--out", str(tmp_path / "plots"))
     assert out.returncode == 0, out.stderr
