@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import atexit
+import itertools
 import logging
 import os
 import select
@@ -22,7 +23,6 @@ import shutil
 import tempfile
 import threading
 import time
-import tty
 from collections import deque
 
 import pytest
@@ -30,7 +30,7 @@ import pytest
 from rovlink.link.transport import TransportError
 from rovlink.link.wlmodem import PACKET_BYTES, WlModemEndpoint, open_wlmodem
 
-from ..helpers import run_async
+from ..helpers import Pty, run_async
 from ..helpers import until as wait_until
 
 LOGGER = "rovlink.link.wlmodem"
@@ -61,34 +61,25 @@ def sentence(body: bytes) -> bytes:
 
 _LINKS = tempfile.mkdtemp(prefix="rovlink-wlmodem-")
 atexit.register(shutil.rmtree, _LINKS, True)
+_NAMES = itertools.count()
 
 
-def make_pty() -> tuple[int, str]:
-    """A pty, and a path of its own that the transport opens: a link in a private
-    folder, as a udev rule names an adapter.  When the pty goes (`close_pty`), the
-    link goes first, so a transport that keeps reopening its path never reaches the
-    pty another test (on the other worker) got under the same /dev/pts number."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    name = os.ttyname(slave)
-    os.close(slave)  # the transport opens it by name
-    os.set_blocking(master, False)
-    path = os.path.join(_LINKS, f"tty{os.path.basename(name)}-{master}-{time.monotonic_ns()}")
-    os.symlink(name, path)
-    return master, path
-
-
-def close_pty(master: int, path: str) -> None:
-    """The adapter pulled: its name goes, then the pty."""
-    if os.path.lexists(path):
-        os.unlink(path)
-    os.close(master)
+def make_pty() -> Pty:
+    """A pty at a path of its own that the transport opens: a link in a private
+    folder, as a udev rule names an adapter (tests.helpers.Pty).  When the pty goes
+    (`Pty.down`) the link goes first, so a transport that keeps reopening its path
+    never reaches the pty another test (on another worker) got under the same
+    /dev/pts number."""
+    pty = Pty(os.path.join(_LINKS, f"tty{next(_NAMES)}"))
+    pty.up()
+    return pty
 
 
 class _Modem:
     def __init__(self, name: str) -> None:
         self.name = name
-        self.fd, self.path = make_pty()
+        self.pty = make_pty()
+        self.fd, self.path = self.pty.master_fd, self.pty.path
         self.buf = bytearray()
         self.role: str | None = None
         self.channel: int | None = None
@@ -120,7 +111,7 @@ class M64Pair:
         """The modem's USB adapter is pulled: its pty goes away."""
         m = self.modems[name]
         m.alive = False
-        close_pty(m.fd, m.path)
+        m.pty.down()
 
     def close(self) -> None:
         self._stop.set()
@@ -128,7 +119,7 @@ class M64Pair:
         for m in self.modems.values():
             if m.alive:
                 m.alive = False
-                close_pty(m.fd, m.path)
+                m.pty.down()
 
     def link_up(self, now: float) -> bool:
         a, b = self.modems.values()
@@ -339,7 +330,8 @@ def test_a_missing_port_is_said_once(caplog, tmp_path):
 
 
 def test_a_port_that_does_not_answer_is_no_modem():
-    master, path = make_pty()
+    pty = make_pty()
+    path = pty.path
 
     async def main():
         ep = open_wlmodem(f"wlmodem://{path}?role=a")
@@ -350,7 +342,7 @@ def test_a_port_that_does_not_answer_is_no_modem():
     try:
         msg = run(main())
     finally:
-        close_pty(master, path)
+        pty.down()
     assert f"no Water Linked modem answers on {path}" in msg
 
 
@@ -527,7 +519,8 @@ class SimulatorOnPty:
         from wlmodem.protocol import WlModemBase
 
         self.sim = WlModemSimulator(**sim_kw)
-        self.fd, self.path = make_pty()
+        self.pty = make_pty()
+        self.fd, self.path = self.pty.master_fd, self.pty.path
         self.reader = WlModemBase(self)  # wlmodem's parser over this pty
         self._buf = bytearray()
         self._stop = threading.Event()
@@ -582,7 +575,7 @@ class SimulatorOnPty:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2)
-        close_pty(self.fd, self.path)
+        self.pty.down()
 
 
 def test_the_transport_against_wlmodems_simulator(caplog):
