@@ -212,6 +212,11 @@ class Reports:
         with self.lock:
             return self.items[-1][1] if self.items else None
 
+    def latest_with_vehicle(self) -> tuple[Camera, np.ndarray | None] | None:
+        """The last camera reported, with where the vehicle was when it came."""
+        with self.lock:
+            return self.items[-1][1:] if self.items else None
+
     def count(self) -> int:
         with self.lock:
             return len(self.items)
@@ -305,11 +310,15 @@ def test_follow_camera_keeps_the_vehicle_in_view_while_it_drives_50_m(live, view
             now = received_world(op)
             travelled += float(np.linalg.norm(now - last))
             last = now
-            camera = reports.latest()
+            camera, then = reports.latest_with_vehicle()
             # What the browser shows now contains the vehicle where it is now.
             assert camera.sees(vehicle_corners(now)), (travelled, camera, now)
-            # ...from near by, as the pilot left it (not a wide shot from afar).
-            assert np.linalg.norm(camera.position - now) <= 2 * chase.FOLLOW_DISTANCE_M, (camera, now)
+            # ...from near by, as the pilot left it (not a wide shot from afar): measured
+            # against where the vehicle was when the browser reported that camera (a
+            # loaded run read `now` up to 0.2 s after the report: 12.27 m at 1 m/s), with
+            # what it drives in one of the chase's periods besides.
+            near = 2 * chase.FOLLOW_DISTANCE_M + MAX_SPEED_MPS * chase.CHASE_PERIOD_S
+            assert np.linalg.norm(camera.position - then) <= near, (camera, then, now)
             checked += 1
     assert travelled >= 50.0, f"the vehicle drove only {travelled:.1f} m"
     displacement = float(np.linalg.norm(last[:2] - start[:2]))
