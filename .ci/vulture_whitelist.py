@@ -114,3 +114,5 @@ _.stops_taken  # unused attribute (link/acoustic.py)
 _.unpaired  # unused attribute (link/acoustic.py)
 _.last_status  # unused attribute (link/acoustic.py: AcousticOperator's last STATUS, for callers)
 _.up_s  # unused attribute (link/acoustic_bench.py)
+_.report_every_s  # a Capabilities field, served in GET /api/config (console/session/contract.py)
+_.next_report_in_s  # response model fields (console/session/state.py), read by the page

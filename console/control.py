@@ -273,12 +273,15 @@ def wish_scale() -> dict:
             "vyaw": {"kind": "rate", "max": round(math.degrees(p.yaw_rate_max_radps), 2), "unit": "deg/s"}}
 
 
-def page_config(**extra) -> dict:
-    """What every surface needs to build its controls: modes, keys, limits, defaults."""
+def page_config(*, image_budget_max: int = LIMITS["budget_bytes"][1], **extra) -> dict:
+    """What every surface needs to build its controls: modes, keys, limits, defaults
+    (`image_budget_max`: the largest picture budget the session's link carries)."""
+    limits = {k: list(v) for k, v in LIMITS.items()}
+    limits["budget_bytes"][1] = min(limits["budget_bytes"][1], image_budget_max)
     return {"modes": list(MODES), "keys": {k: [axis, sign] for k, (axis, sign) in KEYS.items()},
             "wish_scale": wish_scale(),
             "stop_key": STOP_KEY, "stop_key_anywhere": STOP_KEY_ANYWHERE, "key_gain": KEY_GAIN,
-            "limits": {k: list(v) for k, v in LIMITS.items()}, "default_target": dict(DEFAULT_TARGET),
+            "limits": limits, "default_target": dict(DEFAULT_TARGET),
             "default_roi_shift": DEFAULT_ROI_SHIFT,
             "go_to_mode": "GUIDED", **extra}
 
@@ -657,8 +660,8 @@ class ControlDesk:
                     self.operator.arm(False)
 
     def _armed(self) -> bool:
-        reply = self.operator.last_reply
-        return bool(reply is not None and reply.armed)
+        report = self.operator.vehicle()
+        return bool(report is not None and report.armed)
 
     def unattended_s(self) -> float | None:
         """How long the vehicle has been armed with nobody in control (None if it is not)."""

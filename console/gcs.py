@@ -195,11 +195,9 @@ class GcsLink:
         self._next_heartbeat = 0.0
         self._heartbeat_said = None  # (armed, mode, autopilot, failsafe) the last HEARTBEAT told
         self._awaited: list[_Awaited] = []
-        self._last_pose = None  # (t, x, y, z) of the last reply used for speeds
-        self._speeds = (0.0, 0.0, 0.0)  # north, east, down m/s
-        self._reply_seen = None
         self._alerted = {"lost": False, "failsafe": False, "autopilot_lost": False, "centre": False}
         self._last_image = None
+        self._goto_told: set = set()  # go-to ids whose end was told
         self._unsubscribe = None
         self.sent: dict[str, int] = {}
         self.received: dict[str, int] = {}
@@ -290,26 +288,27 @@ class GcsLink:
             elif topic == "order" and str(payload.get("state", "")).startswith(("rejected", "cancelled", "failed")):
                 self.statustext(m.MAV_SEVERITY_WARNING,
                                 f"rovlink: {payload.get('kind')} {payload.get('state')}"[:50])
+            elif topic == "order" and payload.get("kind") == "POSITION" \
+                    and str(payload.get("state", "")).startswith(("arrived", "aborted")) \
+                    and payload.get("id") not in self._goto_told:
+                # The go-to's end, as the page shows it (the ROV acknowledges a go-to
+                # when GUIDED takes it; arriving or giving up comes later).
+                self._goto_told.add(payload.get("id"))
+                arrived = str(payload["state"]).startswith("arrived")
+                self.statustext(m.MAV_SEVERITY_INFO if arrived else m.MAV_SEVERITY_WARNING,
+                                f"rovlink: go-to #{payload.get('id')} {payload['state']}"[:50])
         except (OSError, AttributeError):
             pass
 
-    def _update_speeds(self, reply, t: float) -> None:
-        pose = (reply.x_cm / 100, reply.y_cm / 100, reply.z_cm / 100)
-        if self._reply_seen is reply:
-            return
-        self._reply_seen = reply
-        if self._last_pose is not None and t - self._last_pose[0] > 0.05:
-            dt = t - self._last_pose[0]
-            new = tuple((p - q) / dt for p, q in zip(pose, self._last_pose[1:]))
-            self._speeds = tuple(0.5 * n + 0.5 * o for n, o in zip(new, self._speeds))
-        self._last_pose = (t, *pose)
+    def _speeds(self) -> tuple[float, float, float]:
+        """North, east, down m/s: the session's own measure (the page shows the same)."""
+        v = self.operator.ned_velocity()
+        return (0.0, 0.0, 0.0) if v is None else v[:3]
 
     def _send_due(self) -> None:
         t = self.now()
-        reply = self.operator.last_reply
+        reply = self.operator.vehicle()
         lost = self._link_lost()
-        if reply is not None:
-            self._update_speeds(reply, t)
         said = None if reply is None else (reply.armed, reply.mode, reply.autopilot, reply.failsafe)
         if t >= self._next_heartbeat or (said != self._heartbeat_said and not lost):
             # 1 Hz, and at once when a reply shows a change (ArduSub too sends an extra
@@ -329,25 +328,24 @@ class GcsLink:
             if reply is None or lost:
                 continue  # nothing current to say
             if name == "ATTITUDE":
-                self._send("ATTITUDE", time_ms, math.radians(reply.roll_cdeg / 100),
-                           math.radians(reply.pitch_cdeg / 100), math.radians(reply.yaw_cdeg / 100), 0.0, 0.0, 0.0)
+                self._send("ATTITUDE", time_ms, math.radians(reply.roll_deg), math.radians(reply.pitch_deg),
+                           math.radians(reply.yaw_deg), 0.0, 0.0, 0.0)
             elif name == "VFR_HUD":
-                vn, ve, vd = self._speeds
-                self._send("VFR_HUD", 0.0, math.hypot(vn, ve), int(round(reply.yaw_cdeg / 100)) % 360, 0,
-                           -reply.z_cm / 100, -vd)
+                vn, ve, vd = self._speeds()
+                self._send("VFR_HUD", 0.0, math.hypot(vn, ve), int(round(reply.yaw_deg)) % 360, 0, -reply.z_m, -vd)
             elif not reply.position_valid:
                 continue
             elif name == "LOCAL_POSITION_NED":
-                vn, ve, vd = self._speeds
-                self._send("LOCAL_POSITION_NED", time_ms, reply.x_cm / 100, reply.y_cm / 100, reply.z_cm / 100,
-                           vn, ve, vd)
+                vn, ve, vd = self._speeds()
+                self._send("LOCAL_POSITION_NED", time_ms, reply.x_m, reply.y_m, reply.z_m, vn, ve, vd)
             elif name == "GLOBAL_POSITION_INT":
-                lat, lon = self._lat_lon(reply.x_cm / 100, reply.y_cm / 100)
-                vn, ve, vd = self._speeds
+                # MAVLink's own units: degE7, millimetres, cm/s, centidegrees.
+                lat, lon = self._lat_lon(reply.x_m, reply.y_m)
+                vn, ve, vd = self._speeds()
                 self._send("GLOBAL_POSITION_INT", time_ms, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                           int(round(-reply.z_cm * 10)), int(round(-reply.z_cm * 10)),
+                           int(round(-reply.z_m * 1000)), int(round(-reply.z_m * 1000)),
                            int(round(vn * 100)), int(round(ve * 100)), int(round(vd * 100)),
-                           int(round(reply.yaw_cdeg)) % 36000)
+                           int(round(reply.yaw_deg * 100)) % 36000)
 
     def _lat_lon(self, north_m: float, east_m: float) -> tuple[float, float]:
         lat0, lon0 = self.home
@@ -534,7 +532,7 @@ class GcsLink:
             self._ack(cmd, self._set_interval(int(msg.param1), msg.param2))
         elif cmd == m.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == m.MAVLINK_MSG_ID_HEARTBEAT:
             self._ack(cmd, m.MAV_RESULT_ACCEPTED)
-            self._heartbeat(self.operator.last_reply, self._link_lost())
+            self._heartbeat(self.operator.vehicle(), self._link_lost())
         else:
             self._ack(cmd, m.MAV_RESULT_UNSUPPORTED)
 
@@ -582,22 +580,22 @@ class GcsLink:
         if msg.coordinate_frame != m.MAV_FRAME_LOCAL_NED or msg.type_mask & 0b111:
             self.statustext(m.MAV_SEVERITY_WARNING, "rovlink: only LOCAL_NED position targets")
             return
-        reply = self.operator.last_reply
+        reply = self.operator.vehicle()
         yaw = math.degrees(msg.yaw) if not msg.type_mask & m.POSITION_TARGET_TYPEMASK_YAW_IGNORE else (
-            reply.yaw_cdeg / 100 if reply else 0.0)
+            reply.yaw_deg if reply else 0.0)
         # No COMMAND_LONG to answer: the outcome goes out as STATUSTEXT.
         self._do(None, lambda: self._goto(None, msg.x, msg.y, msg.z, yaw))
 
     def _guided_goto(self, msg) -> None:
         m = ardupilotmega
         north, east = self._ned_from_lat_lon(msg.x / 1e7, msg.y / 1e7)
-        reply = self.operator.last_reply
+        reply = self.operator.vehicle()
         if msg.frame in (m.MAV_FRAME_GLOBAL_RELATIVE_ALT, m.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                          m.MAV_FRAME_GLOBAL, m.MAV_FRAME_GLOBAL_INT):
             depth = -msg.z
         else:
-            depth = reply.z_cm / 100 if reply else 0.0
-        yaw = reply.yaw_cdeg / 100 if reply else 0.0
+            depth = reply.z_m if reply else 0.0
+        yaw = reply.yaw_deg if reply else 0.0
         self._send("MISSION_ACK", msg.get_srcSystem(), msg.get_srcComponent(), m.MAV_MISSION_ACCEPTED,
                    getattr(msg, "mission_type", 0))
         self._do(None, lambda: self._goto(None, north, east, depth, yaw))

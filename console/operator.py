@@ -53,19 +53,21 @@ from rovlink.link.master import (
 )
 from rovlink.link.messages import (
     FAILSAFE_S,
+    MAX_BUDGET,
     NO_IMAGE_DATA,
-    VELOCITY_FULL,
     ImageSettings,
     Mode,
-    Position,
     ProtocolError,
     Reply,
     Stop,
     Velocity,
 )
+from rovlink.link.report import VehicleReport, report_from_reply
 from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synced
 from rovlink.link.transport import Endpoint, port_change, port_down_reason
+from rovlink.link.units import position_order, velocity_ints, wish_of, wrap_deg
 
+from .session.contract import Capabilities
 from .session.goto import GoToWatch, resolve_target
 from .session.health import LinkHealth
 from .session.images import DaemonWorker, ImageReceiver, ImageView
@@ -74,7 +76,7 @@ from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
 from .session.predictor import NEUTRAL_WISH, Predictor, preview_path
 from .session.recorder import Recorder
 
-__all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "Operator", "OrderError", "Pose"]
+__all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "NotNow", "Operator", "OrderError", "Pose"]
 
 log = logging.getLogger("rovlink.console.operator")
 
@@ -85,7 +87,17 @@ class OrderError(ValueError):
     """An order the operator cannot send as given; the message says why."""
 
 
+class NotNow(OrderError):
+    """A well-formed order the link cannot carry, or not now (HTTP 409): sticks on
+    the acoustic link, an order before the ROV's first status, during a STOP."""
+
+
 class Operator:
+    """The radio profile's session (console/session/contract.py's VehicleSession)."""
+
+    capabilities = Capabilities(profile="radio", velocity=True, next_image=True, picture="stream",
+                                image_budget_max=MAX_BUDGET, report_every_s=0.3)
+
     def __init__(
         self,
         endpoint: Endpoint | None,
@@ -132,7 +144,8 @@ class Operator:
         self.health.replaying = replaying
         if lost_after_s is not None:
             self.health.lost_after_s = lost_after_s
-        self.odometry = Odometry(bitrate_bps=self.bitrate_bps, delay_s=self.delay_s)
+        self.odometry = Odometry()
+        self._last_reply: Reply | None = None
         self.predictor = Predictor()
         self.images = ImageReceiver(lock=self._lock, now=self.now, wall=self.wall, fix=lambda: self.odometry.fix,
                                     record=self.recorder.write, publish=self._publish, note=self.note,
@@ -316,7 +329,7 @@ class Operator:
         orders = self.orders
         for event in events:
             if isinstance(event, PoseReceived):
-                self._pose(event.reply, t, event.round_trip_s)
+                self._pose(event, t)
             elif isinstance(event, PollSent):
                 self._poll_sent(event, t)
             elif isinstance(event, (ImageProgress, ImageComplete, ImageAbandoned)):
@@ -383,7 +396,7 @@ class Operator:
             if isinstance(order, Stop):
                 self.predictor.stop_sent(arrival)
             if isinstance(order, Velocity):
-                wish = tuple(v / VELOCITY_FULL for v in (order.vx, order.vy, order.vz, order.vyaw))
+                wish = wish_of(order)
                 self._last_poll_velocity = (arrival, *wish)
                 self.predictor.wish_sent(arrival, wish)
         if isinstance(order, Velocity):
@@ -399,12 +412,16 @@ class Operator:
         s = self.requested_settings
         self.set_image_settings(roi=s.roi, shift=s.shift, mono=s.mono, budget_bytes=s.budget_bytes)
 
-    def _pose(self, reply: Reply, t: float, round_trip_s: float | None) -> None:
-        pose = Pose.from_reply(reply)
+    def _pose(self, event: PoseReceived, t: float) -> None:
+        reply, round_trip_s = event.reply, event.round_trip_s
+        report = event.report or report_from_reply(reply, arrived_at=t, frame_bytes=None, bitrate_bps=self.bitrate_bps,
+                                                   delay_s=self.delay_s, round_trip_s=round_trip_s)
+        pose = Pose.from_report(report)
         with self._lock:
-            previous = self.odometry.take(reply, t, round_trip_s)
-            entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.reply.failsafe)
-            left_failsafe = not reply.failsafe and previous is not None and bool(previous.reply.failsafe)
+            self._last_reply = reply
+            previous = self.odometry.take(report, round_trip_s)
+            entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.report.failsafe)
+            left_failsafe = not reply.failsafe and previous is not None and bool(previous.report.failsafe)
             self.health.reply(t, round_trip_s)
             self.history.trail.append((t, pose.x_m, pose.y_m, pose.z_m))
             # A reply proves its poll arrived intact: the velocity it carried
@@ -440,7 +457,7 @@ class Operator:
         for name, v in zip(("vx", "vy", "vz", "vyaw"), values):
             if not isinstance(v, (int, float)) or not math.isfinite(v) or not -1.0 <= v <= 1.0:
                 raise OrderError(f"{name} must be a number in -1..1, got {v!r}")
-        ints = tuple(int(round(v * VELOCITY_FULL)) for v in values)
+        ints = velocity_ints(values)
         t = self.now()
         with self._lock:
             self.master.set_velocity(*ints, t)
@@ -512,10 +529,9 @@ class Operator:
         for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m), ("yaw_deg", yaw_deg)):
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise OrderError(f"{name} must be a finite number, got {v!r}")
-        yaw = (yaw_deg + 180.0) % 360.0 - 180.0
+        yaw = wrap_deg(yaw_deg)
         try:
-            order = Position(int(round(x_m * 100)), int(round(y_m * 100)), int(round(z_m * 100)),
-                             int(round(yaw * 100)), bool(relative), bool(body))
+            order = position_order(x_m, y_m, z_m, yaw, relative=relative, body=body)
         except ProtocolError as exc:
             raise OrderError(str(exc)) from None
         # The ROV flies a position order in GUIDED: the pilot is told before it goes.
@@ -605,8 +621,14 @@ class Operator:
 
     @property
     def last_reply(self) -> Reply | None:
+        """The radio reply itself (wire units), for link tools and tests; the
+        console's surfaces read `vehicle()`."""
+        return self._last_reply
+
+    def vehicle(self) -> VehicleReport | None:
+        """What the ROV last said of itself, in SI, with when it was sampled."""
         fix = self.odometry.fix
-        return None if fix is None else fix.reply
+        return None if fix is None else fix.report
 
     def odometry_age_s(self) -> float | None:
         return self.odometry.age_s(self.now())
@@ -638,9 +660,15 @@ class Operator:
         age, fix = self.odometry_age_s(), self.odometry.fix
         if age is None or fix is None:
             return None
-        may_drive = fix.reply.armed or self.link_condition()[0] == "lost"
+        may_drive = fix.report.armed or self.link_condition()[0] == "lost"
         speed = MAX_SPEED_MPS if may_drive else math.hypot(*fix.velocity[:3])
         return round(speed * max(0.0, age), 3)
+
+    def ned_velocity(self) -> tuple[float, float, float, float] | None:
+        """Measured north, east, down m/s and yaw deg/s (None before two reports)."""
+        with self._lock:
+            fix = self.odometry.fix
+            return None if fix is None or self.odometry.fixes < 2 else fix.velocity
 
     def measured_velocity(self) -> dict | None:
         """Speeds from successive received poses (finite differences, smoothed): body
@@ -657,7 +685,7 @@ class Operator:
         fix = self.odometry.fix
         out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
         if fix is not None:
-            reply = fix.reply
+            reply = fix.report
             out["received"] = fix.pose.as_dict()
             age = self.odometry_age_s()
             out.update(armed=reply.armed, mode=REPORTED_MODE_NAMES.get(reply.mode, "OTHER"), failsafe=reply.failsafe,
@@ -708,7 +736,7 @@ class Operator:
             m = self.master.stats
             crc_errors = self.master.decoder.crc_errors
             ber = self.master.estimated_ber()
-        reply = self.last_reply
+        reply = self.vehicle()
         return {
             **self.health.state(t, self.rov_failsafe_s),
             "last_round_trip_s": m.last_round_trip_s,
@@ -729,6 +757,7 @@ class Operator:
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             # Why this console's own modem port is down (None while it is up, or for a replay).
             "port_error": port_down_reason(self.endpoint),
+            "profile": "radio",
         }
 
     def orders_state(self) -> list[dict]:

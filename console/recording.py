@@ -4,10 +4,12 @@ A recording (written by `console.session.recorder.Recorder`) is JSON lines, each
 `k` (kind) and `t` (session seconds): "meta" first, then "tx"/"rx" frames as
 hex, "wish" velocity changes, "order" and "order_state", "pose", "image".
 
-Playback (`replaycontrol`: a timeline to pause, seek and change speed) needs no ROV: the received bytes are parsed again with the
-link's own FrameDecoder and Reply, image trunks put together by the
-master's own `link.assembly.ImageAssembly`, and the resulting events handed to an Operator,
-which shows them as if live (its scene and web page work unchanged).
+Playback (`replaycontrol`: a timeline to pause, seek and change speed) needs no ROV: the
+recorded polls and replies go through `link.replay.ReplyReplayer` (the link's own
+decoder and `Reply`, the image trunks taken by the master's own rules), and the
+resulting events are handed to the session, which shows them as if live (its scene
+and web page work unchanged).  An acoustic recording keeps what its session took
+(statuses, thumbnails, orders, log lines), fed back as it was.
 
 Plots: Fig. 4 style time-lapse of the link (each frame a bar from its send to
 its arrival, per direction, height its size; images completed marked) and a
@@ -22,10 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from rovlink.link.assembly import ImageAssembly
 from rovlink.link.frame import MAX_FRAME, FrameDecoder
-from rovlink.link.master import ImageComplete, ImageProgress, PoseReceived
-from rovlink.link.messages import VELOCITY_FULL, Poll, ProtocolError, Reply
+from rovlink.link.messages import Velocity
+from rovlink.link.secure import poll_sent_from_frame
+from rovlink.link.units import wish_fractions, wish_of
 
 
 class RecordingError(ValueError):
@@ -51,64 +53,13 @@ def read_records(path: str | Path) -> Iterator[dict]:
             if first:
                 if record.get("k") != "meta":
                     raise RecordingError(f"{path}: not a rovlink recording (no meta record first)")
-                if record.get("profile", "radio") != "radio":
-                    raise RecordingError(
-                        f"{path}: a recording of the {record.get('profile')} link (its packets, statuses and "
-                        "log as JSON lines, docs/PROTOCOL.md §9); replay and its plots read radio sessions only")
+                if record.get("profile", "radio") not in ("radio", "acoustic"):
+                    raise RecordingError(f"{path}: a recording of a link this rovlink does not know "
+                                         f"({record.get('profile')!r}); it replays radio and acoustic sessions")
                 first = False
             yield record
     if first:
         raise RecordingError(f"{path}: empty recording")
-
-
-NO_IMAGE = -1  # no image object begun (IMG is 0..7)
-
-
-class ReplyReplayer:
-    """Turns received bytes back into the master's events, without a master."""
-
-    def __init__(self, *, skip_first_image: bool = True) -> None:
-        self.decoder = FrameDecoder()
-        self.image = ImageAssembly(NO_IMAGE)
-        # As the master (protocol 1.1, §4): the first image completed after
-        # start is not shown; it may be a capture of any age.
-        self._images_to_skip = 1 if skip_first_image else 0
-
-    def feed(self, data: bytes, t: float) -> list:
-        """Received bytes as recorded (protocol 1.1: the link's own frames)."""
-        events: list = []
-        for payload in self.decoder.feed(data):
-            events.extend(self.feed_payload(payload, t))
-        return events
-
-    def feed_payload(self, payload: bytes, t: float, *, sync: bool = False) -> list:
-        """One reply payload the master was given (protocol 2 records these:
-        authentic, timely, tag removed; a SYNC's reply part with `sync`)."""
-        events: list = []
-        try:
-            reply = Reply.decode(payload, allow_sync=sync)
-        except ProtocolError:
-            return events
-        events.append(PoseReceived(reply, t, None))
-        if not reply.has_trunk:
-            return events
-        img = self.image
-        if reply.img != img.img:
-            if reply.offset != 0:
-                return events
-            self.image = img = ImageAssembly(reply.img, t)
-        if not img.add(reply.offset, reply.trunk):
-            return events
-        skipping = self._images_to_skip > 0
-        if not skipping:
-            events.append(ImageProgress(img.img, len(img.data), img.total, img.stream))
-        if img.complete:
-            if skipping:
-                self._images_to_skip -= 1
-            else:
-                events.append(ImageComplete(img.img, img.stream, img.started_at, t))
-            self.image = ImageAssembly(NO_IMAGE)
-        return events
 
 
 # ---------------------------------------------------------------------------
@@ -125,11 +76,39 @@ class Series:
     received: list[tuple[float, tuple[float, ...]]]
     images: list[tuple[float, float]]  # (completed at, seconds it took)
     duration_s: float
+    profile: str = "radio"
+    # The acoustic link: (t, x_m, y_m, z_m, yaw_deg) of every status, and the go-tos sent (t, x_m, y_m, z_m).
+    statuses: list = None
+    targets: list = None
+
+
+def is_acoustic(path: str | Path) -> bool:
+    return next(iter(read_records(path))).get("profile") == "acoustic"
+
+
+def _acoustic_series(records: list[dict]) -> Series:
+    """An acoustic session (docs/PROTOCOL.md §9): 8-byte packets at the modem's
+    64 bit/s, the statuses' poses, the go-tos and the thumbnails completed."""
+    frames, images, statuses, targets = [], [], [], []
+    for r in records[1:]:
+        k, t = r.get("k"), float(r.get("t", 0.0))
+        if k in ("tx", "rx"):
+            frames.append((t, k, len(bytes.fromhex(r["hex"]))))
+        elif k == "status" and r.get("position_valid"):
+            statuses.append((t, r["x_m"], r["y_m"], r["z_m"], r["yaw_deg"]))
+        elif k == "order" and r.get("kind") == "POSITION" and not r.get("relative"):
+            targets.append((t, r["x_m"], r["y_m"], r["z_m"]))
+        elif k == "thumb" and r.get("complete"):
+            images.append((t, 0.0))
+    duration = max([f[0] for f in frames] + [s[0] for s in statuses] + [0.0])
+    return Series(64.0, 0.0, frames, [], [], images, duration, "acoustic", statuses, targets)
 
 
 def series(path: str | Path) -> Series:
     records = list(read_records(path))
     meta = records[0]
+    if meta.get("profile") == "acoustic":
+        return _acoustic_series(records)
     bitrate = float(meta.get("bitrate_bps", 1900.0))
     delay = float(meta.get("delay_s", 0.085))
     frames, received, images = [], [], []
@@ -137,44 +116,40 @@ def series(path: str | Path) -> Series:
     last_poll = None
     last_wish = None  # the last VELOCITY's wish (a version 2 NONE poll repeats it)
     replies = FrameDecoder()
-    extra = 0  # bytes after a poll's payload: COUNT and TAG in protocol 2
+    version = "1.1"  # "2" once the recording says every frame is authenticated
     for r in records[1:]:
         k, t = r.get("k"), float(r.get("t", 0.0))
         if k == "link":
-            extra = 5 if r.get("version") == 2 else 0
+            version = "2" if r.get("version") == 2 else "1.1"
         elif k == "tx":
             data = bytes.fromhex(r["hex"])
             frames.append((t, "tx", len(data)))
-            try:
-                if extra and data[2] & 0x40:  # a HELLO
-                    raise ProtocolError("HELLO")
-                # The poll as the master made it (version 2 may leave parts out of the frame, §8.1).
-                poll = Poll.decode(bytes.fromhex(r["poll"]) if "poll" in r else data[2:len(data) - 2 - extra])
-                order = poll.order
-                if hasattr(order, "vyaw"):
-                    wish = (order.vx / VELOCITY_FULL, order.vy / VELOCITY_FULL, order.vz / VELOCITY_FULL,
-                            order.vyaw / VELOCITY_FULL)
-                elif extra and order.code == 0:
-                    wish = last_wish  # version 2: a NONE poll repeats the last wish the ROV took (§8.1)
-                else:
-                    wish = last_wish = None
-                last_wish = wish
-                last_poll = (t + 8 * len(data) / bitrate + delay, wish) if wish is not None else None
-            except ProtocolError:
-                last_poll = None
+            # The poll as the master made it (version 2 may leave parts out of the frame, §8.1),
+            # read by the link's own code; a HELLO carries none.
+            sent = poll_sent_from_frame(data, t, version=version,
+                                        poll=bytes.fromhex(r["poll"]) if "poll" in r else None)
+            order = None if sent is None or sent.poll is None else sent.poll.order
+            if isinstance(order, Velocity):
+                wish = wish_of(order)
+            elif order is not None and version == "2" and order.code == 0:
+                wish = last_wish  # version 2: a NONE poll repeats the last wish the ROV took (§8.1)
+            else:
+                wish = None
+            last_wish = wish
+            last_poll = (t + 8 * len(data) / bitrate + delay, wish) if wish is not None else None
         elif k == "rx":
             data = bytes.fromhex(r["hex"])
             frames.append((t, "rx", len(data)))
-            if not extra and replies.feed(data) and last_poll is not None:
+            if version == "1.1" and replies.feed(data) and last_poll is not None:
                 received.append(last_poll)
                 last_poll = None
-        elif k == "reply" and extra and not r.get("sync"):
+        elif k == "reply" and version == "2" and not r.get("sync"):
             # Version 2: an authentic, timely reply (its frame has no CRC to find it by, §8.1).
             if last_poll is not None:
                 received.append(last_poll)
                 last_poll = None
         elif k == "wish":
-            commanded.append((t, tuple(v / VELOCITY_FULL for v in r["v"])))
+            commanded.append((t, wish_fractions(r["v"])))
         elif k == "image":
             images.append((t, float(r.get("seconds", 0.0))))
     duration = max([f[0] for f in frames] + [0.0])
@@ -217,6 +192,8 @@ def plot(path: str | Path, out_dir: str | Path, *, window_s: float | None = None
     fig.savefig(fig4, dpi=110)
     plt.close(fig)
 
+    if s.profile == "acoustic":
+        return [fig4, _acoustic_fig5(s, out, t_end, plt)]
     fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
     names = ["x (surge)", "y (sway)", "z (heave)", "yaw"]
     for i, ax in enumerate(axes):
@@ -240,3 +217,29 @@ def plot(path: str | Path, out_dir: str | Path, *, window_s: float | None = None
     fig.savefig(fig5, dpi=110)
     plt.close(fig)
     return [fig4, fig5]
+
+
+def _acoustic_fig5(s: Series, out: Path, t_end: float, plt) -> Path:
+    """The acoustic link has no sticks: where the statuses put the vehicle, beside
+    the go-tos sent (north, east, depth) and its heading."""
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
+    names = ["north x (m)", "east y (m)", "depth z (m)", "heading (deg)"]
+    for i, ax in enumerate(axes):
+        pts = [(st[0], st[1 + i]) for st in s.statuses if st[0] <= t_end]
+        if pts:
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", ms=3, color="tab:red", label="status (ROV)")
+        if i < 3 and s.targets:
+            ts = [t for t, *_ in s.targets] + [t_end]
+            vs = [g[1 + i] for g in s.targets] + [s.targets[-1][1 + i]]
+            ax.step(ts, vs, where="post", color="tab:blue", label="go-to sent (operator)")
+        ax.set_ylabel(names[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right")
+    axes[-1].set_xlabel("session time (s)")
+    axes[-1].set_xlim(0, max(t_end, 1.0))
+    fig.suptitle("Acoustic link: the go-tos sent and the position the statuses report")
+    fig.tight_layout()
+    fig5 = out / "fig5_position.png"
+    fig.savefig(fig5, dpi=110)
+    plt.close(fig)
+    return fig5

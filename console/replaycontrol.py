@@ -41,10 +41,11 @@ import weakref
 from pathlib import Path
 from typing import Callable
 
-from rovlink.link.messages import VELOCITY_FULL
+from rovlink.link.replay import ReplyReplayer
 from rovlink.link.secure import poll_sent_from_frame
+from rovlink.link.units import wish_fractions
 
-from .recording import ReplyReplayer, read_records
+from .recording import read_records
 
 log = logging.getLogger("rovlink.console.replay")
 
@@ -103,6 +104,9 @@ class ReplayController:
         # Protocol 2 sessions record what the master was given ("reply": authentic,
         # timely, tag removed); their raw frames ("rx") then count only as traffic.
         self._authenticated = any(r.get("k") == "reply" for r in self._records)
+        # An acoustic session (docs/PROTOCOL.md §9) records what its session took
+        # (statuses, thumbnails, orders, log lines): fed back as they are.
+        self.profile = "acoustic" if self.meta.get("profile") == "acoustic" else "radio"
         self.operator = operator
         self.on_done = on_done
         self._monotonic = monotonic
@@ -116,7 +120,7 @@ class ReplayController:
         self.seeks = 0  # seeks and restarts so far: a page reloads what a jump rewrote (its log)
         self._closed = False
         self._thread: threading.Thread | None = None
-        self._replayer = ReplyReplayer()
+        self._replayer = self._new_replayer()
         self.counts = _zero_counts()
         self._take(operator)
         _controllers[operator] = weakref.ref(self)
@@ -294,6 +298,15 @@ class ReplayController:
     def _feed(self, record: dict) -> None:
         op, counts = self.operator, self.counts
         kind = record.get("k")
+        if self.profile == "acoustic":
+            if kind in counts:
+                counts[kind] += 1
+            elif kind in ("order", "order_state"):
+                counts["orders"] += 1
+            elif kind == "status":
+                counts["replies"] += 1
+            op.replayed(record)
+            return
         now = op.now()  # the record's own time
         if kind == "rx":
             data = bytes.fromhex(record["hex"])
@@ -310,10 +323,11 @@ class ReplayController:
             sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version,
                                         poll=bytes.fromhex(record["poll"]) if "poll" in record else None)
             if sent is not None:
-                op.handle_events([sent], now)
+                # The poll first, then what it did to the picture held (the master's order of things).
+                op.handle_events([sent, *self._replayer.poll_sent(sent.poll, now)], now)
         elif kind == "wish":
             counts["wish"] += 1
-            op.replayed_wish(tuple(v / VELOCITY_FULL for v in record["v"]))
+            op.replayed_wish(wish_fractions(record["v"]))
         elif kind in ("order", "order_state"):
             counts["orders"] += 1
             op.replayed_order(record)
@@ -332,10 +346,14 @@ class ReplayController:
         op.replaying = True
         op.reset()
 
+    def _new_replayer(self) -> ReplyReplayer:
+        return ReplyReplayer(bitrate_bps=float(self.meta.get("bitrate_bps", 1900.0)),
+                             delay_s=float(self.meta.get("delay_s", 0.085)))
+
     def _reset(self) -> None:
         """The Operator's state as a new one's, in place (see the module's docstring)."""
         self.operator.reset()
-        self._replayer = ReplyReplayer()
+        self._replayer = self._new_replayer()
         self._index = 0
         self.counts = _zero_counts()
 

@@ -95,6 +95,7 @@ from .messages import (
     Velocity,
     next_img,
 )
+from .report import VehicleReport, report_from_reply
 
 # §5's shortest margin: the timeout's after a lost reply, in version 2 (§8.1).
 OUTAGE_MARGIN_S = 0.05
@@ -153,6 +154,8 @@ class PoseReceived:
     reply: Reply
     at: float
     round_trip_s: float | None
+    # The same in SI, with when the ROV sampled it (link/report.py): what the console reads.
+    report: VehicleReport | None = None
 
 
 @dataclass(frozen=True)
@@ -687,8 +690,13 @@ class Master:
             events.extend(self.receive(payload, now))
         return events
 
-    def receive(self, payload: bytes, now: float) -> list[object]:
-        """Consume one reply payload (a frame whose CRC held)."""
+    def _report(self, reply: Reply, now: float, frame_bytes: int | None, round_trip_s: float | None) -> VehicleReport:
+        return report_from_reply(reply, arrived_at=now, frame_bytes=frame_bytes, bitrate_bps=self.bitrate_bps,
+                                 delay_s=self.delay_s, round_trip_s=round_trip_s)
+
+    def receive(self, payload: bytes, now: float, frame_bytes: int | None = None) -> list[object]:
+        """Consume one reply payload (a frame whose CRC held).  `frame_bytes`: the
+        frame that carried it, when it was not this payload's 1.1 frame (version 2)."""
         try:
             reply = Reply.decode(payload)
         except ProtocolError:
@@ -714,7 +722,7 @@ class Master:
         self._last_reply = reply
         if self._first_reply_at is None:
             self._first_reply_at = now
-        events.append(PoseReceived(reply, now, round_trip))
+        events.append(PoseReceived(reply, now, round_trip, self._report(reply, now, frame_bytes, round_trip)))
         events.extend(self._update_ack(reply, now))
         events.extend(self._update_stop(reply, poll, now))
         self._update_requests(reply, poll, now)
@@ -722,7 +730,8 @@ class Master:
         events.extend(self.take_events())
         return events
 
-    def on_sync(self, payload: bytes, restarted: bool, now: float, round_trip_s: float | None = None) -> list[object]:
+    def on_sync(self, payload: bytes, restarted: bool, now: float, round_trip_s: float | None = None,
+                frame_bytes: int | None = None) -> list[object]:
         """Version 2 (§8): a SYNC reply to our HELLO (the chain paired them),
         with `restarted` when its BOOT differs from the last one.  It answers
         the HELLO, not a poll: it shows the ROV's status and gives its ACK,
@@ -760,7 +769,7 @@ class Master:
         if self._first_reply_at is None:
             self._first_reply_at = now  # §3: the 3 s start rule counts from the first SYNC
         events = self.take_events()
-        events.append(PoseReceived(reply, now, round_trip_s))
+        events.append(PoseReceived(reply, now, round_trip_s, self._report(reply, now, frame_bytes, round_trip_s)))
         return events
 
     def _update_ack(self, reply: Reply, now: float) -> list[object]:
@@ -874,6 +883,25 @@ class Master:
             self.stats.images_abandoned += 1
             self._events.append(ImageAbandoned(image.img, len(image.data), reason))
         self._image = ImageAssembly(next_img(image.img))
+
+    # -- a recording's replay (link/replay.py) takes its trunks by these same rules --
+
+    def follow_request(self, poll: Poll, now: float) -> list[object]:
+        """A recorded poll, as the live master made it: when it asks for image data
+        of another IMG than the one held, the live master had moved on (the pilot's
+        next picture, a restart, a loss without retransmission): so does this one."""
+        if not poll.wants_image or not self.images_enabled:
+            return []
+        if poll.img != self._image.img:
+            self._next_image("the recording moved on to the next picture")
+            self._image = ImageAssembly(poll.img)
+        if self._image.started_at is None:
+            self._image.started_at = now
+        return self.take_events()
+
+    def take_trunk(self, reply: Reply, now: float) -> list[object]:
+        """A recorded reply's trunk, by the rules `receive` applies (§4)."""
+        return self._take_trunk(reply, now) + self.take_events()
 
     def abandon_image(self) -> None:
         """The pilot has seen enough of this picture: ask for the next one."""

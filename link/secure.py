@@ -427,8 +427,9 @@ class SecureMaster:
         payload, self._continuation, self._reference = got.parsed  # type: ignore[misc]
         if self.on_reply is not None:
             self.on_reply(payload, got.sync, now)
+        frame_bytes = V2_OVERHEAD + len(contents)  # what arrived, not the 1.1 payload rebuilt from it
         if not got.sync:
-            return self.master.receive(payload, now)
+            return self.master.receive(payload, now, frame_bytes)
         self._hello_deadline = None  # the HELLO is answered: the token is ours
         first = self.stats2.syncs == 0
         restarted = not first and got.boot != self._boot
@@ -436,7 +437,7 @@ class SecureMaster:
         self.stats2.syncs += 1
         self.stats2.restarts_seen += restarted
         events: list[object] = [Synced(got.boot, restarted, first)]
-        events.extend(self.master.on_sync(got.payload, restarted, now, now - got.sent_at))
+        events.extend(self.master.on_sync(got.payload, restarted, now, now - got.sent_at, frame_bytes))
         return events
 
 

@@ -1,370 +1,780 @@
-"""The operator's session on the acoustic link (docs/PROTOCOL.md §9).
+"""The operator's session on the acoustic link (docs/PROTOCOL.md §9), on the
+same parts and the same contract as the radio one (console/session/contract.py).
 
-Goals: at 64 bit/s and seconds of latency the pilot supervises: everything
-shown carries its age and says when the next status is due; every order has
-one path (here) and a visible fate (sent, taken, done, rejected with its
-reason, cancelled, unknown after a ROV restart); STOP goes first, every time;
-the thumbnail refines as its packets come and says "unverified" until its MAC
-holds.
+Goals: at 64 bit/s and seconds of latency the pilot supervises, in the same
+cockpit as on the radio link: the received pose with its age in the 3-D
+scene, a go-to previewed then sent and followed to "arrived", STOP first
+every time, the thumbnail refining and marked unverified until its MAC holds,
+one holder of control (the control desk), one log, one recording that
+`rovlink replay` plays back.  What the link cannot carry (sticks, "next
+picture") is absent from `capabilities` and refused with a reason.
 
 Plan: `AcousticSession` owns the sans-I/O `link.acoustic.AcousticOperator`
-behind a lock.  `run()` (on the link thread's loop, never the web server's)
-moves packets between it and the modem endpoint: received 8-byte packets in,
-and, whenever the modem's transmit queue is empty (flushed first when the
-machine asks, for a STOP), the machine's next packet out.  The web layer calls
-the commands and `state()`; nothing else holds a copy of the state.
+behind the session's lock.  `run()` (on the link thread's loop, never the web
+server's) moves packets between it and the modem endpoint: received 8-byte
+packets in, and whenever the modem's transmit queue is empty (flushed first
+when the machine asks, for a STOP) the machine's next packet out.  What the
+machine says happened is handed to the session's parts: each STATUS, made SI
+by link/report.py, to the odometry (and the go-to watch, the trail, the
+health: the link is lost after 20 s without an authentic frame); order fates
+to the order book, in the radio session's words (queued, sent, acknowledged,
+arrived, rejected: reason...); thumbnails to the image receiver, as the radio
+session's pictures.  A replay (`rovlink replay` of an acoustic recording)
+feeds the recorded statuses, thumbnails, orders and log lines back through
+`replayed`, with no link and no key.
 """
 
 from __future__ import annotations
 
 import asyncio
-import collections
-import dataclasses
-import io
+import contextlib
 import logging
 import math
 import threading
 import time
+from dataclasses import asdict
+from typing import Any, Callable, Iterator
 
+import numpy as np
+
+from rovlink import debt
+from rovlink.console.operator import MAX_SPEED_MPS, NotNow, OrderError
+from rovlink.console.session.contract import Capabilities
+from rovlink.console.session.goto import GoToWatch, resolve_target
+from rovlink.console.session.health import LinkHealth
+from rovlink.console.session.images import DaemonWorker, ImageReceiver, ImageView
+from rovlink.console.session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
+from rovlink.console.session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
+from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
-from rovlink.link.messages import Mode
+from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress
+from rovlink.link.messages import ImageSettings, Mode
+from rovlink.link.report import VehicleReport, report_from_status
 from rovlink.link.transport import port_change, port_down_reason
+from rovlink.link.units import acoustic_goto, wrap_deg
 
 log = logging.getLogger("rovlink.console.acoustic")
 
-PACKET = 8
-LOST_AFTER_S = 20.0  # no authentic frame this long: the link is lost (the operator then says HELLO again)
-MODE_NAMES = {int(m): m.name for m in Mode if m is not Mode.UNKNOWN}
-MODE_NAMES[0] = "unknown"
-ORDER_OPS = {"hold": ac.OP_HOLD, "surface": ac.OP_SURFACE, "arm": ac.OP_ARM, "disarm": ac.OP_DISARM,
-             "mode": ac.OP_MODE}
+PACKET = ac.PACKET_BYTES
+LOST_AFTER_S = ac.SILENCE_RESYNC_S  # no authentic frame this long: the link is lost (the operator says HELLO again)
+NEUTRAL = (0.0, 0.0, 0.0, 0.0)
+DEFAULT_THUMB = ImageSettings(roi=None, shift=4, mono=True, budget_bytes=198)
+# The ROV's fates (link.acoustic.OrderFate) in the radio session's words, by order kind.
+SETTLED = ("rejected", "refused", "cancelled", "unknown", "not carried out", "arrived", "aborted", "done",
+           "followed")
 
 
 class AcousticSession:
-    """The operator's end of the acoustic link as the page, the ground station
-    and the recording see it.  `record`: a JSON-lines file of the session
-    ("meta" first, then every packet sent and received as hex, every STATUS
-    taken and every line of the log, each with its session time `t`), or None."""
+    """The operator's end of the acoustic link, as every surface of the console
+    sees a session (console/session/contract.py).  `endpoint` None and `key`
+    None: a replay.  `record`: a JSON-lines file of the session, or None."""
 
-    def __init__(self, endpoint, key: bytes, *, clock=time.monotonic, pace_s: float = 1.0,
-                 record=None) -> None:
+    capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, picture="thumbnail",
+                                image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
+
+    def __init__(self, endpoint, key: bytes | None, *, clock: Callable[[], float] = time.monotonic,
+                 pace_s: float = 1.0, record=None) -> None:
         self.endpoint = endpoint
-        self.clock = clock
+        self._clock = clock
+        self._t0 = clock()
+        self.wall0 = time.time()
         self.pace_s = pace_s
-        self.op = ac.AcousticOperator(key)
-        self._lock = threading.Lock()
-        self._start = clock()
-        self.orders: dict[int, dict] = {}  # oid -> its record, as the page shows it
-        self._order_seq: list[int] = []
-        self.stop_state = {"no": 0, "state": "none", "pressed_at": None, "confirmed_at": None}
-        self.status: ac.Status | None = None
-        self.status_at: float | None = None  # when it was made (estimated)
-        self.status_arrival: float | None = None
-        self.synced: dict | None = None
-        self.thumb: dict | None = None
-        self._thumb_png: bytes | None = None
-        self.log: collections.deque = collections.deque(maxlen=200)
-        self.inauthentic = 0
-        self.alert = False
+        self.op = ac.AcousticOperator(key) if key is not None else None
+        self._lock = threading.RLock()
+        self._subscribers: list[Callable[[str, Any], None]] = []
+        self._quiet = False
+        self._decoder = DaemonWorker("debt-decode (thumbnails)")
+        self._warm_up = debt.warm_up_in_background("debt-warm-up (acoustic console)")
+        self.rov_failsafe_s = float(ac.FAILSAFE_S)  # until the ROV's SYNC says its own
+        self.failsafe_action = "hold"
+        self.link_version = "acoustic"
+        self.bitrate_bps, self.delay_s = 64.0, 0.0  # what a replay's meta may carry; unused here
         self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
-        self._subscribers: list = []
-        self._port_up: bool | None = None  # the local modem's port as last seen (None: not yet)
+        self._port_up: bool | None = None
         self.recorder = Recorder(record, {"profile": "acoustic", "pace_s": pace_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
-                                          "wall0": round(time.time(), 3)})
+                                          "wall0": round(self.wall0, 3)})
+        self._new_parts(replaying=False)
 
-    def close(self) -> None:
-        """Close the recording (the link itself belongs to whoever opened it)."""
-        self.recorder.close()
+    def _new_parts(self, *, replaying: bool) -> None:
+        self.history = History()
+        self.health = LinkHealth(history=self.history, note=self.note, clear=self.clear_alerts)
+        self.health.lost_after_s = LOST_AFTER_S
+        self.health.replaying = replaying
+        self.odometry = Odometry()
+        self.images = ImageReceiver(lock=self._lock, now=self.now, wall=self.wall, fix=lambda: self.odometry.fix,
+                                    record=self.recorder.write, publish=self._publish, note=self.note,
+                                    decoder=self._decoder, settings=DEFAULT_THUMB)
+        self.orders = OrderBook(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
+        self.goto = GoToWatch(self.orders)
+        self.requested_settings = DEFAULT_THUMB
+        self._by_oid: dict[int, tuple[int, str, Any]] = {}  # OID -> (console order id, kind, settings)
+        self._stop_order: int | None = None  # the console's id of the STOP being sent
+        self._stop_no: int | None = None
+        self._verified: dict[int, bool] = {}  # thumbnail OID -> its MAC held
+        self._heard_at: float | None = None  # the machine's last authentic frame, as last handed to health
+        self._alerting = False
 
-    def _t(self, now: float) -> float:
-        return round(now - self._start, 3)
+    def reset(self) -> None:
+        """Start over (a replay seeking back), keeping the lock, subscribers and decoder."""
+        try:
+            self._decoder.submit(lambda: None).result(timeout=10)
+        except Exception:  # shut down, or slow: nothing more to wait for
+            pass
+        with self._lock:
+            self._new_parts(replaying=self.health.replaying)
 
-    def subscribe(self, callback):
-        """callback(topic, payload) for every order fate ("order") and alert ("log"); returns the unsubscribe."""
-        self._subscribers.append(callback)
-        return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
+    # ------------------------------------------------------------------
+    # Time, subscribers, the log (as the radio session's)
+    # ------------------------------------------------------------------
 
-    def _publish(self, topic: str, payload: dict) -> None:
-        for cb in list(self._subscribers):
+    def now(self) -> float:
+        return self._clock() - self._t0
+
+    def use_clock(self, clock: Callable[[], float], *, wall0: float | None = None) -> None:
+        self._clock, self._t0 = clock, 0.0
+        if wall0 is not None:
+            self.wall0 = wall0
+
+    def wall(self, t: float) -> float:
+        return self.wall0 + t
+
+    def subscribe(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
+        with self._lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+
+        return unsubscribe
+
+    def publish(self, topic: str, payload: Any) -> None:
+        self._publish(topic, payload)
+
+    def _publish(self, topic: str, payload: Any) -> None:
+        if self._quiet:
+            return
+        for callback in list(self._subscribers):
             try:
-                cb(topic, payload)
+                callback(topic, payload)
             except Exception:  # a subscriber's bug never stops the link
-                log.exception("acoustic subscriber failed")
+                log.exception("subscriber failed on %s", topic)
 
-    # -- the link --------------------------------------------------------------
+    @contextlib.contextmanager
+    def quiet(self) -> Iterator[None]:
+        self._quiet = True
+        try:
+            yield
+        finally:
+            self._quiet = False
+        self._publish("pose", self.pose_state())
+        self._publish("image", self.image_state())
+
+    def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
+        line = LogLine(self.now(), text, level, cause)
+        self.history.log.append(line)
+        self.recorder.write({"k": "note", "t": round(line.t, 3), "text": text, "level": level, "cause": cause})
+        (log.warning if level == "alert" else log.info)("%s", text)
+        self._publish("log", self._log_entry(line))
+
+    def clear_alerts(self, cause: str) -> None:
+        t = self.now()
+        with self._lock:
+            cleared = [line for line in list(self.history.log) if line.cause == cause and line.cleared is None]
+            for line in cleared:
+                line.cleared = t
+        for line in cleared:
+            self._publish("log", self._log_entry(line))
+
+    def _log_entry(self, line: LogLine) -> dict:
+        return {"t": line.t, "wall": round(self.wall(line.t), 3), "text": line.text, "level": line.level,
+                "cause": line.cause, "cleared_wall": None if line.cleared is None else round(self.wall(line.cleared), 3)}
+
+    def log_entries(self, last: int = LOG_KEPT) -> list[dict]:
+        return [self._log_entry(line) for line in list(self.history.log)[-last:]]
+
+    # ------------------------------------------------------------------
+    # The link
+    # ------------------------------------------------------------------
 
     async def run(self) -> None:
+        if self.op is None or self.endpoint is None:
+            raise RuntimeError("no link: this session only replays")
         pump = asyncio.create_task(self._pump())
         try:
             while True:
                 data = await recv_within(self.endpoint, 0.1)
                 if not data:
                     continue
-                now = self.clock()
+                t = self.now()
+                now = self._clock()
                 for i in range(0, len(data) - PACKET + 1, PACKET):
                     packet = bytes(data[i:i + PACKET])
                     with self._lock:
                         self.packets_in += 1
-                        self.recorder.write({"k": "rx", "t": self._t(now), "hex": packet.hex()})
+                        self.recorder.write({"k": "rx", "t": round(t, 4), "hex": packet.hex()})
+                        self.health.event(t, "rx", PACKET)
                         events = self.op.receive(packet, now)
-                        self._handle(events, now)
+                        self._heard(t)
+                        self._handle(events, t)
         finally:
             pump.cancel()
-
-    def _watch_port(self) -> None:
-        """The local modem's port going down (unplugged, its adapter gone) is said at
-        once, loudly, with the transport's reason, not 20 s later as a lost link;
-        and its coming back.  (Lock held.)"""
-        self._port_up, news = port_change(self.endpoint, self._port_up)
-        if news is not None:
-            self._note(news, "info" if self._port_up else "alert")
+            self._decoder.shutdown()
 
     async def _pump(self) -> None:
         while True:
-            now = self.clock()
+            now, t = self._clock(), self.now()
+            packet = None
             with self._lock:
                 self._watch_port()
-                self._handle(self.op.tick(now), now)
+                self._handle(self.op.tick(now), t)
+                self.health.watch(t)
                 if self.op.wants_flush:
                     flush = getattr(self.endpoint, "flush", None)
                     if flush is not None:
                         flush()
                 ready = self.op.wants_flush or ac.modem_idle(self.endpoint, now, self._last_sent, self.pace_s)
                 packet = self.op.next_packet(now) if ready else None
+                if packet is not None:
+                    self._mark_sending()
             if packet is not None:
                 self.endpoint.send(packet)
                 self._last_sent = now
                 self.packets_out += 1
-                self.recorder.write({"k": "tx", "t": self._t(now), "hex": packet.hex()})
+                self.recorder.write({"k": "tx", "t": round(t, 4), "hex": packet.hex()})
+                self.health.event(t, "tx", PACKET)
             await asyncio.sleep(0.1)
 
-    # -- what happened ---------------------------------------------------------
+    def _heard(self, t: float) -> None:
+        """An authentic frame came (the machine's clock moved): the link is up."""
+        heard = self.op.last_authentic_at
+        if heard is not None and heard != self._heard_at:
+            self._heard_at = heard
+            self.health.reply(t, None)
+            self.health.watch(t)
 
-    def _note(self, text: str, level: str = "info") -> None:
-        now = self.clock()
-        self.log.append({"t": round(now - self._start, 1), "text": text, "level": level})
-        self.recorder.write({"k": "note", "t": self._t(now), "text": text, "level": level})
-        (log.warning if level == "alert" else log.info)("%s", text)
+    def _watch_port(self) -> None:
+        """The local modem's port going down is said at once, loudly, with the
+        transport's reason, not 20 s later as a lost link; and its coming back."""
+        self._port_up, news = port_change(self.endpoint, self._port_up)
+        if news is None:
+            return
+        if not self._port_up:
+            self.note(news, "alert", cause="port")
+        else:
+            self.note(news)
+            self.clear_alerts("port")
 
-    def _handle(self, events: list, now: float) -> None:
+    def _mark_sending(self) -> None:
+        """The order on the air is "sent" (repeated until a STATUS names it)."""
+        oid = self.op.sending_oid
+        if oid is not None and oid in self._by_oid:
+            self.orders.sent(self._by_oid[oid][0], self.now())
+
+    # ------------------------------------------------------------------
+    # What the machine says happened (lock held)
+    # ------------------------------------------------------------------
+
+    def _handle(self, events: list, t: float) -> None:
         for e in events:
             if isinstance(e, ac.Synced):
-                self.synced = {"boot": e.boot.hex(), "failsafe_s": e.failsafe_s,
-                               "failsafe_action": "surface" if e.failsafe_action == ac.FAILSAFE_SURFACE else "hold",
-                               "at": now}
-                self._note("ROV restarted (new BOOT): the fate of an order in flight is unknown"
-                           if e.restarted else "link synchronised", "alert" if e.restarted else "info")
+                self.rov_failsafe_s = float(e.failsafe_s)
+                self.failsafe_action = "surface" if e.failsafe_action == ac.FAILSAFE_SURFACE else "hold"
+                self.recorder.write({"k": "synced", "t": round(t, 4), "restarted": e.restarted,
+                                     "failsafe_s": e.failsafe_s, "failsafe_action": self.failsafe_action})
+                if e.restarted:
+                    self.note("ROV restarted (new BOOT): the fate of an order in flight is unknown", "alert")
+                else:
+                    self.note(f"link synchronised (the ROV {'surfaces' if self.failsafe_action == 'surface' else 'holds'}"
+                              f" after {e.failsafe_s} s without us)")
             elif isinstance(e, ac.StatusReceived):
-                self._status_changes(self.status, e.status)
-                self.recorder.write({"k": "status", "t": self._t(now), "made_t": self._t(e.at), "ctr": e.ctr,
-                                     **dataclasses.asdict(e.status)})
-                self.status, self.status_at, self.status_arrival = e.status, e.at, now
+                # The machine dates it on its own clock: the same offset to session time.
+                made = t - (self._clock() - e.at) if self.op is not None else e.at
+                report = report_from_status(e.status, sampled_at=made, arrived_at=t)
+                self._status(report, e.status.uplink, t)
             elif isinstance(e, ac.OrderFate):
-                rec = self.orders.get(e.oid)
-                if rec is not None and (rec["state"] != e.state or rec["reason"] != e.reason):
-                    rec.update(state=e.state, reason=e.reason, settled_at=now)
-                    self._publish("order", {"kind": rec["text"], "state": e.state + (f": {e.reason}" if e.reason else "")})
-                    self._note(f"{rec['text']}: {e.state}" + (f" ({e.reason})" if e.reason else ""),
-                               "warn" if e.state in ("rejected", "aborted", "unknown", "cancelled") else "info")
+                self._fate(e.oid, e.state, e.reason, t)
             elif isinstance(e, ac.StopConfirmed):
-                self.stop_state.update(state="confirmed", confirmed_at=now)
-                self._note(f"STOP confirmed: holding, {now - e.pressed_at:.1f} s after it was pressed")
+                # (pressed_at is the machine's clock, as now is)
+                self._stop_fate(f"acknowledged: holding, {self._clock() - e.pressed_at:.1f} s after it was pressed", t)
             elif isinstance(e, ac.StopNotCarriedOut):
-                self.stop_state.update(state="not carried out")
-                self._note("STOP not carried out: no autopilot holds the vehicle", "alert")
+                self._stop_fate("not carried out: no autopilot holds the vehicle", t)
             elif isinstance(e, ac.ThumbnailProgress):
-                self._thumb_update(e.oid, e.prefix, e.verified, now)
+                self._thumbnail(e.oid, e.prefix, e.verified, t, complete=False)
             elif isinstance(e, ac.ThumbnailComplete):
-                self._thumb_update(e.oid, e.object, e.verified, now)
-                self._note(f"thumbnail {e.oid} complete, {len(e.object)} bytes, verified")
+                self._thumbnail(e.oid, e.object, e.verified, t, complete=True)
             elif isinstance(e, ac.ThumbnailRejected):
-                self.thumb = None
-                self._thumb_png = None
-                self._note(f"thumbnail {e.oid} failed its MAC: discarded, asked for again", "alert")
+                self.recorder.write({"k": "thumb_rejected", "t": round(t, 4), "oid": e.oid})
+                self.images.on_event(ImageAbandoned(e.oid, self.images.view.received_bytes,
+                                                    "its MAC did not hold: discarded, asked for again"), t)
+                self.note(f"thumbnail {e.oid} failed its MAC: discarded, asked for again", "alert")
             elif isinstance(e, ac.InauthenticPacket):
-                self.inauthentic += 1
-                if e.alert and not self.alert:
-                    self._note("ALERT: packets fail authentication and no authentic one comes "
-                               "(another key or operator, a forger, or heavy noise)", "alert")
-                self.alert = e.alert
+                self.health.inauthentic_frames += 1
+                self.health.event(t, "forged")
+                if e.alert and not self._alerting:
+                    self.note("ALERT: packets fail authentication and no authentic one comes "
+                              "(another key or operator, a forger, or heavy noise)", "alert")
+                self._alerting = e.alert
             elif isinstance(e, ac.Resyncing):
-                self._note(f"link lost ({e.why}): synchronising again", "alert")
+                self.note(f"link lost ({e.why}): synchronising again", "alert", cause="link")
 
-    def _status_changes(self, was: ac.Status | None, now: ac.Status) -> None:
-        """What a STATUS tells that the last one did not, into the log: the
-        FAILSAFE (shown in one STATUS after a spell, so that it is never missed),
-        the ROV not hearing us, the autopilot lost.  The status table shows only
-        the present; the log keeps what happened."""
-        def changed(flag: str) -> bool | None:
-            value = getattr(now, flag)
-            return value if was is None or getattr(was, flag) != value else None
+    def _status(self, report: VehicleReport, uplink: bool | None, t: float) -> None:
+        previous = self.odometry.take(report, None)
+        was = None if previous is None else previous.report
+        pose = Pose.from_report(report)
+        self.history.trail.append((t, pose.x_m, pose.y_m, pose.z_m))
+        record = {"k": "status", "t": round(t, 4), **{k: (round(v, 3) if isinstance(v, float) else v)
+                                                       for k, v in asdict(report).items()}}
+        if uplink is not None:
+            record["uplink"] = uplink
+        self.recorder.write(record)
+        self._changes(was, report, uplink)
+        self.goto.on_reply(self.odometry.fix, t)
+        self._publish("pose", self.pose_state())
 
-        failsafe = changed("failsafe")
-        if failsafe:
-            action = "surfaces" if (self.synced or {}).get("failsafe_action") == "surface" else "holds position"
-            self._note(f"ROV in FAILSAFE: it heard nothing from us for its failsafe time and {action}", "alert")
-        elif failsafe is False:
-            self._note("ROV out of FAILSAFE: it hears us again (HOLD stays until a new order)", "warn")
-        hears = changed("uplink")
-        if hears is False:
-            self._note("ROV does NOT hear us: it took nothing from us for 10 s", "alert")
-        elif hears and was is not None:
-            self._note("ROV hears us again")
-        autopilot = changed("autopilot")
-        if autopilot is False:
-            self._note("ROV reports its autopilot LOST: orders cannot be carried out", "alert")
-        elif autopilot and was is not None:
-            self._note("ROV's autopilot is back")
+    def _changes(self, was: VehicleReport | None, now: VehicleReport, uplink: bool | None) -> None:
+        """What a STATUS tells that the last one did not, into the log (only
+        changes: a first STATUS without FAILSAFE says nothing of it)."""
+        if now.failsafe and (was is None or not was.failsafe):
+            action = "surfaces" if self.failsafe_action == "surface" else "holds position"
+            self.note(f"ROV in FAILSAFE: it heard nothing from us for its failsafe time and {action}", "alert",
+                      cause="failsafe")
+        elif was is not None and was.failsafe and not now.failsafe:
+            self.clear_alerts("failsafe")
+            self.note("ROV out of FAILSAFE: it hears us again (HOLD stays until a new order)", "warn")
+        if uplink is False and (self._last_uplink is not False):
+            self.note("ROV does NOT hear us: it took nothing from us for 10 s", "alert")
+        elif uplink and self._last_uplink is False:
+            self.note("ROV hears us again")
+        self._last_uplink = uplink
+        if was is not None and was.autopilot != now.autopilot:
+            if now.autopilot:
+                self.note("ROV's autopilot is back")
+            else:
+                self.note("ROV reports its autopilot LOST: orders cannot be carried out", "alert")
 
-    def _thumb_update(self, oid: int, obj: bytes, verified: bool, now: float) -> None:
-        total = int.from_bytes(obj[:2], "big") + 2 if len(obj) >= 2 else None
-        self.thumb = {"oid": oid, "bytes": len(obj), "total": total, "verified": verified, "at": now,
-                      "requested_at": (self.orders.get(oid) or {}).get("sent_at")}
-        self._thumb_png = _png(obj) if len(obj) > 2 else None
+    _last_uplink: bool | None = None
 
-    # -- the pilot's orders: one path ------------------------------------------
+    def _fate(self, oid: int, state: str, reason: str, t: float) -> None:
+        known = self._by_oid.get(oid)
+        if known is None:
+            return
+        order_id, kind, settings = known
+        info = self.orders.get(order_id)
+        if info is None or info["state"].startswith(SETTLED):
+            return
+        why = f": {reason}" if reason else ""
+        if state == "taken":
+            if not info["state"].startswith("acknowledged"):
+                self.orders.set_state(order_id, "acknowledged", t)
+                if kind == "IMAGE":
+                    fix = self.odometry.fix
+                    self.images.captured_after(t, None if fix is None else fix.pose)
+                    self.images.confirmed_settings = settings
+            if kind == "POSITION":
+                self.goto.on_reply(self.odometry.fix, t)
+        elif state == "done":
+            if kind == "POSITION":
+                if self.goto.active is not None and self.goto.active.order_id == order_id:
+                    self.goto.active = None
+                self.orders.set_state(order_id, "arrived", t)
+            elif kind in ("ARM", "MODE"):
+                self.orders.set_state(order_id, "followed", t)
+            else:
+                self.orders.set_state(order_id, "done", t)
+        elif state == "not sent":
+            self.orders.set_state(order_id, f"cancelled: {reason or 'never sent'} (never sent)", t)
+        elif state == "aborted" and kind == "POSITION":
+            if self.goto.active is not None and self.goto.active.order_id == order_id:
+                self.goto.abort(reason or "the ROV gave it up", t)
+            else:
+                self.orders.set_state(order_id, f"aborted{why}", t)
+        else:  # rejected, cancelled, aborted, unknown
+            self.orders.set_state(order_id, f"{state}{why}", t)
 
-    def press_stop(self) -> dict:
+    def _stop_fate(self, state: str, t: float) -> None:
+        if self._stop_order is not None:
+            self.orders.set_state(self._stop_order, state, t)
+            if state.startswith("acknowledged"):
+                self.note(f"STOP confirmed: {state.split(': ', 1)[1]}")
+
+    def _thumbnail(self, oid: int, obj: bytes, verified: bool, t: float, *, complete: bool) -> None:
+        if len(obj) < 2:
+            return
+        total = int.from_bytes(obj[:2], "big")
+        stream = bytes(obj[2:])
+        self._verified[oid] = bool(verified)
+        self.recorder.write({"k": "thumb", "t": round(t, 4), "oid": oid, "hex": bytes(obj).hex(),
+                             "verified": bool(verified), "complete": complete})
+        view = self.images.view
+        started = view.started_at if view.img == oid and view.started_at is not None else t
+        self.images.on_event(ImageProgress(oid, len(stream), total, stream), t)
+        if complete:
+            self.images.on_event(ImageComplete(oid, stream, started, t), t)
+            known = self._by_oid.get(oid)
+            if known is not None:
+                info = self.orders.get(known[0])
+                if info is not None and not info["state"].startswith(SETTLED):
+                    self.orders.set_state(known[0], "done", t)
+
+    # ------------------------------------------------------------------
+    # Commands (any thread): one path each, through the control desk
+    # ------------------------------------------------------------------
+
+    def _send(self, body, kind: str, detail: dict, settings=None) -> int:
+        t = self.now()
+        if self.op is None:
+            raise NotNow("a replay: there is no ROV to order")
         with self._lock:
-            now = self.clock()
-            no = self.op.stop(now)
-            self.stop_state.update(no=no, state="sent", pressed_at=now, confirmed_at=None)
-            for rec in self.orders.values():
-                if rec["state"] in ("queued",):
-                    rec.update(state="not sent", reason="a STOP cancelled it", settled_at=now)
-        self._note(f"STOP {no} pressed: sent first, in every slot until confirmed")
-        return dict(self.stop_state)
-
-    def order(self, what: str, mode: str | None = None) -> dict:
-        if what not in ORDER_OPS:
-            raise ValueError(f"unknown order {what!r}: one of {', '.join(ORDER_OPS)}")
-        arg = 0
-        text = what
-        if what == "mode":
-            names = {n.lower(): v for v, n in MODE_NAMES.items() if v}
-            if mode is None or mode.lower() not in names:
-                raise ValueError(f"mode must be one of {', '.join(sorted(names))}")
-            arg = names[mode.lower()]
-            text = f"mode {mode.upper()}"
-        return self._send(ac.Order(0, ORDER_OPS[what], arg), text)
-
-    def goto(self, x_m: float, y_m: float, z_m: float, yaw_deg: float | None = None, *, relative: bool = False,
-             body: bool = False) -> dict:
-        for name, v in (("x", x_m), ("y", y_m), ("z", z_m)):
-            if not math.isfinite(v) or abs(v) > 3276.7:
-                raise ValueError(f"{name} must be a finite number of metres within ±3276.7")
-        if yaw_deg is not None and not (math.isfinite(yaw_deg) and -180.0 <= yaw_deg <= 180.0):
-            raise ValueError("yaw must be within -180..180 degrees")
-        if body and not relative:
-            raise ValueError("a body-frame go-to is relative")
-        target = ac.GoTo(0, round(x_m * 10), round(y_m * 10), round(z_m * 10),
-                         0 if yaw_deg is None else round(yaw_deg * 100), relative, body, yaw_deg is not None)
-        text = (f"go to {'+' if relative else ''}({x_m:.1f}, {y_m:.1f}, {z_m:.1f}) m"
-                + ("" if yaw_deg is None else f", yaw {yaw_deg:.0f}°") + (" body" if body else ""))
-        return self._send(target, text, target={"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw_deg,
-                                                 "relative": relative, "body": body})
-
-    def thumbnail(self, budget: int = 198, roi: tuple[int, int, int, int] | None = None, shift: int = 4) -> dict:
-        if not ac.MIN_BUDGET <= budget <= ac.MAX_BUDGET:
-            raise ValueError(f"budget must be {ac.MIN_BUDGET}..{ac.MAX_BUDGET} bytes")
-        if roi is not None:
-            x0, y0, x1, y1 = roi
-            if not (0 <= x0 < x1 <= ac.THUMB_W and 0 <= y0 < y1 <= ac.THUMB_H):
-                raise ValueError(f"roi must be x0 < x1 <= {ac.THUMB_W}, y0 < y1 <= {ac.THUMB_H}, none below 0 "
-                                 f"(pixels of the {ac.THUMB_W}x{ac.THUMB_H} thumbnail, x1 and y1 exclusive), "
-                                 f"not {tuple(roi)}")
-        req = ac.ThumbRequest(0, budget, roi or (0, 0, 0, 0), shift if roi else 0, True)
-        bad = req.invalid()
-        if bad:
-            raise ValueError(f"thumbnail: {bad}")
-        return self._send(req, f"thumbnail {budget} B" + (f", ROI {roi}" if roi else ""))
-
-    def _send(self, body, text: str, target: dict | None = None) -> dict:
-        with self._lock:
-            now = self.clock()
             try:
-                oid = self.op.send_order(body, now)
+                oid = self.op.send_order(body, self._clock())
             except ac.OrderRefused as exc:
-                raise PermissionError(str(exc)) from None
-            rec = {"oid": oid, "text": text, "state": "queued", "reason": "", "sent_at": now, "settled_at": None,
-                   "target": target}
-            self.orders[oid] = rec
-            self._order_seq.append(oid)
-            for old in self._order_seq[:-50]:
-                self.orders.pop(old, None)
-            del self._order_seq[:-50]
-        self._note(f"{text}: queued (order {oid})")
-        return dict(rec)
+                raise NotNow(f"the acoustic link cannot take it now: {exc}") from None
+            order_id = self.orders.new(kind, "queued", {**detail, "oid": oid}, t)
+            self._by_oid[oid] = (order_id, kind, settings)
+        return order_id
 
-    # -- what the page shows ---------------------------------------------------
+    def arm(self, armed: bool) -> int:
+        order_id = self._send(ac.Order(0, ac.OP_ARM if armed else ac.OP_DISARM, 0), "ARM", {"armed": bool(armed)})
+        self.note("arm requested" if armed else "disarm requested")
+        return order_id
 
-    def _shown(self, rec: dict) -> dict:
-        out = dict(rec)
-        if rec["state"] == "queued" and self.op.sending_oid == rec["oid"]:
-            out["state"] = "sending"  # on the air, repeated until a status names it
+    def set_mode(self, mode: str | int) -> int:
+        if isinstance(mode, str):
+            if mode.upper() not in MODE_NAMES:
+                raise OrderError(f"unknown mode {mode!r}; one of {', '.join(MODE_NAMES)}")
+            value = MODE_NAMES[mode.upper()]
+        else:
+            if mode not in MODE_NAMES.values():
+                raise OrderError(f"mode must be 1..6, got {mode!r}")
+            value = Mode(mode)
+        order_id = self._send(ac.Order(0, ac.OP_MODE, int(value)), "MODE", {"mode": value.name})
+        self.note(f"mode {value.name} requested")
+        return order_id
+
+    def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
+                      body: bool = False) -> int:
+        for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m), ("yaw_deg", yaw_deg)):
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise OrderError(f"{name} must be a finite number, got {v!r}")
+        yaw = wrap_deg(yaw_deg)
+        try:
+            target = acoustic_goto(x_m, y_m, z_m, yaw, relative=relative, body=body)
+        except ValueError as exc:
+            raise OrderError(str(exc)) from None
+        order_id = self._send(target, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
+                                                   "relative": relative, "body": body, "mode": "GUIDED"})
+        with self._lock:
+            goal = resolve_target(x_m, y_m, z_m, yaw, relative=relative, body=body, fix=self.odometry.fix)
+            self.goto.started(order_id, goal, self.now())
+        return order_id
+
+    def stop(self) -> int:
+        """STOP: first, ahead of anything queued, in every slot until confirmed."""
+        if self.op is None:
+            raise NotNow("a replay: there is no ROV to order")
+        t = self.now()
+        with self._lock:
+            no = self.op.stop(self._clock())
+            joined = self._stop_no == no and self._stop_order is not None
+            if not joined:
+                self._stop_no = no
+                self._stop_order = self.orders.new("STOP", "sent", {"stop_no": no}, t)
+            self.goto.abort("STOP", t)
+            order_id = self._stop_order
+        if not joined:
+            self.note(f"STOP {no} pressed: sent first, in every slot until confirmed")
+        return order_id
+
+    def cancel_stop(self) -> bool:
+        if self.op is None:
+            return False
+        with self._lock:
+            done = bool(self.op.cancel_stop())
+            if done and self._stop_order is not None:
+                self.orders.set_state(self._stop_order, "cancelled: by the pilot (no autopilot to hold)", self.now())
+        if done:
+            self.note("STOP cancelled by the pilot")
+        return done
+
+    def stopping(self) -> bool:
+        return bool(self.op is not None and self.op.stop_active)
+
+    def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,
+                           budget_bytes: int | None = None) -> int:
+        """A thumbnail (80x60 grey) on request: `roi` in its pixels, x1 and y1 exclusive."""
+        current = self.requested_settings
+        budget = current.budget_bytes if budget_bytes is None else budget_bytes
+        if not isinstance(budget, int) or not ac.MIN_BUDGET <= budget <= ac.MAX_BUDGET:
+            raise OrderError(f"a thumbnail's budget is {ac.MIN_BUDGET}..{ac.MAX_BUDGET} bytes on the acoustic link, "
+                             f"not {budget!r}")
+        if roi is not None:
+            try:
+                x0, y0, x1, y1 = (int(v) for v in roi)
+            except (TypeError, ValueError):
+                raise OrderError(f"roi must be [x0, y0, x1, y1], not {roi!r}") from None
+            if not (0 <= x0 < x1 <= ac.THUMB_W and 0 <= y0 < y1 <= ac.THUMB_H):
+                raise OrderError(f"roi must be x0 < x1 <= {ac.THUMB_W}, y0 < y1 <= {ac.THUMB_H}, none below 0 "
+                                 f"(pixels of the {ac.THUMB_W}x{ac.THUMB_H} thumbnail), not {tuple(roi)}")
+            roi = (x0, y0, x1, y1)
+        shift = current.shift if shift is None else shift
+        request = ac.ThumbRequest(0, budget, roi or (0, 0, 0, 0), shift if roi else 0, True)
+        bad = request.invalid()
+        if bad:
+            raise OrderError(f"thumbnail: {bad}")
+        try:
+            settings = ImageSettings(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget)
+        except ValueError as exc:
+            raise OrderError(str(exc)) from None
+        order_id = self._send(request, "IMAGE", {"roi": list(roi) if roi else None, "shift": settings.shift,
+                                                 "mono": True, "budget_bytes": budget}, settings)
+        with self._lock:
+            self.requested_settings = settings
+        return order_id
+
+    def next_image(self) -> None:
+        raise NotNow("the acoustic link sends a thumbnail on request, one at a time: there is no next picture "
+                     "to skip to (ask for a thumbnail)")
+
+    def set_velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
+        if (vx, vy, vz, vyaw) != NEUTRAL:
+            raise NotNow("the acoustic link carries no sticks (a packet a second, seconds of latency): "
+                         "send a go-to, or STOP")
+
+    def set_pilot_in_force(self, in_force: bool) -> None:
+        """Nothing to do: no wish is sent on this link, so none can release a HOLD."""
+
+    def set_attended(self, attended: bool) -> None:
+        """Nothing to do: the acoustic link's pace does not depend on a pilot being there."""
+
+    def recentred(self) -> None:
+        """Nothing to do: there are no sticks on this link."""
+
+    def velocity_wish(self) -> tuple[float, float, float, float]:
+        return NEUTRAL
+
+    def wish_state(self) -> dict:
+        return {"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}
+
+    # ------------------------------------------------------------------
+    # A replay: what was recorded, shown as it was
+    # ------------------------------------------------------------------
+
+    def replayed(self, record: dict) -> None:
+        """One record of an acoustic recording (status, thumbnail, order, log line)."""
+        kind = record.get("k")
+        t = self.now()
+        with self._lock:
+            if kind == "status":
+                fields = {k: record[k] for k in VehicleReport.__dataclass_fields__ if k in record}
+                fields["sampled_at"] = record.get("sampled_at", t)
+                fields["arrived_at"] = t
+                self._heard_at = None
+                self.health.reply(t, None)
+                self._status(VehicleReport(**fields), record.get("uplink"), t)
+            elif kind == "thumb":
+                self._thumbnail(int(record["oid"]), bytes.fromhex(record["hex"]), bool(record.get("verified")), t,
+                                complete=bool(record.get("complete")))
+            elif kind == "synced":
+                self.rov_failsafe_s = float(record.get("failsafe_s", self.rov_failsafe_s))
+                self.failsafe_action = record.get("failsafe_action", self.failsafe_action)
+            elif kind == "note":
+                line = LogLine(t, str(record["text"]), str(record.get("level", "info")), record.get("cause"))
+                self.history.log.append(line)
+                self._publish("log", self._log_entry(line))
+            elif kind in ("order", "order_state"):
+                self.orders.replayed(record, t)
+            elif kind in ("rx", "tx"):
+                self.health.event(t, kind, PACKET)
+
+    def replayed_order(self, record: dict) -> None:
+        self.orders.replayed(record, self.now())
+
+    # ------------------------------------------------------------------
+    # The read side (any thread; no side effects)
+    # ------------------------------------------------------------------
+
+    @property
+    def replaying(self) -> bool:
+        return self.health.replaying
+
+    @replaying.setter
+    def replaying(self, value: bool) -> None:
+        self.health.replaying = bool(value)
+
+    @property
+    def lost_after_s(self) -> float:
+        return self.health.lost_after_s
+
+    @property
+    def image(self) -> ImageView:
+        return self.images.view
+
+    def vehicle(self) -> VehicleReport | None:
+        fix = self.odometry.fix
+        return None if fix is None else fix.report
+
+    def odometry_age_s(self) -> float | None:
+        return self.odometry.age_s(self.now())
+
+    def ned_velocity(self) -> tuple[float, float, float, float] | None:
+        with self._lock:
+            fix = self.odometry.fix
+            return None if fix is None or self.odometry.fixes < 2 else fix.velocity
+
+    def measured_velocity(self) -> dict | None:
+        with self._lock:
+            return self.odometry.measured_velocity()
+
+    def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
+        return self.health.condition(self.now() if t is None else t)
+
+    def predicted_pose(self, at: float | None = None) -> Pose | None:
+        """Where the vehicle is now: with no sticks it holds where it was, or flies
+        the go-to it has taken (GUIDED, as the preview), for the report's age."""
+        with self._lock:
+            fix = self.odometry.fix
+            if fix is None:
+                return None
+            active = self.goto.active
+            info = None if active is None else self.orders.get(active.order_id)
+        pose = fix.pose
+        age = max(0.0, (self.now() if at is None else at) - fix.sampled_at)
+        if active is None or active.target is None or info is None or not info["state"].startswith("acknowledged") \
+                or not fix.report.armed or fix.report.hold or fix.report.failsafe or age <= 0.0:
+            return pose
+        x, y, z, yaw = active.target
+        points = preview_path(pose, x, y, z, yaw, seconds=min(age, self.rov_failsafe_s), step_s=0.5)
+        px, py, pz = points[-1]
+        return Pose(px, py, pz, pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
+
+    def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
+                     step_s: float = 0.5) -> list[tuple[float, float, float]]:
+        start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
+        return preview_path(start, x_m, y_m, z_m, yaw_deg, seconds=seconds, step_s=step_s)
+
+    def uncertainty_m(self) -> float | None:
+        """How far the vehicle may be from where it is shown: the report's age at
+        the most it can move while it may move (armed and not holding, or the link
+        lost), else the drift its reports show."""
+        age, fix = self.odometry_age_s(), self.odometry.fix
+        if age is None or fix is None:
+            return None
+        r = fix.report
+        may_move = (r.armed and not r.hold) or self.link_condition()[0] == "lost"
+        speed = MAX_SPEED_MPS if may_move else math.hypot(*fix.velocity[:3])
+        return round(speed * max(0.0, age), 3)
+
+    def pose_state(self) -> dict:
+        fix = self.odometry.fix
+        out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
+        if fix is not None:
+            r = fix.report
+            out["received"] = fix.pose.as_dict()
+            out.update(armed=r.armed, mode=REPORTED_MODE_NAMES.get(r.mode, "OTHER"), failsafe=r.failsafe,
+                       autopilot=r.autopilot, position_valid=r.position_valid, hold=r.hold,
+                       attitude_valid=r.attitude_valid, tilt_valid=r.tilt_valid, going=r.going,
+                       battery_v=r.battery_v, stopping=self.stopping(), odometry_age_s=self.odometry_age_s(),
+                       stale=self.link_condition()[0] == "lost", uncertainty_m=self.uncertainty_m(),
+                       next_report_in_s=self._next_status_in())
+            predicted = self.predicted_pose()
+            out["predicted"] = predicted.as_dict() if predicted else None
+            out["velocity"] = self.measured_velocity()
         return out
 
-    def thumbnail_png(self) -> bytes | None:
-        return self._thumb_png
+    def _next_status_in(self) -> float | None:
+        if self.op is None:
+            return None
+        due = self.op.next_status_at
+        return None if due is None else round(max(0.0, due - self._clock()), 1)
+
+    def image_state(self) -> dict:
+        state = self.images.state()
+        img = state.get("img")
+        state["verified"] = self._verified.get(img) if img is not None else None
+        state["waiting"] = self.picture_wait()
+        return state
+
+    def picture_wait(self) -> str | None:
+        if self.images.view.picture is not None or self.images.view.images_completed:
+            return None
+        condition, _ = self.link_condition()
+        if condition == "replay":
+            return "no thumbnail in the recording yet"
+        if condition == "starting":
+            return "waiting for the ROV's first status"
+        if condition == "lost":
+            return "no thumbnail: the link is lost"
+        if self.images.view.received_bytes:
+            return "decoding the first bytes of the thumbnail"
+        waiting = [o for o in self.orders.state() if o["kind"] == "IMAGE" and not o["state"].startswith(SETTLED)]
+        if waiting:
+            return f"thumbnail asked for (order {waiting[-1]['id']}, {waiting[-1]['state']}): its first bytes come " \
+                   f"after the next status, about a packet a second"
+        return "no thumbnail yet: ask for one (pictures on the acoustic link come on request)"
+
+    def image_history(self) -> list[dict]:
+        return self.images.history()
+
+    def picture(self) -> np.ndarray | None:
+        return self.images.view.picture
+
+    def orders_state(self) -> list[dict]:
+        return self.orders.state()
+
+    def link_state(self) -> dict:
+        t = self.now()
+        r = self.vehicle()
+        statuses = self.odometry.fixes
+        return {
+            **self.health.state(t, self.rov_failsafe_s),
+            "last_round_trip_s": None,
+            "polls_sent": self.packets_out,
+            "replies": statuses,
+            "replies_lost": 0,
+            "crc_errors": 0,
+            "protocol_errors": 0 if self.op is None else int(getattr(self.op.counters, "malformed", 0)),
+            "bytes_sent": self.packets_out * PACKET,
+            "bytes_received": self.packets_in * PACKET,
+            "odometry_age_s": self.odometry_age_s(),
+            "failsafe": bool(r and r.failsafe),
+            "autopilot": bool(r and r.autopilot),
+            "estimated_ber": None,
+            "images_completed": self.images.view.images_completed,
+            "images_abandoned": 0,
+            "version": self.link_version,
+            "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
+            "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
+            "profile": "acoustic",
+            "synced": self.op is not None and not self.op.resyncing,
+            "next_report_in_s": self._next_status_in(),
+        }
 
     def state(self) -> dict:
-        with self._lock:
-            now = self.clock()
-            op = self.op
-            heard = op.last_authentic_at
-            silent = None if heard is None else now - heard
-            link = ("starting" if heard is None and now - self._start < LOST_AFTER_S else
-                    "lost" if silent is None or silent >= LOST_AFTER_S else "up")
-            status = None
-            if self.status is not None:
-                s = self.status
-                status = {
-                    "x_m": s.x_dm / 10, "y_m": s.y_dm / 10, "depth_m": s.z_dm / 10, "heading_deg": s.heading_cdeg / 100,
-                    "armed": s.armed, "hold": s.hold, "failsafe": s.failsafe, "position_valid": s.position_valid,
-                    "attitude_valid": s.attitude_valid, "autopilot": s.autopilot, "going": s.going,
-                    "rov_hears_us": s.uplink,
-                    "mode": MODE_NAMES.get(s.mode, str(s.mode)),
-                    "battery_v": s.battery_dv / 10 if s.battery_dv else None,
-                    "age_s": round(now - self.status_at, 1) if self.status_at is not None else None,
-                    "stale": self.status_arrival is None or now - self.status_arrival > 10.0,
-                }
-            next_at = op.next_status_at
-            return {
-                "profile": "acoustic",
-                "t": round(now - self._start, 1),
-                "link": {"state": link, "since_authentic_s": None if silent is None else round(silent, 1),
-                         "port": "down" if self._port_up is False else "up",
-                         "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
-                         "synced": self.synced is not None and not op.resyncing,
-                         "packets_in": self.packets_in, "packets_out": self.packets_out,
-                         "inauthentic": self.inauthentic, "alert": self.alert},
-                "rov": self.synced,
-                "status": status,
-                "next_status_in_s": None if next_at is None else round(max(0.0, next_at - now), 1),
-                "stop": dict(self.stop_state),
-                "orders": [self._shown(self.orders[o]) for o in self._order_seq if o in self.orders][-20:],
-                "ready": op.ready,
-                "thumbnail": None if self.thumb is None else dict(self.thumb, age_s=round(now - self.thumb["at"], 1)),
-                "log": list(self.log)[-30:],
-            }
+        return {
+            "pose": self.pose_state(),
+            "image": self.image_state(),
+            "link": self.link_state(),
+            "velocity_wish": self.wish_state(),
+            "orders": self.orders_state(),
+            "log": self.log_entries(20),
+            "replaying": self.replaying,
+            "wall": round(self.wall(self.now()), 3),
+        }
 
+    # ------------------------------------------------------------------
 
-def _png(obj: bytes) -> bytes | None:
-    """The picture a thumbnail object's prefix holds, as PNG (None if it holds none yet)."""
-    try:
-        import numpy as np
-        from PIL import Image
+    def close(self) -> None:
+        """Close the recording (the link itself belongs to whoever opened it)."""
+        self.recorder.close()
+        self._decoder.shutdown()
 
-        from rovlink import debt
-
-        picture = np.asarray(debt.decode(bytes(obj[2:])))
-        out = io.BytesIO()
-        Image.fromarray(picture.astype(np.uint8)).resize((picture.shape[1] * 4, picture.shape[0] * 4),
-                                                          Image.NEAREST).save(out, "PNG")
-        return out.getvalue()
-    except Exception:  # a prefix too short to be a picture yet
-        return None
+    def wait_debt_idle(self, timeout: float = 300.0) -> bool:
+        deadline = time.monotonic() + timeout
+        self._warm_up.join(timeout)
+        return not self._warm_up.is_alive() and self._decoder.wait_idle(max(deadline - time.monotonic(), 0.0))

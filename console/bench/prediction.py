@@ -105,12 +105,12 @@ def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e
     samples = []  # (age, steering, received pos err, predicted pos err, received yaw err, predicted yaw err)
 
     def sample(t):
-        reply = operator.last_reply
+        reply = operator.vehicle()
         age = operator.odometry_age_s()
         if reply is not None and age is not None:
             s = truth.state
             predicted = operator.predicted_pose(t)
-            rx, ry, ryaw = reply.x_cm / 100, reply.y_cm / 100, reply.yaw_cdeg / 100
+            rx, ry, ryaw = reply.x_m, reply.y_m, reply.yaw_deg
             truth_yaw = math.degrees(s.yaw_rad)
 
             def yaw_err(a):

@@ -84,19 +84,16 @@ def run(args) -> int:
 
 
 def _run_acoustic(args, endpoint, key) -> int:
-    """The acoustic profile: supervisory orders, status and thumbnails (docs/PROTOCOL.md §9)."""
+    """The acoustic profile (docs/PROTOCOL.md §9): the same cockpit, API, scene and
+    gateway as the radio link's, over an `AcousticSession`."""
     import asyncio
-    import sys
 
     from rovlink.command import CommandError
     from rovlink.console.acoustic.session import AcousticSession
-    from rovlink.console.acoustic.web import create_acoustic_app
     from rovlink.console.linkthread import LinkThread
-    from rovlink.console.web.app import serve
-    from rovlink.console.web.guard import AccessPolicy
     from rovlink.link.transport import TransportError
 
-    from .serve import _stop_on_signals, default_record_path, public_host
+    from .serve import default_record_path, serve_operator
 
     if key is None:
         raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
@@ -111,41 +108,14 @@ def _run_acoustic(args, endpoint, key) -> int:
             raise CommandError(str(exc)) from None
         session = AcousticSession(endpoint, key, record=record)
         link.spawn(session.run(), name="acoustic operator")
-        policy = AccessPolicy.for_server(args.host, args.allow_host)
-        app = create_acoustic_app(session, policy=policy)
-        url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
-        gateway = None
-        if args.gcs:
-            from rovlink.console.acoustic.gcs import AcousticCommands, AcousticGcsView
-            from rovlink.console.gcs import GcsGateway
-
-            try:
-                gateway = GcsGateway(args.gcs, AcousticGcsView(session), AcousticCommands(session),
-                                     home=args.gcs_home).start()
-            except (OSError, ValueError) as exc:
-                await link.stop(endpoint.close())
-                raise CommandError(f"--gcs: {exc}") from None
-        print(f"rovlink console on {args.link}: acoustic profile, every packet authenticated\n"
-              f"  operator page: {url}" + (f"\n  ground station: {', '.join(args.gcs)} (MAVLink 2, ArduSub; "
-                                           "targets and STOP, no sticks)" if args.gcs else "")
-              + (f"\n  recording: {record}" if record else "")
-              + "\n  Ctrl-C stops.", flush=True)
-        stop = _stop_on_signals()
-        server = asyncio.create_task(serve(app, host=args.host, port=args.port))
-        waiter = asyncio.create_task(stop.wait())
         try:
-            await asyncio.wait([server, waiter], return_when=asyncio.FIRST_COMPLETED)
-            if server.done() and server.exception() is not None:
-                exc = server.exception()
-                raise CommandError(f"cannot serve the page on port {args.port}: {exc}") from None
+            await serve_operator(session, args, link=link,
+                                 banner=f"rovlink console on {args.link}: acoustic profile (Modem-M64), every packet "
+                                        "authenticated; targets, STOP and thumbnails, no sticks"
+                                        + (f"\n  recording: {record}" if record else ""))
         finally:
-            if gateway is not None:
-                gateway.stop()
-            server.cancel()
-            await asyncio.gather(server, return_exceptions=True)
             await link.stop(endpoint.close())
             session.close()
-        print("rovlink console: stopped", file=sys.stderr)
 
     try:
         asyncio.run(main())

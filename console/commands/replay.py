@@ -50,12 +50,20 @@ def run_replay(args) -> int:
 
     from rovlink.command import CommandError
     from rovlink.console.operator import Operator
-    from rovlink.console.recording import RecordingError
+    from rovlink.console.recording import RecordingError, is_acoustic
     from rovlink.console.replaycontrol import ReplayController
 
     from .serve import serve_operator
 
-    operator = Operator(None)
+    try:
+        if is_acoustic(args.file):
+            from rovlink.console.acoustic.session import AcousticSession
+
+            operator = AcousticSession(None, None)  # no link, no key: what was recorded, shown as it was
+        else:
+            operator = Operator(None)
+    except RecordingError as exc:
+        raise CommandError(str(exc)) from None
     try:
         controller = ReplayController(operator, args.file, speed=args.speed, paused=args.paused)
     except RecordingError as exc:

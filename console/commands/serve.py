@@ -135,7 +135,9 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
     viser_url = f"http://{browser_host(args.host)}:{viser_port}"
     app = create_app(operator, viser_url=viser_url, scene=scene, telemetry_hz=25.0, policy=policy,
                      unattended_warn_s=args.unattended_warn, disarm_unattended_s=args.disarm_unattended,
-                     rov_failsafe_s=getattr(args, "rov_failsafe", None))
+                     # The radio ROV's failsafe is the pilot's to state; the acoustic ROV says its own (SYNC).
+                     rov_failsafe_s=getattr(args, "rov_failsafe", None) if operator.capabilities.profile == "radio"
+                     else None)
     tasks = [asyncio.create_task(coro) for coro in background]
     url = f"http://{public_host(args.host)}:{args.port}/" + (f"?token={policy.token}" if policy.token else "")
     if policy.token:

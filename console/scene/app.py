@@ -717,10 +717,10 @@ class ConsoleScene:
                 log.debug("panel refresh failed", exc_info=True)
 
     def update_poses(self) -> None:
-        reply = self.operator.last_reply
-        if reply is None:
+        report = self.operator.vehicle()
+        if report is None:
             return
-        received = Pose.from_reply(reply)
+        received = Pose.from_report(report)
         predicted = self.operator.predicted_pose() or received
         self._update_uncertainty(predicted)
         if received != self._last_received:

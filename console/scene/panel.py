@@ -150,7 +150,12 @@ class ControlPanel:
         self.permitted: bool | None = None
         self._build_view()
         self._build_vehicle()
-        self._build_velocity()
+        # What the link cannot carry is left out (the acoustic link has no sticks), never shown to fail.
+        caps = getattr(session, "capabilities", None)
+        self.sticks = caps is None or caps.velocity
+        self.sliders: dict = {}
+        if self.sticks:
+            self._build_velocity()
         self._build_keys()
         self._build_target()
         self._build_image()
@@ -302,13 +307,14 @@ class ControlPanel:
 
     def _build_keys(self) -> None:
         self.key_commands = []
-        for key, (axis, sign) in KEYS.items():
-            command = self.gui.add_command(f"Drive {axis} {'+' if sign > 0 else '-'}", hotkey=key)
-            command.on_trigger(lambda _event, axis=axis, sign=sign: self.key_drive(axis, sign))
-            self.key_commands.append(command)
-        zero = self.gui.add_command("Zero velocity", hotkey="X")
-        zero.on_trigger(lambda _event: self.submit(control.Drive()))
-        self.order_widgets += [*self.key_commands, zero]
+        if self.sticks:
+            for key, (axis, sign) in KEYS.items():
+                command = self.gui.add_command(f"Drive {axis} {'+' if sign > 0 else '-'}", hotkey=key)
+                command.on_trigger(lambda _event, axis=axis, sign=sign: self.key_drive(axis, sign))
+                self.key_commands.append(command)
+            zero = self.gui.add_command("Zero velocity", hotkey="X")
+            zero.on_trigger(lambda _event: self.submit(control.Drive()))
+            self.order_widgets += [*self.key_commands, zero]
         self.stop_command = self.gui.add_command("STOP", hotkey="space")
         self.stop_command.on_trigger(lambda _event: self.stop())
 

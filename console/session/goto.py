@@ -81,7 +81,7 @@ class GoToWatch:
         if info is None or info["state"].startswith(SETTLED):
             self.active = None
             return
-        reply, pose = fix.reply, fix.pose
+        reply, pose = fix.report, fix.pose
         x, y, z, yaw = active.target
         left = math.dist((pose.x_m, pose.y_m, pose.z_m), (x, y, z)) if reply.position_valid else None
         shown = None if left is None else round(left, 1)

@@ -204,11 +204,17 @@ class ImageReceiver:
 
     # -- the capture window (see the module's docstring) ------------------
 
+    def captured_after(self, t: float, pose: Pose | None) -> None:
+        """The next picture was captured at `t` or later, where `pose` was (a
+        thumbnail the ROV takes when it takes the request: the acoustic profile)."""
+        with self._lock:
+            self._next_capture = (t, pose, "request")
+
     def _mark_capture_window(self, t: float, why: str, *, img: int | None = None, total: int | None = None,
                              since: float | None = None) -> None:
         fix = self._fix()
-        reply = None if fix is None else fix.reply
-        pose = Pose.from_reply(reply) if reply is not None and reply.position_valid is not False else None
+        report = None if fix is None else fix.report
+        pose = Pose.from_report(report) if report is not None and report.position_valid else None
         sent = None if fix is None else fix.poll_sent_at
         if img is not None and total is not None:
             # This image's polls only (IMG wraps at 8): those sent since its first request.

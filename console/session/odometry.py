@@ -1,9 +1,9 @@
 """What the ROV last said of itself, and when.
 
-The ROV samples its odometry when a poll arrives, so a reply's pose is as old
-as the reply's own transmission plus the intrinsic delay when it arrives here.
-Speeds come from successive poses (finite differences of quantised odometry,
-smoothed).  Bounded series for the live plots live in `History`.
+What the ROV says of itself arrives as a `link.report.VehicleReport` (SI, with
+when it was sampled: the link knows the frame's air time and delay), from a
+radio reply or an acoustic STATUS alike.  Speeds come from successive poses
+(finite differences of quantised odometry over a span).  Bounded series for the live plots live in `History`.
 """
 
 from __future__ import annotations
@@ -12,8 +12,7 @@ import collections
 import math
 from dataclasses import dataclass, field
 
-from rovlink.link.frame import OVERHEAD
-from rovlink.link.messages import Reply
+from rovlink.link.report import VehicleReport
 
 LOG_KEPT = 500            # log lines kept (the page filters them)
 SERIES_KEPT = 1000        # points kept in each live plot
@@ -29,9 +28,8 @@ class Pose:
     yaw_deg: float
 
     @classmethod
-    def from_reply(cls, r: Reply) -> "Pose":
-        return cls(r.x_cm / 100, r.y_cm / 100, r.z_cm / 100, r.roll_cdeg / 100, r.pitch_cdeg / 100,
-                   r.yaw_cdeg / 100)
+    def from_report(cls, r: VehicleReport) -> "Pose":
+        return cls(r.x_m, r.y_m, r.z_m, r.roll_deg, r.pitch_deg, r.yaw_deg)
 
     def as_dict(self) -> dict:
         return {"x_m": self.x_m, "y_m": self.y_m, "z_m": self.z_m, "roll_deg": self.roll_deg,
@@ -68,9 +66,9 @@ class History:
 
 @dataclass(frozen=True)
 class Fix:
-    """The last reply with its times (session seconds)."""
+    """The last report with its times (session seconds)."""
 
-    reply: Reply
+    report: VehicleReport
     arrived_at: float          # when it arrived here
     sampled_at: float          # when the ROV sampled its odometry (estimated)
     poll_sent_at: float | None  # when the poll it answers left: the ROV acted on nothing later
@@ -78,38 +76,65 @@ class Fix:
 
     @property
     def pose(self) -> Pose:
-        return Pose.from_reply(self.reply)
+        return Pose.from_report(self.report)
+
+
+SPEED_SPAN_S = 0.5  # speeds are fitted over at least this span of sampling times
+
+
+def _slope(poses: list[tuple[float, Pose]]) -> tuple[float, float, float, float]:
+    """North, east, down m/s and yaw deg/s: the least-squares line through the
+    poses (two poses: their difference).  A fit rather than the two ends, because
+    on a fast link the sampling times are estimates from arrival times, jittered
+    by the console's own scheduling; yaw unwrapped against the newest pose."""
+    t_new, newest = poses[-1]
+    ts = [t - t_new for t, _ in poses]
+    columns = [[p.x_m for _, p in poses], [p.y_m for _, p in poses], [p.z_m for _, p in poses],
+               [newest.yaw_deg - ((newest.yaw_deg - p.yaw_deg + 180) % 360 - 180) for _, p in poses]]
+    n = len(ts)
+    mean_t = sum(ts) / n
+    var = sum((t - mean_t) ** 2 for t in ts)
+    out = []
+    for values in columns:
+        mean_v = sum(values) / n
+        out.append(sum((t - mean_t) * (v - mean_v) for t, v in zip(ts, values)) / var)
+    return (out[0], out[1], out[2], out[3])
 
 
 class Odometry:
-    """The last fix; `take` a reply as it arrives.  The caller holds the session's lock."""
+    """The last fix; `take` a report as it arrives.  The caller holds the session's lock.
 
-    def __init__(self, *, bitrate_bps: float, delay_s: float) -> None:
-        self.bitrate_bps = bitrate_bps
-        self.delay_s = delay_s
+    Speeds are fitted to the quantised poses of at least SPEED_SPAN_S of
+    sampling time, whatever the reply rate: a reply every 20 ms (a fast link)
+    fits the last 0.5 s of poses, a reply every second differences against the
+    one before it.  (Before, each fix was differenced only
+    against the last, and not at all under 50 ms apart: speeds read 0 on a fast
+    link.)  Only measured poses count: a report without a valid position (the
+    autopilot's estimate not up yet) restarts the window."""
+
+    def __init__(self) -> None:
         self.fix: Fix | None = None
         self.fixes = 0
+        self._window: collections.deque[tuple[float, Pose]] = collections.deque()
 
-    def take(self, reply: Reply, t: float, round_trip_s: float | None) -> Fix | None:
-        """The reply that arrived at `t`; returns the fix it replaces."""
-        sampled = t - (8.0 * (len(reply.encode()) + OVERHEAD) / self.bitrate_bps) - self.delay_s
+    def take(self, report: VehicleReport, round_trip_s: float | None) -> Fix | None:
+        """The report that arrived; returns the fix it replaces."""
+        t, sampled = report.arrived_at, report.sampled_at
         previous = self.fix
         velocity = (0.0, 0.0, 0.0, 0.0) if previous is None else previous.velocity
-        # Speeds only between two poses that are measured: a reply without a position
-        # (the autopilot's estimate not up yet) says 0,0,0, and the step from it to the
-        # first real pose is no speed (it read as metres per second at start).
-        both_valid = previous is not None and previous.reply.position_valid and reply.position_valid
-        if not both_valid:
+        pose = Pose.from_report(report)
+        window = self._window
+        if not report.position_valid:
+            window.clear()
             velocity = (0.0, 0.0, 0.0, 0.0)
-        elif sampled - previous.sampled_at > 0.05:
-            dt = sampled - previous.sampled_at
-            old, new_pose = previous.pose, Pose.from_reply(reply)
-            dyaw = (new_pose.yaw_deg - old.yaw_deg + 180) % 360 - 180
-            new = ((new_pose.x_m - old.x_m) / dt, (new_pose.y_m - old.y_m) / dt, (new_pose.z_m - old.z_m) / dt,
-                   dyaw / dt)
-            a = 0.5  # smooth the finite difference of quantised odometry
-            velocity = tuple(a * n + (1 - a) * o for n, o in zip(new, velocity))
-        self.fix = Fix(reply, t, sampled, t - round_trip_s if round_trip_s is not None else None, velocity)
+        else:
+            # Kept: the poses newer than the span, and the newest one older than it.
+            while len(window) > 1 and sampled - window[1][0] >= SPEED_SPAN_S:
+                window.popleft()
+            if window and sampled - window[0][0] >= SPEED_SPAN_S:
+                velocity = _slope([*window, (sampled, pose)])
+            window.append((sampled, pose))
+        self.fix = Fix(report, t, sampled, t - round_trip_s if round_trip_s is not None else None, velocity)
         self.fixes += 1
         return previous
 
@@ -118,12 +143,12 @@ class Odometry:
 
     def measured_velocity(self) -> dict | None:
         """Speeds from successive received poses: body forward and right, down,
-        and yaw rate; None before two replies."""
+        and yaw rate; None before two reports."""
         fix = self.fix
         if fix is None or self.fixes < 2:
             return None
         vn, ve, vd, vyaw = fix.velocity
-        yaw = math.radians(fix.reply.yaw_cdeg / 100)
+        yaw = math.radians(fix.report.yaw_deg)
         return {"forward_mps": round(vn * math.cos(yaw) + ve * math.sin(yaw), 3),
                 "right_mps": round(-vn * math.sin(yaw) + ve * math.cos(yaw), 3),
                 "down_mps": round(vd, 3), "yaw_dps": round(vyaw, 2)}

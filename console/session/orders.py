@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from rovlink.link.messages import REQUESTABLE_MODES, Reply
+from rovlink.link.messages import REQUESTABLE_MODES
 
 from .odometry import Fix
 
@@ -144,7 +144,7 @@ class OrderBook:
         """Arm and mode requests the vehicle followed, or did not in time."""
         if not self._requests:
             return
-        reply: Reply | None = None if fix is None else fix.reply
+        reply = None if fix is None else fix.report
         for what, order_id in list(self._requests.items()):
             with self._lock:
                 info = self._orders.get(order_id)

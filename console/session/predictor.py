@@ -50,7 +50,7 @@ class Predictor:
         stopped; beyond it the uncertainty grows instead)."""
         if fix is None:
             return None
-        reply, sampled, vel = fix.reply, fix.sampled_at, fix.velocity
+        reply, sampled, vel = fix.report, fix.sampled_at, fix.velocity
         end = sampled + max(0.0, min(at - sampled, failsafe_s))
         pose = fix.pose
         if end <= sampled:

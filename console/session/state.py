@@ -43,6 +43,12 @@ class PoseState(BaseModel):
     stale: bool | None = Field(None, description="the link is lost: the received pose is old news")
     uncertainty_m: float | None = Field(None, description="how far the vehicle may be from the prediction")
     velocity: MeasuredVelocity | None = Field(None, description="speeds from successive received poses")
+    tilt_valid: bool | None = Field(None, description="roll and pitch are measured (false: an acoustic status "
+                                                      "carries a heading only)")
+    going: bool | None = Field(None, description="the acoustic status says a go-to is being flown")
+    battery_v: float | None = Field(None, description="the acoustic status's battery voltage, when given")
+    next_report_in_s: float | None = Field(None, description="the acoustic link: when the next status is due "
+                                                             "at the latest")
 
 
 class ImageSettingsState(BaseModel):
@@ -85,6 +91,9 @@ class ImageState(BaseModel):
     serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
     capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
     waiting: str | None = Field(None, description="why there is no picture yet (null once there is one)")
+    verified: bool | None = Field(None, description="the acoustic thumbnail's MAC held (false: unverified "
+                                                    "until it does); null on the radio link, where every trunk "
+                                                    "is authenticated as it comes")
     settings: ImageSettingsState | None
 
 
@@ -116,7 +125,8 @@ class LinkState(BaseModel):
     estimated_ber: float | None
     images_completed: int
     images_abandoned: int
-    version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated')
+    version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated; '
+                                             '"acoustic": the acoustic profile, every packet authenticated')
     inauthentic_frames: int = Field(0, description="frames whose tag did not hold, dropped (protocol 2: noise or forgery)")
     late_replies: int = Field(0, description="authentic replies that came too late (protocol 2)")
     auth_alert: bool = Field(False, description="more than 3 frames failed authentication in the last 10 s, and no reply came")
@@ -124,6 +134,9 @@ class LinkState(BaseModel):
     transport_up: bool
     port_error: str | None = Field(None, description="why this console's own modem port is down (the transport's reason); "
                                                      "null while it is up, or for a replay")
+    profile: Literal["radio", "acoustic"] = Field("radio", description="the link's profile (docs/PROTOCOL.md §9: acoustic)")
+    synced: bool | None = Field(None, description="the acoustic link's session is synchronised")
+    next_report_in_s: float | None = Field(None, description="the acoustic link: when the next status is due at the latest")
 
 
 class VelocityWish(BaseModel):

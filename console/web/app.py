@@ -107,7 +107,9 @@ def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, 
     # reused by the next tick would repeat the same predicted pose.
     app.state.snapshot = SharedSnapshot(operator, desk, max_age_s=min(0.04, 0.5 / float(telemetry_hz)))
     app.state.png_cache = PngCache()
+    caps = operator.capabilities
     app.state.config = page_config(
+        capabilities=caps.as_dict(), image_budget_max=caps.image_budget_max,
         viser_url=viser_url, telemetry_hz=float(telemetry_hz), velocity_deadman_s=float(velocity_deadman_s),
         lease_s=float(lease_s), lost_after_s=operator.lost_after_s, rov_failsafe_s=operator.rov_failsafe_s,
         unattended_warn_s=float(unattended_warn_s),

@@ -17,7 +17,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
 from rovlink.console.control import NotHolder, UnknownClient
-from rovlink.console.operator import OrderError
+from rovlink.console.operator import NotNow, OrderError
 
 
 def describe(errors) -> str:
@@ -57,7 +57,8 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(OrderError)
     async def refused_order(request: Request, exc: OrderError) -> JSONResponse:
-        return _error(422, str(exc), str(exc))
+        # A well-formed order the link cannot carry, or not now, is a conflict, not a bad request.
+        return _error(409 if isinstance(exc, NotNow) else 422, str(exc), str(exc))
 
     @app.exception_handler(UnknownClient)
     async def unknown_client(request: Request, exc: UnknownClient) -> JSONResponse:

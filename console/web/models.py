@@ -197,3 +197,7 @@ class Config(BaseModel):
     rov_failsafe_s: float
     unattended_warn_s: float
     disarm_unattended_s: float | None
+    capabilities: dict[str, bool | str | float | int] = Field(
+        default_factory=dict, description="what the link carries (console/session/contract.py Capabilities): "
+                                          "profile, velocity (sticks), next_image, picture ('stream' or "
+                                          "'thumbnail'), image_budget_max, report_every_s")

@@ -18,11 +18,22 @@ def get(url: str):
         return json.loads(body) if r.headers.get_content_type() == "application/json" else body
 
 
-def post(url: str, body: dict | None = None):
+def post(url: str, body: dict | None = None, headers: dict | None = None):
     req = urllib.request.Request(url, data=json.dumps(body or {}).encode(), method="POST",
-                                 headers={"Content-Type": "application/json"})
+                                 headers={"Content-Type": "application/json", **(headers or {})})
     with urllib.request.urlopen(req, timeout=10) as r:
         return json.loads(r.read())
+
+
+def post_status(url: str, body: dict | None = None) -> int:
+    """POST, and the HTTP status it got (an error status too)."""
+    import urllib.error
+
+    try:
+        post(url, body)
+    except urllib.error.HTTPError as exc:
+        return exc.code
+    return 200
 
 
 def wait_for(fn, timeout_s: float, every_s: float = 0.25):

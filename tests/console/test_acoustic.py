@@ -1,15 +1,20 @@
-"""The acoustic profile as a user runs it (issue 24): `rovlink rov` and `rovlink
-console` as two processes, each on the real `wlmodem://` transport, talking
-through two emulated Modem-M64s on real pseudo-terminals (link/m64serial.py,
-four times the real modem's pace so the test takes a minute, not four).  The
-pilot uses the acoustic page in headless Chromium: the status with its age and
-the next status due, arm, a go-to previewed then sent and flown by the
-simulated vehicle, STOP confirmed, a thumbnail refining then verified and
-decoded.  A hostile radio between the modems replays the go-to's packets
-after the STOP: the vehicle does not move."""
+"""The acoustic profile as a user runs it (issues 24 and 32): `rovlink rov` and
+`rovlink console` as two processes, each on the real `wlmodem://` transport,
+talking through two emulated Modem-M64s on real pseudo-terminals
+(link/m64serial.py, four times the real modem's pace so the test takes a
+minute, not four).  The pilot meets the same cockpit as on the radio link, in
+headless Chromium at 1366x768: the 3-D scene embedded, the instruments, the
+status with its age and when the next is due; no sticks (absent, not broken);
+arm, a go-to previewed then sent and followed to "arrived"; a second page
+refused an order (409) while the first holds control, and its STOP taken and
+confirmed; a thumbnail refining, then verified.  A hostile radio between the
+modems replays the go-to's packets after the STOP: the vehicle does not move.
+The pilot's own ground station (pymavlink) sees the vehicle's mode, position
+and a go-to's outcome, and stops it."""
 
 from __future__ import annotations
 
+import io
 import subprocess
 import sys
 import time
@@ -48,14 +53,20 @@ def acoustic(tmp_path_factory):
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)
     base = f"http://127.0.0.1:{port}"
     try:
-        assert wait_for(lambda: get(base + "/api/state")["status"], 120), "no status from the ROV over the modems"
+        assert wait_for(lambda: get(base + "/api/pose")["received"], 120), "no status from the ROV over the modems"
         yield base, radio, rov, console, gcs_port
     finally:
         end_processes(console, rov)
         pair.close()
 
 
-def test_a_pilot_supervises_the_rov_through_the_acoustic_page(acoustic):
+def order(base: str, kind: str) -> dict | None:
+    """The newest order of `kind` the console lists."""
+    mine = [o for o in get(base + "/api/orders") if o["kind"] == kind]
+    return mine[-1] if mine else None
+
+
+def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
     from playwright.sync_api import sync_playwright
 
     base, radio, rov, console, _ = acoustic
@@ -63,58 +74,83 @@ def test_a_pilot_supervises_the_rov_through_the_acoustic_page(acoustic):
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1366, "height": 768})
         page.goto(base + "/")
-        # The link up, the status with its age, when the next is due, and the ROV's failsafe stated.
-        page.wait_for_function("document.getElementById('link').textContent.includes('up')", timeout=30000)
-        page.wait_for_function("document.getElementById('status-age').textContent.includes('s old')")
-        assert "next status" in page.text_content("#next")
-        page.wait_for_function("document.getElementById('failsafe').textContent.includes('60 s')", timeout=30000)
-        assert "holds position" in page.text_content("#failsafe")
+        page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
+                               timeout=30000)
+        # The same page as the radio link's, with the 3-D scene embedded ...
+        assert page.evaluate("document.body.dataset.profile") == "acoustic"
+        scene = page.locator("#scene")
+        assert scene.is_visible() and ":" in (scene.get_attribute("src") or "")
+        assert "acoustic" in page.text_content("#link-version")
+        # ... the status with its age and when the next one is due ...
+        page.wait_for_function("/s old, next status in/.test(document.getElementById('odometry-age').textContent)",
+                               timeout=30000)
+        # ... and what the link cannot carry left out: no sticks, no "next picture".
+        assert not page.locator("#keys").is_visible() and not page.locator("#key-hint").is_visible()
+        assert not page.locator("#next-image").is_visible()
 
-        # Arm: its fate comes back.
-        page.click("button[data-order=arm]")
-        page.wait_for_selector("#orders tr[data-state=done]", timeout=60000)
-        page.wait_for_function("[...document.querySelectorAll('#status th')].some(th => th.nextSibling"
-                               " && th.nextSibling.textContent === 'ARMED')", timeout=30000)
+        page.click("#take")
+        page.wait_for_function("document.getElementById('control-text').textContent.includes('You have control')")
+        # Held keys send nothing on this link (the page does not stream a wish it cannot carry).
+        page.keyboard.down("KeyW")
+        time.sleep(1.0)
+        page.keyboard.up("KeyW")
+        assert get(base + "/api/state")["velocity_wish"] == {"vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}
 
-        # A go-to, previewed before it is sent: the page draws the target, nothing moves.
-        start = get(base + "/api/state")["status"]
-        page.fill("#gx", str(start["x_m"] + 2.0))
-        page.fill("#gy", str(start["y_m"]))
-        page.fill("#gz", str(start["depth_m"]))
-        page.wait_for_function("document.getElementById('goto-preview').textContent.includes('m away')")
-        assert "2.0 m away" in page.text_content("#goto-preview")
+        # Arm: its fate comes back beside the button.
+        page.click("#arm")
+        page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=60000)
+
+        # A go-to, previewed before it is sent: the scene shows the target and its path, nothing moves.
+        start = get(base + "/api/pose")["received"]
+        for field, value in (("x", start["x_m"] + 2.0), ("y", start["y_m"]), ("z", start["z_m"]), ("yaw", 0)):
+            page.fill(f"#goto-{field}", f"{value:.1f}")
+        page.click("#goto-preview")
+        page.wait_for_function("!document.getElementById('goto-plan').hidden", timeout=10000)
+        assert order(base, "POSITION") is None  # previewed, not sent
         time.sleep(2.0)
-        assert abs(get(base + "/api/state")["status"]["x_m"] - start["x_m"]) < 0.3  # previewed, not sent
-        page.click("#send-goto")
-        page.wait_for_function("[...document.querySelectorAll('#orders tr')].some(r => r.textContent.includes('go to')"
-                               " && r.dataset.state === 'done')", timeout=90000)
-        flown = get(base + "/api/state")["status"]
-        assert abs(flown["x_m"] - (start["x_m"] + 2.0)) < 0.5, flown
+        assert abs(get(base + "/api/pose")["received"]["x_m"] - start["x_m"]) < 0.3
+        page.click("#goto-go")
+        page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=90000)
+        flown = get(base + "/api/pose")["received"]
+        assert abs(flown["x_m"] - (start["x_m"] + 2.0)) < 0.6, flown
         first_goto = radio.goto_frame()  # what a hostile radio recorded of it
 
-        # STOP: sent first, confirmed by the ROV.
-        page.click("#stop")
-        page.wait_for_function("document.getElementById('stop-fate').dataset.state === 'confirmed'", timeout=60000)
-        held = get(base + "/api/state")["status"]
-        assert held["hold"] and held["mode"] in ("POS_HOLD", "DEPTH_HOLD")
+        # A second page: refused an order while the first holds control; its STOP is taken.
+        second = browser.new_page(viewport={"width": 1366, "height": 768})
+        second.goto(base + "/")
+        second.wait_for_function("document.body.dataset.clientId !== undefined", timeout=30000)
+        status = second.evaluate("""async () => (await fetch('/api/orders/arm', {method: 'POST',
+            headers: {'Content-Type': 'application/json', 'X-Rovlink-Client': document.body.dataset.clientId},
+            body: JSON.stringify({armed: false})})).status""")
+        assert status == 409
+        second.click("#stop")
+        assert wait_for(lambda: (order(base, "STOP") or {}).get("state", "").startswith("acknowledged"), 60), \
+            get(base + "/api/orders")
+        held = get(base + "/api/pose")
+        assert held["hold"] and held["armed"]  # the arm was not undone by the second page
+        # Both pages show the STOP's fate.
+        for pg in (page, second):
+            pg.wait_for_function("document.getElementById('orders').textContent.includes('STOP')", timeout=10000)
 
         # A thumbnail refines, then is verified; the picture decodes.
-        page.click("#send-thumb")
-        page.wait_for_function("document.getElementById('thumb-state').dataset.verified === 'true'", timeout=120000)
-        png = get(base + "/api/thumbnail.png")
-        assert png[:8] == b"\x89PNG\r\n\x1a\n"
-        import io
-
+        page.fill("#budget", "150")
+        page.click("#apply-image")
+        page.wait_for_function("document.getElementById('image-decoded').textContent.includes('verified')"
+                               " && !document.getElementById('image-decoded').textContent.includes('UNVERIFIED')",
+                               timeout=150000)
+        png = get(base + "/api/image/latest.png")
         from PIL import Image
 
         picture = np.asarray(Image.open(io.BytesIO(png)))
-        assert picture.shape[:2] == (240, 320) and picture.std() > 1.0  # a picture, not a blank
+        assert picture.shape[:2] == (60, 80) and picture.std() > 1.0  # a picture, not a blank
         browser.close()
 
     # Back where it started, by a go-to of the API's (the same path as the page's) ...
-    post(base + "/api/goto", {"x_m": start["x_m"], "y_m": start["y_m"], "z_m": start["depth_m"]})
-    assert wait_for(lambda: [o for o in get(base + "/api/state")["orders"]
-                             if o["text"].startswith("go to") and o["state"] == "done"][1:], 90)
+    me = post(base + "/api/control/take", {"name": "script"})["client_id"]
+    post(base + "/api/orders/position", {"x_m": start["x_m"], "y_m": start["y_m"], "z_m": start["z_m"]},
+         headers={"X-Rovlink-Client": me})
+    assert wait_for(lambda: (order(base, "POSITION") or {}).get("state") == "arrived"
+                    and len([o for o in get(base + "/api/orders") if o["kind"] == "POSITION"]) == 2, 90)
     # ... then a hostile radio replays the first go-to's packets: refused, the vehicle stays.
     assert len(first_goto) == 2
     time.sleep(3.0)  # settled on the target
@@ -123,40 +159,67 @@ def test_a_pilot_supervises_the_rov_through_the_acoustic_page(acoustic):
     time.sleep(8.0)
     after = get(base + "/api/state")
     # Taken, it would fly 2 m north again: it stays where it was (the autopilot's last centimetres aside).
-    assert abs(after["status"]["x_m"] - start["x_m"]) < 0.6 and after["status"]["x_m"] < before["status"]["x_m"] + 0.3
-    assert not after["status"]["going"]
+    x_after, x_before = after["pose"]["received"]["x_m"], before["pose"]["received"]["x_m"]
+    assert abs(x_after - start["x_m"]) < 0.6 and x_after < x_before + 0.3
+    assert not after["pose"]["going"]
     assert [o["state"] for o in after["orders"]] == [o["state"] for o in before["orders"]]
     assert after["link"]["state"] == "up"
     assert rov.poll() is None and console.poll() is None
+    post(base + "/api/control/release", {}, headers={"X-Rovlink-Client": me})  # the next pilot may take it
 
 
-def test_a_ground_station_sees_the_status_and_stops_the_rov_over_the_acoustic_link(acoustic):
-    """QGroundControl's part, with pymavlink: the HEARTBEAT says what the last status
-    said, MANUAL_CONTROL moves nothing (no sticks at 64 bit/s), and DO_PAUSE_CONTINUE
-    is the STOP, answered ACCEPTED once the ROV confirms it."""
+def test_a_ground_station_sees_the_acoustic_vehicle_and_its_go_to_and_stops_it(acoustic):
+    """QGroundControl's part, with pymavlink: the HEARTBEAT says the mode and arming
+    the last status said, LOCAL_POSITION_NED its position; a go-to (a position
+    target) is answered with its outcome; MANUAL_CONTROL moves nothing (no sticks at
+    64 bit/s); DO_PAUSE_CONTINUE is the STOP, ACCEPTED once the ROV confirms it."""
     from pymavlink import mavutil
 
+    from rovlink.link.messages import Mode
+    from rovlink.rov.ardusub import PROTOCOL_TO_SUB
+
+    m = mavutil.mavlink
     base, _, _, _, gcs_port = acoustic
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", dialect="ardupilotmega", source_system=255)
     try:
         hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30)
-        assert hb is not None and hb.type == mavutil.mavlink.MAV_TYPE_SUBMARINE
-        armed = bool(hb.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-        assert armed == get(base + "/api/state")["status"]["armed"]
-        before = get(base + "/api/state")["status"]
+        assert hb is not None and hb.type == m.MAV_TYPE_SUBMARINE
+        pose = get(base + "/api/pose")
+        assert bool(hb.base_mode & m.MAV_MODE_FLAG_SAFETY_ARMED) == pose["armed"]
+        assert hb.custom_mode == int(PROTOCOL_TO_SUB[Mode[pose["mode"]]])
+        local = gcs.recv_match(type="LOCAL_POSITION_NED", blocking=True, timeout=30)
+        assert local is not None
+        assert abs(local.x - pose["received"]["x_m"]) < 0.3 and abs(local.z - pose["received"]["z_m"]) < 0.3
+
+        # A go-to from the ground station: its outcome comes back as STATUSTEXT.
+        target_x = pose["received"]["x_m"] + 1.5
+        gcs.mav.set_position_target_local_ned_send(0, 1, 1, m.MAV_FRAME_LOCAL_NED, 0b0000111111111000, target_x,
+                                                   pose["received"]["y_m"], pose["received"]["z_m"],
+                                                   0, 0, 0, 0, 0, 0, 0, 0)
+        texts = []
+        end = time.monotonic() + 120
+        while time.monotonic() < end and not any("arrived" in t for t in texts):
+            msg = gcs.recv_match(type="STATUSTEXT", blocking=True, timeout=2)
+            if msg is not None:
+                texts.append(msg.text)
+        assert any("go-to" in t and "arrived" in t for t in texts), texts
+        hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=10)
+        assert hb.custom_mode == int(PROTOCOL_TO_SUB[Mode.GUIDED])
+
+        before = get(base + "/api/pose")["received"]
         for _ in range(20):
             gcs.mav.manual_control_send(1, 1000, 0, 500, 0, 0)
             time.sleep(0.1)
-        gcs.mav.command_long_send(1, 1, mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE, 0, 0, 0, 0, 0, 0, 0, 0)
+        gcs.mav.command_long_send(1, 1, m.MAV_CMD_DO_PAUSE_CONTINUE, 0, 0, 0, 0, 0, 0, 0, 0)
         results = []
         end = time.monotonic() + 60
-        while time.monotonic() < end and mavutil.mavlink.MAV_RESULT_ACCEPTED not in results:
+        while time.monotonic() < end and m.MAV_RESULT_ACCEPTED not in results:
             ack = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=2)
-            if ack is not None and ack.command == mavutil.mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
+            if ack is not None and ack.command == m.MAV_CMD_DO_PAUSE_CONTINUE:
                 results.append(ack.result)
-        assert results[0] == mavutil.mavlink.MAV_RESULT_IN_PROGRESS and results[-1] == mavutil.mavlink.MAV_RESULT_ACCEPTED
-        after = get(base + "/api/state")
-        assert after["stop"]["state"] == "confirmed"
-        assert abs(after["status"]["x_m"] - before["x_m"]) < 0.6  # the stick stream moved nothing
+        assert results[0] == m.MAV_RESULT_IN_PROGRESS and results[-1] == m.MAV_RESULT_ACCEPTED, results
+        assert order(base, "STOP")["state"].startswith("acknowledged")
+        after = get(base + "/api/pose")["received"]
+        assert abs(after["x_m"] - before["x_m"]) < 0.6  # the stick stream moved nothing
     finally:
         gcs.close()

@@ -202,7 +202,29 @@ function setupControls(config) {
   $("goto-x").value = t.x_m; $("goto-y").value = t.y_m; $("goto-z").value = t.z_m; $("goto-yaw").value = t.yaw_deg;
   $("shift").max = config.limits.shift[1];
   $("budget").max = config.limits.budget_bytes[1];
+  applyCapabilities(config.capabilities || {});
   document.body.dataset.configured = "1";
+}
+
+// What the link carries (GET /api/config capabilities): on the acoustic link there are
+// no sticks and no "next picture", and pictures are thumbnails asked for one at a time.
+// What it cannot do is left out of the page, never shown to fail.
+function applyCapabilities(caps) {
+  page.noSticks = caps.velocity === false;
+  document.body.dataset.profile = caps.profile || "radio";
+  if (page.noSticks) {
+    for (const id of ["keys", "key-hint"]) $(id).style.display = "none";
+    $("wish").closest("tr").hidden = true;
+  }
+  if (caps.next_image === false) $("next-image").hidden = true;
+  if (caps.picture === "thumbnail") {
+    $("mono").closest("label").hidden = true;
+    $("apply-image").textContent = "Ask for a thumbnail";
+    $("apply-image").title = "the ROV sends one 80x60 grey thumbnail, coded at this budget (and ROI, if you dragged one)";
+    $("image-settings").querySelector("h2").textContent = "Thumbnail";
+    $("budget").value = Math.min(+$("budget").value, caps.image_budget_max || 198, 198);
+    $("budget").step = 10;
+  }
 }
 
 function setHolder(holder) {
@@ -259,7 +281,7 @@ function isNeutral(v) { return v.vx === 0 && v.vy === 0 && v.vz === 0 && v.vyaw 
 function same(a, b) { return a.vx === b.vx && a.vy === b.vy && a.vz === b.vz && a.vyaw === b.vyaw; }
 
 function sendVelocity(force) {
-  if (!page.holder) return;
+  if (!page.holder || page.noSticks) return;
   const v = wish();
   // Repeat while off neutral (the dead man); neutral once, on the change.
   if (!isNeutral(v) || !same(v, page.lastSent) || force) {
@@ -356,6 +378,7 @@ function render(s) {
   $("pose-predicted").textContent = poseText(pose.predicted) +
     (pose.uncertainty_m !== null && pose.uncertainty_m !== undefined && pose.uncertainty_m >= 0.5
       ? ` ± ${fmt(pose.uncertainty_m, 1)} m` : "");
+
   $("pose-table").classList.toggle("stale", lost);
   $("image-frame").classList.toggle("stale", lost);
   $("image-done-frame").classList.toggle("stale", lost);
@@ -381,8 +404,9 @@ function render(s) {
   $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
   $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
   $("link-crc").textContent = `${l.crc_errors}`;
-  const secure = l.version === "2";
-  $("link-version").textContent = secure ? "2, authenticated" : "1.1, INSECURE (no key)";
+  const secure = l.version === "2" || l.version === "acoustic";
+  $("link-version").textContent = l.version === "acoustic" ? "acoustic (Modem-M64), authenticated"
+    : secure ? "2, authenticated" : "1.1, INSECURE (no key)";
   $("link-version").classList.toggle("insecure", !secure);
   $("link-auth").textContent = `${l.inauthentic_frames ?? 0} / ${l.late_replies ?? 0}`;
   if (l.auth_alert && !page.authAlert) showError("ALERT: frames fail authentication and no reply comes (another key or operator, a forger, or heavy noise)");
@@ -446,16 +470,19 @@ function renderInstruments(s) {
     el.classList.toggle("invalid", !ok);
     el.dataset.valid = ok && !lost ? "1" : "0";
   };
-  mark("inst-attitude", attOk);
+  // An acoustic status carries a heading, no roll or pitch (tilt_valid false): not shown as measured.
+  const tiltOk = attOk && pose.tilt_valid !== false;
+  mark("inst-attitude", tiltOk);
   mark("inst-heading", attOk);
   mark("inst-depth", posOk);
   const I = window.rovInstruments;
   if (I) {
-    I.attitude($("attitude-indicator"), attOk ? r.roll_deg : null, attOk ? r.pitch_deg : null, attOk && !lost);
+    I.attitude($("attitude-indicator"), tiltOk ? r.roll_deg : null, tiltOk ? r.pitch_deg : null, tiltOk && !lost);
     I.heading($("heading-tape"), attOk ? r.yaw_deg : null, target ? target.yaw_deg : null, attOk && !lost);
     I.depth($("depth-tape"), posOk ? r.z_m : null, target ? target.z_m : null, posOk && !lost);
   }
-  $("attitude-text").textContent = attOk ? `roll ${fmt(r.roll_deg, 0)}° pitch ${fmt(r.pitch_deg, 0)}°` : "roll — pitch —";
+  $("attitude-text").textContent = tiltOk ? `roll ${fmt(r.roll_deg, 0)}° pitch ${fmt(r.pitch_deg, 0)}°`
+    : attOk ? "roll — pitch — (not reported on this link)" : "roll — pitch —";
   $("heading-text").textContent = attOk ? `heading ${fmt((r.yaw_deg % 360 + 360) % 360, 0)}°` +
     (target ? `, target ${fmt((target.yaw_deg % 360 + 360) % 360, 0)}°` : "") : "heading —";
   $("depth-text").textContent = posOk ? `depth ${fmt(r.z_m, 1)} m` + (target ? `, target ${fmt(target.z_m, 1)}` : "")
@@ -470,8 +497,10 @@ function renderInstruments(s) {
   for (const id of ["speed-forward", "speed-right", "speed-vertical", "speed-yaw"]) {
     $(id).classList.toggle("stale", !!r && lost);
   }
+  // The acoustic link's status comes every few seconds: its age, and when the next is due.
   $("odometry-age").textContent = pose.odometry_age_s === null || pose.odometry_age_s === undefined ? "—"
-    : `${fmt(pose.odometry_age_s, 1)} s old`;
+    : `${fmt(pose.odometry_age_s, 1)} s old` + (pose.next_report_in_s === null || pose.next_report_in_s === undefined
+      ? "" : `, next status in ${fmt(pose.next_report_in_s, 0)} s`);
 }
 
 // ---------------------------------------------------------------------------
@@ -551,7 +580,7 @@ const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITI
 
 function fateClass(state) {
   if (/^(queued|requested|sent)/.test(state)) return "pending";
-  if (/^(acknowledged|followed|arrived)/.test(state)) return "done";
+  if (/^(acknowledged|followed|arrived|done)/.test(state)) return "done";
   if (/^(rejected|refused|not carried out|unknown)/.test(state)) return "bad";
   return "";  // cancelled, aborted: ended by someone's choice
 }
@@ -562,7 +591,13 @@ function renderFate(o) {
   const what = { ARM: "arm", DISARM: "disarm", MODE: `mode ${o.mode}`, POSITION: `go-to #${o.id}`,
                  IMAGE: `image settings #${o.id}` }[o.kind];
   let text = `${what}: ${o.state}${distanceLeft(o)} ${orderClock(o)}`;
-  if (o.kind === "IMAGE" && o.state === "acknowledged") text = `${what}: in force from the next picture ${orderClock(o)}`;
+  const thumbnail = document.body.dataset.profile === "acoustic";
+  if (o.kind === "IMAGE" && thumbnail) {
+    text = `thumbnail #${o.id}: ` + ({ acknowledged: "taken by the ROV, its packets coming", done: "received" }[o.state]
+      || o.state) + ` ${orderClock(o)}`;
+  } else if (o.kind === "IMAGE" && o.state === "acknowledged") {
+    text = `${what}: in force from the next picture ${orderClock(o)}`;
+  }
   // In the top bar, short: the whole state is in its tooltip.
   const pending = /^(requested|sent)/.test(o.state);
   if (o.kind === "ARM" || o.kind === "DISARM") {
@@ -903,7 +938,9 @@ function showImage(im) {
     img.dataset.img = imgNo;
     img.dataset.decodedBytes = bytes;
     // Which picture it is: the next one's first bytes may not be decoded yet.
-    $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes`;
+    $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes` +
+      (im.verified === false ? " (UNVERIFIED: its MAC has not held yet)" : im.verified ? ", verified" : "");
+    $("image-frame").classList.toggle("unverified", im.verified === false);
     drawRoi();
     renderRoiStatus();
     done();
