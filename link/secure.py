@@ -134,6 +134,19 @@ def poll_sent_from_frame(frame: bytes, at: float, *, version: str, poll: bytes |
         return None
 
 
+def parse_reply(payload: bytes, poll11: bytes | None, reference: Pose | None) -> tuple[bytes, tuple[int, int], Pose]:
+    """A timely reply's version 1.1 payload (a SYNC's when `poll11` is None), and
+    what it leaves for the next poll (§8.1).  Every structural fault (§1) raises
+    ProtocolError here, before the chain moves: a reply the master would refuse
+    is never chained to."""
+    if poll11 is None:
+        Reply.decode(payload, allow_sync=True)
+        return payload, NO_CONTINUATION, pose_of(payload)
+    reply, pose = reply_from_wire(payload, request_of(poll11), reference)
+    Reply.decode(reply)
+    return reply, continuation_of(reply, poll11), pose
+
+
 @dataclass(frozen=True)
 class InauthenticFrame:
     """A frame whose CRC held but whose tag no kept chain value makes (counted, dropped)."""
@@ -388,15 +401,12 @@ class SecureMaster:
     # -- receiving ---------------------------------------------------------
 
     def _parse(self, payload: bytes, sync: bool, answers: int) -> tuple[bytes, tuple[int, int], Pose]:
-        """A timely reply's version 1.1 payload, and what it leaves for the next poll (§8.1)."""
         if sync:
-            return payload, NO_CONTINUATION, pose_of(payload)
+            return parse_reply(payload, None, None)
         sent = self._sent.get(answers)
         if sent is None:
             raise ProtocolError("a reply to a poll no longer kept")
-        poll, reference = sent
-        reply, pose = reply_from_wire(payload, request_of(poll), reference)
-        return reply, continuation_of(reply, poll), pose
+        return parse_reply(payload, *sent)
 
     def receive_bytes(self, data: bytes, now: float) -> list[object]:
         self.master.stats.bytes_received += len(data)
