@@ -323,9 +323,10 @@ def _by_hand():
     return master, slave
 
 
-def _cycle(master, slave, t, tamper=None, deliver=True):
+def _cycle(master, slave, t, tamper=None, deliver=True, rov_events=None):
     """One poll and its reply; `tamper` rewrites the reply's version 2 payload before
-    the ROV seals it (an authentic reply with a fault); the master's events."""
+    the ROV seals it (an authentic reply with a fault); the master's events (the
+    slave's go to `rov_events`)."""
     poll = master.next_poll(t)
     assert poll is not None
     real = slave.chain.seal_reply
@@ -335,6 +336,8 @@ def _cycle(master, slave, t, tamper=None, deliver=True):
         out = slave.receive_bytes(poll, t + 0.1)
     finally:
         slave.chain.seal_reply = real
+    if rov_events is not None:
+        rov_events.extend(out.events)
     return master.receive_bytes(out.reply, t + 0.2) if deliver else []
 
 
@@ -394,3 +397,35 @@ def test_a_reply_with_a_structural_fault_is_counted_ignored_and_never_chained_to
     # The next poll is made on the reply before, and the link goes on.
     events = _cycle(master, slave, t + 2.0)
     assert any(isinstance(e, PoseReceived) for e in events)
+
+
+def test_a_departed_pilots_wish_is_never_repeated_for_nobody_after_a_lost_reply():
+    """§5 (decided, version 2): nobody's neutral never goes as a NONE that repeats the
+    wish of the reply it is chained to: the vehicle a departed pilot was driving stops,
+    and stays stopped while replies are lost."""
+    from rovlink.link.messages import Velocity
+    from rovlink.link.slave import VelocityCommanded
+
+    master, slave = _by_hand()
+    _cycle(master, slave, 0.0)  # HELLO and SYNC: the ROV holds (its start)
+    master.set_pilot_in_force(True)
+    master.set_velocity(0, 0, 0, 0, 0.5)
+    master.recentred()
+    t = 0.5
+    for _ in range(3):  # the pilot re-centres, then drives
+        _cycle(master, slave, t)
+        master.set_velocity(60, 0, 0, 0, t)
+        t += 0.5
+    for _ in range(3):
+        _cycle(master, slave, t)
+        t += 0.5
+    assert not master.master.last_reply.hold
+    master.set_pilot_in_force(False)  # the pilot leaves: the console sets nobody's neutral
+    master.set_velocity(0, 0, 0, 0, t)
+    rov: list = []
+    _cycle(master, slave, t, deliver=False, rov_events=rov)  # four zero axes reach the ROV; their reply is lost
+    for k in range(4):  # each poll made on the reply to the last wish of the pilot, its reply lost too
+        _cycle(master, slave, t + 0.8 * (k + 1), deliver=False, rov_events=rov)
+    assert not any(isinstance(e, FailsafeEntered) for e in rov)
+    commanded = [e.velocity for e in rov if isinstance(e, VelocityCommanded)]
+    assert len(commanded) == 5 and all(v == Velocity() for v in commanded)
