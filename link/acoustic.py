@@ -448,6 +448,7 @@ class Counters:
     thumbnail_mismatches: int = 0
     statuses_same: int = 0  # STATUS_SAME sent (ROV) or taken (operator)
     same_unmatched: int = 0  # a STATUS_SAME naming a full STATUS the operator does not hold
+    fulls_flushed: int = 0  # (ROV) full STATUSes a flush may have cut short: never named by a STATUS_SAME
     orders_taken: int = 0
     orders_stale: int = 0  # not 1..127 ahead of the last OID (repeats among them)
     stops_taken: int = 0
@@ -709,6 +710,9 @@ class AcousticRov(_End):
         self._status_at = -1e9  # when the last STATUS's first packet was handed
         self.status_sent: dict[int, float] = {}  # CTR -> when made (the last 64), for diagnostics and the bench
         self._fulls: dict[int, bytes] = {}  # full STATUSes sealed lately: CTR -> BODY
+        # The full STATUS whose packets were the last handed: until another packet is
+        # handed (the modem's queue was then empty) one of them may still wait there.
+        self._full_leaving: int | None = None
         self._operator_holds: tuple[int, float] | None = None  # the last POLL's HELD (with HAVE_STATUS), when taken
         self.thumb: _Thumb | None = None
         self._events: list = []
@@ -794,6 +798,7 @@ class AcousticRov(_End):
         self._new_session(challenge + self.boot + nonce)
         self.status_sent = {}  # counters start again
         self._fulls = {}
+        self._full_leaving = None
         self._operator_holds = None
         self._sync_due = SyncBody(self.boot, nonce, self.failsafe_s, self.failsafe_action)
         self._sync_taken = False  # repeated in every slot until a frame of the session is taken
@@ -842,6 +847,11 @@ class AcousticRov(_End):
         if self._last_handed != "sync":
             self._out = []
             self.wants_flush = True
+            if self._full_leaving is not None:
+                # §9.4 (decided): a STATUS_SAME never names a STATUS whose packets did not all leave.
+                self._fulls.pop(self._full_leaving, None)
+                self._full_leaving = None
+                self.counters.fulls_flushed += 1
 
     def _abort_motion(self) -> None:
         if self.result == R_TAKEN and self._last_op in (*MOTION_OPS, UP_GOTO):
@@ -913,6 +923,7 @@ class AcousticRov(_End):
         self.wants_flush = False
         if self._out:
             return self._out.pop(0)
+        self._full_leaving = None  # the queue is empty: the last frame handed has left
         if self._sync_due is not None and not self._sync_taken:
             return self._emit_frame(seal_sync(self.key, self.challenge, self._sync_due), "sync")
         if self.session is None:
@@ -940,6 +951,7 @@ class AcousticRov(_End):
         else:
             ctr, packets = self._seal(DOWN_STATUS, body)
             self._fulls[ctr] = body
+            self._full_leaving = ctr
         self.status_sent[ctr] = now
         if len(self.status_sent) > 64:
             del self.status_sent[min(self.status_sent)]

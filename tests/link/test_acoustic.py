@@ -3,6 +3,7 @@ ends, and sessions over the emulated Modem-M64 in simulated time."""
 
 from __future__ import annotations
 
+import random
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -559,3 +560,27 @@ def test_a_thumbnail_packet_past_the_polls_bitmap_is_not_sent_again_until_the_bi
     rov.receive(_up(2, ac.UP_POLL, ac.Poll(0, 21, False, bitmap).encode()), now + 20)
     again = [p[0] & 63 for p in (rov.next_packet(now + 20 + k) for k in range(10)) if p[0] & 0x80]
     assert again == [21, 25]
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_at_no_loss_the_status_shown_is_never_older_than_10_s_also_when_orders_cut_a_status_short(seed):
+    """§9.4, §9.5 (issue 33): orders arriving while a full STATUS is in the air make the
+    ROV flush its second packet; a STATUS_SAME never names that STATUS, so the operator
+    never drops the statuses it holds and the status it shows stays fresh."""
+    sim = _synced(seed=seed)
+    rng = random.Random(seed)
+    shown: list[float] = []  # when the newest STATUS taken was made, as the operator dates it
+    sim.on_operator_event = lambda e, t: shown.append(e.at) if isinstance(e, ac.StatusReceived) else None
+    end, next_order, k, oldest = sim.now + 600, sim.now + 3, 0, 0.0
+    while sim.now < end:  # the vehicle still (its thumbnail already there), orders now and then
+        sim.run_until(min(next_order, sim.now + 0.5))
+        if sim.now >= next_order:
+            next_order = sim.now + rng.uniform(3, 12)
+            if sim.operator.sending_oid is None and not sim.operator.orders_waiting:
+                k += 1
+                sim.order(ac.Order(0, ac.OP_ARM if k % 2 else ac.OP_HOLD))
+        if shown:
+            oldest = max(oldest, sim.now - shown[-1])
+    assert k > 50 and sim.rov.counters.fulls_flushed > 5  # it happened, many times
+    assert oldest <= 10.0
+    assert sim.rov.counters.statuses_same > 300 and sim.operator.counters.same_unmatched == 0
