@@ -122,6 +122,8 @@ IN_FLIGHT_S = 4.5  # a data packet handed this long before a POLL arrived is ref
 STATUS_TRANSIT_S = 3.0  # the operator dates a STATUS this long before its arrival
 SAME_TRANSIT_S = 2.5  # ... and a STATUS_SAME (one packet) this long
 KEEP_HELLOS = 4
+BRAKE_SHOWN_S = 1.5  # a STATUS after a STOP or the failsafe waits this long at most for the brake to show
+HOLD_MODES = (Mode.POS_HOLD, Mode.DEPTH_HOLD)
 CHALLENGES_SEEN = 4096
 SLOT_CANDIDATES = 3
 MAX_COMBINATIONS = 64
@@ -702,8 +704,10 @@ class AcousticRov(_End):
         self.hold = True  # braked at start
         self.failsafe = False
         self._failsafe_unreported = False
-        self._heard_at: float | None = None  # last authentic frame of a session taken
-        self._heard_at_start = 0.0
+        self._heard_at: float | None = None  # last authentic frame of a session taken: the failsafe's timer
+        # A STOP or the failsafe braked at this time: its STATUS waits for the vehicle
+        # to report one of these modes (or BRAKE_SHOWN_S), so that it tells the brake.
+        self._brake_asked: tuple[float, tuple[int, ...]] | None = None
         self._session_at: float | None = None
         self._started = False
         self._status_asap = False
@@ -743,7 +747,7 @@ class AcousticRov(_End):
             heading_cdeg=int(round(v.heading_deg * 100)) % 36000,
             armed=v.armed, hold=self.hold, failsafe=self.failsafe or self._failsafe_unreported,
             position_valid=v.position_valid, attitude_valid=v.attitude_valid, autopilot=v.autopilot,
-            going=v.going, uplink=uplink, mode=int(v.mode) & 7, result=self.result, stop_no2=self.last_stop_no & 3,
+            going=v.going and not self.hold, uplink=uplink, mode=int(v.mode) & 7, result=self.result, stop_no2=self.last_stop_no & 3,
             battery_dv=max(0, min(255, int(round(v.battery_v * 10)))), oid=self.last_oid)
 
     # -- time ------------------------------------------------------------------
@@ -752,25 +756,24 @@ class AcousticRov(_End):
         events = self._drain()
         if not self._started:
             self._started = True
-            self._heard_at_start = now
             events.append(Stop(None))
-        last = self._heard_at if self._heard_at is not None else self._heard_at_start
-        if not self.failsafe and now - last >= self.failsafe_s:
+        # §9.4 (decided): no failsafe before a session's first frame: the start's brake holds.
+        if not self.failsafe and self._heard_at is not None and now - self._heard_at >= self.failsafe_s:
             self.failsafe = True
             self._failsafe_unreported = True
             self.hold = True
             self._abort_motion()
             self.counters.failsafes += 1
             self._prompt()
+            self._brake_asked = (now, (Mode.SURFACE,) if self.failsafe_action == FAILSAFE_SURFACE else HOLD_MODES)
             events.append(FailsafeEntered(self.failsafe_action))
         return events
 
     @property
     def failsafe_at(self) -> float | None:
-        if self.failsafe or not self._started:
+        if self.failsafe or self._heard_at is None:
             return None
-        last = self._heard_at if self._heard_at is not None else self._heard_at_start
-        return last + self.failsafe_s
+        return self._heard_at + self.failsafe_s
 
     def _drain(self) -> list:
         events, self._events = self._events, []
@@ -836,6 +839,7 @@ class AcousticRov(_End):
             self._abort_motion()
         if new:
             self._prompt()  # the confirming STATUS goes first
+            self._brake_asked = (now, HOLD_MODES)
         elif now - self._status_at >= STATUS_REPEAT_S:
             self._status_asap = True
         events.append(Stop(stop.stop_no, new))
@@ -926,7 +930,7 @@ class AcousticRov(_End):
         self._full_leaving = None  # the queue is empty: the last frame handed has left
         if self._sync_due is not None and not self._sync_taken:
             return self._emit_frame(seal_sync(self.key, self.challenge, self._sync_due), "sync")
-        if self.session is None:
+        if self.session is None or self._awaiting_brake(now):
             return None
         th = self.thumb
         sending = th is not None and th.obj is not None and not th.done
@@ -935,6 +939,19 @@ class AcousticRov(_End):
             if packet is not None:
                 return packet
         return self._status_packet(now)  # due, asked for, or a free slot (the turns pass anyway)
+
+    def _awaiting_brake(self, now: float) -> bool:
+        """Whether the STATUS due after a STOP or the failsafe waits (nothing is handed)
+        until the vehicle reports the brake's mode: a STATUS that still said GUIDED
+        would confirm no STOP, and the next comes a turn later."""
+        if self._brake_asked is None or not self._status_asap:
+            return False
+        at, modes = self._brake_asked
+        v = self.vehicle
+        if v.mode in modes or not v.autopilot or now - at >= BRAKE_SHOWN_S:
+            self._brake_asked = None
+            return False
+        return True
 
     def _status_packet(self, now: float) -> bytes:
         self._status_asap = False

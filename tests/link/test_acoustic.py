@@ -584,3 +584,69 @@ def test_at_no_loss_the_status_shown_is_never_older_than_10_s_also_when_orders_c
     assert k > 50 and sim.rov.counters.fulls_flushed > 5  # it happened, many times
     assert oldest <= 10.0
     assert sim.rov.counters.statuses_same > 300 and sim.operator.counters.same_unmatched == 0
+
+
+# -- §9 read one way (issue 33) ------------------------------------------------------
+
+
+def test_no_failsafe_before_the_first_frame_of_a_session():
+    rov = ac.AcousticRov(K, failsafe_s=12, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(STILL)
+    assert rov.tick(0.0) == [ac.Stop(None)]  # the start's brake holds it
+    assert rov.tick(100.0) == [] and rov.failsafe_at is None and not rov.status(100.0).failsafe
+    rov.receive(ac.seal_hello(K, CHALLENGE), 100.0)
+    assert rov.tick(130.0) == [] and not rov.status(130.0).failsafe  # a HELLO starts no timer
+    rov.receive(_up(0, ac.UP_POLL, ac.Poll().encode()), 131.0)  # the session's first frame
+    assert rov.failsafe_at == 143.0 and rov.tick(142.9) == []
+    assert [type(e) for e in rov.tick(143.0)] == [ac.FailsafeEntered]
+
+
+def test_the_first_status_of_a_rov_with_a_short_failsafe_time_shows_no_failsafe():
+    sim = _synced(seed=3, failsafe_s=5)  # a failsafe time shorter than the session takes to start
+    (_, first), *_ = sim.events(ac.StatusReceived)
+    assert first.status.hold and not first.status.failsafe
+    assert not sim.events(ac.FailsafeEntered, "rov")
+
+
+def _going(rov, now):
+    """A go-to taken and flown (GUIDED, GOING), its STATUS sent."""
+    for p in _chunks(_up(0, ac.UP_GOTO, ac.GoTo(1, 50, 0, 0, relative=True).encode())):
+        rov.receive(p, now)
+    rov.update_status(replace(STILL, mode=Mode.GUIDED, going=True))
+    _status_frame(rov, now)
+    assert rov.status(now).going and rov.status(now).mode == Mode.GUIDED
+
+
+def test_the_status_after_a_stop_waits_for_the_brake_to_show():
+    rov = _rov_in_session()
+    _going(rov, 2.0)
+    rov.receive(_up(1, ac.UP_STOP, ac.StopBody(1, 1).encode()), 3.0)
+    assert rov.next_packet(3.0) is None and rov.next_packet(4.0) is None  # the autopilot still says GUIDED
+    rov.update_status(replace(STILL, mode=Mode.POS_HOLD, going=True))  # the brake shows (GOING not yet refreshed)
+    kind, frame = _status_frame(rov, 4.2)
+    status = ac.Status.decode(frame[1:13])
+    assert kind == ac.DOWN_STATUS and status.mode == Mode.POS_HOLD and status.hold and not status.going
+    assert (status.stop_no2, status.result) == (1, ac.R_ABORTED)
+    # A brake that never shows: the STATUS goes after BRAKE_SHOWN_S and tells the truth.
+    rov.update_status(replace(STILL, mode=Mode.GUIDED))
+    rov.receive(_up(2, ac.UP_STOP, ac.StopBody(2, 1).encode()), 10.0)
+    assert rov.next_packet(10.0 + ac.BRAKE_SHOWN_S - 0.1) is None
+    kind, frame = _status_frame(rov, 10.0 + ac.BRAKE_SHOWN_S)
+    assert ac.Status.decode(frame[1:13]).mode == Mode.GUIDED
+
+
+@pytest.mark.parametrize("action,mode", [(ac.FAILSAFE_HOLD, Mode.POS_HOLD), (ac.FAILSAFE_SURFACE, Mode.SURFACE)])
+def test_the_status_reporting_a_failsafe_shows_the_brake_and_no_goto(action, mode):
+    rov = ac.AcousticRov(K, failsafe_s=20, failsafe_action=action, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(STILL)
+    rov.tick(0.0)
+    rov.receive(ac.seal_hello(K, CHALLENGE), 0.0)
+    rov.next_packet(0.0), rov.next_packet(1.0)
+    _going(rov, 2.0)
+    assert [type(e) for e in rov.tick(22.0)] == [ac.FailsafeEntered]
+    assert rov.next_packet(22.0) is None  # GUIDED still: the STATUS waits
+    rov.update_status(replace(STILL, mode=mode, going=True))
+    kind, frame = _status_frame(rov, 22.5)
+    status = ac.Status.decode(frame[1:13])
+    assert (status.failsafe, status.hold, status.going, status.mode, status.result) == (
+        True, True, False, mode, ac.R_ABORTED)
