@@ -440,7 +440,7 @@ class Counters:
     all_zero: int = 0
     bad_kind: int = 0  # a KIND this direction does not use, or data in the uplink
     inauthentic: int = 0  # no counter in the window (or no session) makes its tag hold
-    unpaired: int = 0  # a first half whose pair failed (its second half lost, or noise)
+    unpaired: int = 0  # a first half whose pair failed (its second half lost, or noise): inauthentic too
     hellos: int = 0
     replayed_hellos: int = 0
     stale_syncs: int = 0
@@ -521,6 +521,7 @@ class _End:
             if self._open(first + packet, now, events):
                 return events
             self.counters.unpaired += 1
+            self._inauthentic(now, events)  # §9.1 (decided): a first half dropped is an inauthentic packet
         if packet[0] & 0x80:
             self._data(packet, now, events)
             return events

@@ -650,3 +650,23 @@ def test_the_status_reporting_a_failsafe_shows_the_brake_and_no_goto(action, mod
     status = ac.Status.decode(frame[1:13])
     assert (status.failsafe, status.hold, status.going, status.mode, status.result) == (
         True, True, False, mode, ac.R_ABORTED)
+
+
+def test_forged_first_halves_count_as_inauthentic_and_alert_like_one_packet_forgeries():
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    op.next_packet(0.0)
+    for i, p in enumerate(_chunks(b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, 0))))):
+        op.receive(p, 1.0 + i)
+    rng = random.Random(5)
+    alerts = []
+    for k in range(6):  # six forged first halves of a STATUS, one a second, nothing authentic since 2 s
+        events = op.receive(bytes([0x10 | k]) + rng.randbytes(7), 20.0 + k)
+        alerts += [e.alert for e in events if isinstance(e, ac.InauthenticPacket)]
+    assert op.counters.unpaired == 5 and op.counters.inauthentic == 5  # the sixth waits for its pair
+    assert alerts == [False, False, False, True, True]
+
+
+def test_the_poll_before_any_thumbnail_has_t_0_and_asks_for_nothing():
+    sim = _synced(seed=4)
+    polls = [ac.Poll.decode(p[1:5]) for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_POLL]
+    assert polls and all((p.t, p.lowest_missing, p.have_end, p.bitmap) == (0, ac.MAX_SLOTS, True, 0) for p in polls)
