@@ -207,7 +207,7 @@ class AcousticSession:
         if failsafe:
             action = "surfaces" if (self.synced or {}).get("failsafe_action") == "surface" else "holds position"
             self._note(f"ROV in FAILSAFE: it heard nothing from us for its failsafe time and {action}", "alert")
-        elif failsafe is False:
+        elif failsafe is False and was is not None:  # only a way out of a FAILSAFE it showed
             self._note("ROV out of FAILSAFE: it hears us again (HOLD stays until a new order)", "warn")
         hears = changed("uplink")
         if hears is False:
