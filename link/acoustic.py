@@ -1260,6 +1260,12 @@ class AcousticOperator(_End):
         self.wants_flush = False
         if self._out:
             return self._out.pop(0)
+        if self._last_handed == "hello":
+            # §9.2 (decided): a HELLO's 8 s count from when it left the modem (its queue is
+            # empty now), not from when it was handed: a modem that waits for its turn, or
+            # its start, would otherwise have the next HELLO cross the SYNC under way.
+            self._hello_at = now
+            self._last_handed = "hello left"
         if self.resyncing and (self._hello_at is None or now - self._hello_at >= self.hello_every_s):
             self._hello_at = now
             self._hello_no += 1

@@ -670,3 +670,17 @@ def test_the_poll_before_any_thumbnail_has_t_0_and_asks_for_nothing():
     sim = _synced(seed=4)
     polls = [ac.Poll.decode(p[1:5]) for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_POLL]
     assert polls and all((p.t, p.lowest_missing, p.have_end, p.bitmap) == (0, ac.MAX_SLOTS, True, 0) for p in polls)
+
+
+@pytest.mark.parametrize("latency_s", [1.5, 2.0, 2.5])
+def test_the_first_status_comes_without_a_second_hello_crossing_the_first_sync(latency_s):
+    """Modems that start 3 s after the programs and take up to 2.5 s from host to host:
+    the HELLO waits in the operator's modem, and its 8 s count from when it left."""
+    from rovlink.link.m64 import M64Params
+
+    sim = AcousticSim(K, seed=1, params=M64Params(latency_s=latency_s, sync_s=3.0))
+    sim.run_until(40.0)
+    hellos = [t for t, p in sim.handed["a"] if p[0] == 0]
+    (first, _), *_ = sim.events(ac.StatusReceived)
+    assert len(hellos) == 1 and len(sim.events(ac.Synced)) == 1
+    assert first <= 18.0  # was 22-24 s when the second HELLO crossed the first SYNC
