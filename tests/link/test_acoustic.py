@@ -57,6 +57,7 @@ def vectors() -> list[bytes]:
         _down(1, ac.DOWN_THUMB_END, ac.ThumbEnd(3, ac.object_mac(K, S, 3, OBJECT)).encode()),
         _down(17, ac.DOWN_STATUS, STATUS17.encode()),
         _down(18, ac.DOWN_STATUS_SAME, ac.same_body(17, STATUS18.encode())),
+        _up(0, ac.UP_POLL, ac.Poll().encode()),
     ]
 
 
@@ -684,3 +685,12 @@ def test_the_first_status_comes_without_a_second_hello_crossing_the_first_sync(l
     (first, _), *_ = sim.events(ac.StatusReceived)
     assert len(hellos) == 1 and len(sim.events(ac.Synced)) == 1
     assert first <= 18.0  # was 22-24 s when the second HELLO crossed the first SYNC
+
+
+def test_the_operators_first_poll_after_the_sync_is_the_vector():
+    v = [bytes.fromhex(r) for r in _doc_rows()]
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    assert op.next_packet(0.0) == v[0]
+    for i, p in enumerate(_chunks(v[1])):
+        op.receive(p, 5.0 + i)
+    assert op.next_packet(7.0) == v[12]  # no thumbnail asked for yet, no STATUS taken
