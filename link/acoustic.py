@@ -35,7 +35,8 @@ the new packet as a start (so a lost first half costs one frame, never two).
 
 Decisions where the brief was silent (all written into §9):
 - The operator's HELLO every 8 s until a SYNC (a HELLO/SYNC round takes up
-  to about 7 s on the M64); the ROV flushes its queue for a SYNC.
+  to about 7 s on the M64), counted from when it left the modem (issue 33:
+  a second HELLO crossed the first SYNC); the ROV flushes its queue for a SYNC.
 - FLAGS bit 0 of STATUS is UPLINK: the ROV took an authentic frame of this
   session within 10 s.  An operator that hears UPLINK 0 re-HELLOs: a gap of
   16 lost uplink frames cannot otherwise be noticed while the downlink works.
@@ -51,7 +52,12 @@ Decisions where the brief was silent (all written into §9):
   counter.
 - STATUS_SAME (issue 24): a STATUS whose position, heading and battery are
   those of a full STATUS the operator's POLL says it holds goes as one packet
-  naming it; the operator takes it only naming a full STATUS it kept.
+  naming it; the operator takes it only naming a full STATUS it kept.  The ROV
+  never names a full STATUS a flush may have cut short (issue 33).
+- Issue 33: no failsafe before a session's first frame (the start's brake
+  holds); after a new STOP or the failsafe the STATUS waits up to 1.5 s for the
+  vehicle to report the brake's mode, and GOING is never set beside HOLD; a
+  first half whose pair fails counts as an inauthentic packet.
 """
 
 from __future__ import annotations

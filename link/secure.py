@@ -29,6 +29,8 @@ Decisions where §8 is silent:
   no order and clears no ARM/MODE request (a reply to a poll does that).
 - The master's timeouts count the 5 (poll) and 4 (reply) bytes version 2
   adds: its margin grows by their air time.
+- Every structural fault of a reply (§1, §8.1) is found before the chain
+  moves (`parse_reply`): a reply the master would refuse is never chained to.
 """
 
 from __future__ import annotations
