@@ -429,3 +429,14 @@ def test_a_departed_pilots_wish_is_never_repeated_for_nobody_after_a_lost_reply(
     assert not any(isinstance(e, FailsafeEntered) for e in rov)
     commanded = [e.velocity for e in rov if isinstance(e, VelocityCommanded)]
     assert len(commanded) == 5 and all(v == Velocity() for v in commanded)
+
+
+def test_a_trunk_past_the_objects_last_byte_is_found_before_the_chain_moves():
+    from rovlink.link.messages import Poll, ProtocolError
+    from rovlink.link.secure import parse_reply
+
+    poll11 = Poll(img=1, offset=8189).encode()
+    wire = bytes.fromhex("01 b0") + bytes(12)
+    assert parse_reply(wire + b"ab", poll11, None)[1] == (1, 8191)  # bytes 8189 and 8190: the last
+    with pytest.raises(ProtocolError):
+        parse_reply(wire + b"abc", poll11, None)  # a third byte would be past 8190
