@@ -35,7 +35,8 @@ the new packet as a start (so a lost first half costs one frame, never two).
 
 Decisions where the brief was silent (all written into §9):
 - The operator's HELLO every 8 s until a SYNC (a HELLO/SYNC round takes up
-  to about 7 s on the M64); the ROV flushes its queue for a SYNC.
+  to about 7 s on the M64), counted from when it left the modem (issue 33:
+  a second HELLO crossed the first SYNC); the ROV flushes its queue for a SYNC.
 - FLAGS bit 0 of STATUS is UPLINK: the ROV took an authentic frame of this
   session within 10 s.  An operator that hears UPLINK 0 re-HELLOs: a gap of
   16 lost uplink frames cannot otherwise be noticed while the downlink works.
@@ -51,7 +52,12 @@ Decisions where the brief was silent (all written into §9):
   counter.
 - STATUS_SAME (issue 24): a STATUS whose position, heading and battery are
   those of a full STATUS the operator's POLL says it holds goes as one packet
-  naming it; the operator takes it only naming a full STATUS it kept.
+  naming it; the operator takes it only naming a full STATUS it kept.  The ROV
+  never names a full STATUS a flush may have cut short (issue 33).
+- Issue 33: no failsafe before a session's first frame (the start's brake
+  holds); after a new STOP or the failsafe the STATUS waits up to 1.5 s for the
+  vehicle to report the brake's mode, and GOING is never set beside HOLD; a
+  first half whose pair fails counts as an inauthentic packet.
 """
 
 from __future__ import annotations
@@ -122,6 +128,8 @@ IN_FLIGHT_S = 4.5  # a data packet handed this long before a POLL arrived is ref
 STATUS_TRANSIT_S = 3.0  # the operator dates a STATUS this long before its arrival
 SAME_TRANSIT_S = 2.5  # ... and a STATUS_SAME (one packet) this long
 KEEP_HELLOS = 4
+BRAKE_SHOWN_S = 1.5  # a STATUS after a STOP or the failsafe waits this long at most for the brake to show
+HOLD_MODES = (Mode.POS_HOLD, Mode.DEPTH_HOLD)
 CHALLENGES_SEEN = 4096
 SLOT_CANDIDATES = 3
 MAX_COMBINATIONS = 64
@@ -438,7 +446,7 @@ class Counters:
     all_zero: int = 0
     bad_kind: int = 0  # a KIND this direction does not use, or data in the uplink
     inauthentic: int = 0  # no counter in the window (or no session) makes its tag hold
-    unpaired: int = 0  # a first half whose pair failed (its second half lost, or noise)
+    unpaired: int = 0  # a first half whose pair failed (its second half lost, or noise): inauthentic too
     hellos: int = 0
     replayed_hellos: int = 0
     stale_syncs: int = 0
@@ -448,6 +456,7 @@ class Counters:
     thumbnail_mismatches: int = 0
     statuses_same: int = 0  # STATUS_SAME sent (ROV) or taken (operator)
     same_unmatched: int = 0  # a STATUS_SAME naming a full STATUS the operator does not hold
+    fulls_flushed: int = 0  # (ROV) full STATUSes a flush may have cut short: never named by a STATUS_SAME
     orders_taken: int = 0
     orders_stale: int = 0  # not 1..127 ahead of the last OID (repeats among them)
     stops_taken: int = 0
@@ -518,6 +527,7 @@ class _End:
             if self._open(first + packet, now, events):
                 return events
             self.counters.unpaired += 1
+            self._inauthentic(now, events)  # §9.1 (decided): a first half dropped is an inauthentic packet
         if packet[0] & 0x80:
             self._data(packet, now, events)
             return events
@@ -701,14 +711,19 @@ class AcousticRov(_End):
         self.hold = True  # braked at start
         self.failsafe = False
         self._failsafe_unreported = False
-        self._heard_at: float | None = None  # last authentic frame of a session taken
-        self._heard_at_start = 0.0
+        self._heard_at: float | None = None  # last authentic frame of a session taken: the failsafe's timer
+        # A STOP or the failsafe braked at this time: its STATUS waits for the vehicle
+        # to report one of these modes (or BRAKE_SHOWN_S), so that it tells the brake.
+        self._brake_asked: tuple[float, tuple[int, ...]] | None = None
         self._session_at: float | None = None
         self._started = False
         self._status_asap = False
         self._status_at = -1e9  # when the last STATUS's first packet was handed
         self.status_sent: dict[int, float] = {}  # CTR -> when made (the last 64), for diagnostics and the bench
         self._fulls: dict[int, bytes] = {}  # full STATUSes sealed lately: CTR -> BODY
+        # The full STATUS whose packets were the last handed: until another packet is
+        # handed (the modem's queue was then empty) one of them may still wait there.
+        self._full_leaving: int | None = None
         self._operator_holds: tuple[int, float] | None = None  # the last POLL's HELD (with HAVE_STATUS), when taken
         self.thumb: _Thumb | None = None
         self._events: list = []
@@ -739,7 +754,7 @@ class AcousticRov(_End):
             heading_cdeg=int(round(v.heading_deg * 100)) % 36000,
             armed=v.armed, hold=self.hold, failsafe=self.failsafe or self._failsafe_unreported,
             position_valid=v.position_valid, attitude_valid=v.attitude_valid, autopilot=v.autopilot,
-            going=v.going, uplink=uplink, mode=int(v.mode) & 7, result=self.result, stop_no2=self.last_stop_no & 3,
+            going=v.going and not self.hold, uplink=uplink, mode=int(v.mode) & 7, result=self.result, stop_no2=self.last_stop_no & 3,
             battery_dv=max(0, min(255, int(round(v.battery_v * 10)))), oid=self.last_oid)
 
     # -- time ------------------------------------------------------------------
@@ -748,25 +763,24 @@ class AcousticRov(_End):
         events = self._drain()
         if not self._started:
             self._started = True
-            self._heard_at_start = now
             events.append(Stop(None))
-        last = self._heard_at if self._heard_at is not None else self._heard_at_start
-        if not self.failsafe and now - last >= self.failsafe_s:
+        # §9.4 (decided): no failsafe before a session's first frame: the start's brake holds.
+        if not self.failsafe and self._heard_at is not None and now - self._heard_at >= self.failsafe_s:
             self.failsafe = True
             self._failsafe_unreported = True
             self.hold = True
             self._abort_motion()
             self.counters.failsafes += 1
             self._prompt()
+            self._brake_asked = (now, (Mode.SURFACE,) if self.failsafe_action == FAILSAFE_SURFACE else HOLD_MODES)
             events.append(FailsafeEntered(self.failsafe_action))
         return events
 
     @property
     def failsafe_at(self) -> float | None:
-        if self.failsafe or not self._started:
+        if self.failsafe or self._heard_at is None:
             return None
-        last = self._heard_at if self._heard_at is not None else self._heard_at_start
-        return last + self.failsafe_s
+        return self._heard_at + self.failsafe_s
 
     def _drain(self) -> list:
         events, self._events = self._events, []
@@ -794,6 +808,7 @@ class AcousticRov(_End):
         self._new_session(challenge + self.boot + nonce)
         self.status_sent = {}  # counters start again
         self._fulls = {}
+        self._full_leaving = None
         self._operator_holds = None
         self._sync_due = SyncBody(self.boot, nonce, self.failsafe_s, self.failsafe_action)
         self._sync_taken = False  # repeated in every slot until a frame of the session is taken
@@ -831,6 +846,7 @@ class AcousticRov(_End):
             self._abort_motion()
         if new:
             self._prompt()  # the confirming STATUS goes first
+            self._brake_asked = (now, HOLD_MODES)
         elif now - self._status_at >= STATUS_REPEAT_S:
             self._status_asap = True
         events.append(Stop(stop.stop_no, new))
@@ -842,6 +858,11 @@ class AcousticRov(_End):
         if self._last_handed != "sync":
             self._out = []
             self.wants_flush = True
+            if self._full_leaving is not None:
+                # §9.4 (decided): a STATUS_SAME never names a STATUS whose packets did not all leave.
+                self._fulls.pop(self._full_leaving, None)
+                self._full_leaving = None
+                self.counters.fulls_flushed += 1
 
     def _abort_motion(self) -> None:
         if self.result == R_TAKEN and self._last_op in (*MOTION_OPS, UP_GOTO):
@@ -913,9 +934,10 @@ class AcousticRov(_End):
         self.wants_flush = False
         if self._out:
             return self._out.pop(0)
+        self._full_leaving = None  # the queue is empty: the last frame handed has left
         if self._sync_due is not None and not self._sync_taken:
             return self._emit_frame(seal_sync(self.key, self.challenge, self._sync_due), "sync")
-        if self.session is None:
+        if self.session is None or self._awaiting_brake(now):
             return None
         th = self.thumb
         sending = th is not None and th.obj is not None and not th.done
@@ -924,6 +946,19 @@ class AcousticRov(_End):
             if packet is not None:
                 return packet
         return self._status_packet(now)  # due, asked for, or a free slot (the turns pass anyway)
+
+    def _awaiting_brake(self, now: float) -> bool:
+        """Whether the STATUS due after a STOP or the failsafe waits (nothing is handed)
+        until the vehicle reports the brake's mode: a STATUS that still said GUIDED
+        would confirm no STOP, and the next comes a turn later."""
+        if self._brake_asked is None or not self._status_asap:
+            return False
+        at, modes = self._brake_asked
+        v = self.vehicle
+        if v.mode in modes or not v.autopilot or now - at >= BRAKE_SHOWN_S:
+            self._brake_asked = None
+            return False
+        return True
 
     def _status_packet(self, now: float) -> bytes:
         self._status_asap = False
@@ -940,6 +975,7 @@ class AcousticRov(_End):
         else:
             ctr, packets = self._seal(DOWN_STATUS, body)
             self._fulls[ctr] = body
+            self._full_leaving = ctr
         self.status_sent[ctr] = now
         if len(self.status_sent) > 64:
             del self.status_sent[min(self.status_sent)]
@@ -1230,6 +1266,12 @@ class AcousticOperator(_End):
         self.wants_flush = False
         if self._out:
             return self._out.pop(0)
+        if self._last_handed == "hello":
+            # §9.2 (decided): a HELLO's 8 s count from when it left the modem (its queue is
+            # empty now), not from when it was handed: a modem that waits for its turn, or
+            # its start, would otherwise have the next HELLO cross the SYNC under way.
+            self._hello_at = now
+            self._last_handed = "hello left"
         if self.resyncing and (self._hello_at is None or now - self._hello_at >= self.hello_every_s):
             self._hello_at = now
             self._hello_no += 1

@@ -250,9 +250,10 @@ def _bounds(args, five_bursts: dict) -> dict:
     each poll with one frame carrying the pose (the mission's: odometry in every
     reply) and keeps the ROV's failsafe time:
 
-    - idle: a reply frame is at most V2_MAX_FRAME bytes; with its status and the
-      smallest pose (six one-byte differences) and its tag, the picture bytes left
-      fix the fewest replies for one picture asked at a time; each reply costs at
+    - idle: a reply carries at most MAX_TRUNK picture bytes (both versions' largest
+      trunk, §2; with its status, the smallest pose of six one-byte differences and
+      its tag it fits a V2_MAX_FRAME frame): they fix the fewest replies for one
+      picture asked at a time; each reply costs at
       least the smallest poll, its own overhead and the two intrinsic delays;
     - failsafes: the ROV's failsafe comes when every poll of a failsafe time is
       lost; at the shortest cycle (smallest poll and reply, no margin at all) that
@@ -260,7 +261,7 @@ def _bounds(args, five_bursts: dict) -> dict:
       at least n frames with probability (1 - 1/BURST)^(n-1), and bursts start at
       loss / BURST per poll sent."""
     from rovlink.link.auth import TAG_BYTES
-    from rovlink.link.messages import FAILSAFE_S
+    from rovlink.link.messages import FAILSAFE_S, MAX_TRUNK
     from rovlink.link.wire2 import MIN_POLL_FRAME, V2_MAX_FRAME, V2_OVERHEAD, V2_REPLY_STATUS
 
     def air(nbytes: int) -> float:
@@ -268,7 +269,7 @@ def _bounds(args, five_bursts: dict) -> dict:
 
     smallest_pose = 6  # six differences of one byte: a vehicle that did not move
     reply_overhead = V2_OVERHEAD + V2_REPLY_STATUS + smallest_pose + TAG_BYTES
-    per_reply = V2_MAX_FRAME - reply_overhead
+    per_reply = min(V2_MAX_FRAME - reply_overhead, MAX_TRUNK)
     replies = math.ceil(OBJECT_BYTES / per_reply)
     cycle_overhead = air(MIN_POLL_FRAME + reply_overhead) + 2 * args.delay
     shortest_cycle = cycle_overhead  # a reply without picture, no margin

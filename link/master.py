@@ -574,7 +574,7 @@ class Master:
             self._wish_turn = not self._wish_turn
         if isinstance(order, Velocity):
             if self._nobodys_neutral(order):
-                order = NoOrder()
+                order = self._nobodys_poll()
             elif self._recentre_owed and self._last_reply is not None and self._last_reply.hold:
                 order = Velocity(0, 0, 0, 0, order.arm, order.mode)
         if isinstance(order, Velocity) and self.repeat_by_none and not order.arm and not order.mode \
@@ -599,6 +599,17 @@ class Master:
         if any(r is not None for r in self._requests.values()):
             return False  # an ARM/MODE request rides in VELOCITY polls (the first sets the reference)
         return self._last_reply is None or self._last_reply.hold or self._lost_last
+
+    def _nobodys_poll(self) -> NoOrder | Velocity:
+        """What nobody's neutral goes out as.  In version 2 (§8.1) a NONE chained to a
+        reply with a wish repeats that wish, so (§5, decided): when the chained reply
+        showed no HOLD, four zero axes, that stop the vehicle (in version 2 no HOLD the
+        operator has not seen can be on the ROV while it takes a poll on such a reply);
+        under HOLD the wish it repeats is a non-zero one, ignored there."""
+        if self.repeat_by_none and self._velocity_taken is not None \
+                and self._last_reply is not None and not self._last_reply.hold:
+            return Velocity()
+        return NoOrder()
 
     def _may_send_orders(self, now: float) -> bool:
         """§3: no one-shot order until `start_wait_s` after the first reply."""

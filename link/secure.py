@@ -29,6 +29,8 @@ Decisions where §8 is silent:
   no order and clears no ARM/MODE request (a reply to a poll does that).
 - The master's timeouts count the 5 (poll) and 4 (reply) bytes version 2
   adds: its margin grows by their air time.
+- Every structural fault of a reply (§1, §8.1) is found before the chain
+  moves (`parse_reply`): a reply the master would refuse is never chained to.
 """
 
 from __future__ import annotations
@@ -132,6 +134,19 @@ def poll_sent_from_frame(frame: bytes, at: float, *, version: str, poll: bytes |
         return PollSent(at, frame, Poll.decode(contents))
     except ProtocolError:
         return None
+
+
+def parse_reply(payload: bytes, poll11: bytes | None, reference: Pose | None) -> tuple[bytes, tuple[int, int], Pose]:
+    """A timely reply's version 1.1 payload (a SYNC's when `poll11` is None), and
+    what it leaves for the next poll (§8.1).  Every structural fault (§1) raises
+    ProtocolError here, before the chain moves: a reply the master would refuse
+    is never chained to."""
+    if poll11 is None:
+        Reply.decode(payload, allow_sync=True)
+        return payload, NO_CONTINUATION, pose_of(payload)
+    reply, pose = reply_from_wire(payload, request_of(poll11), reference)
+    Reply.decode(reply)
+    return reply, continuation_of(reply, poll11), pose
 
 
 @dataclass(frozen=True)
@@ -388,15 +403,12 @@ class SecureMaster:
     # -- receiving ---------------------------------------------------------
 
     def _parse(self, payload: bytes, sync: bool, answers: int) -> tuple[bytes, tuple[int, int], Pose]:
-        """A timely reply's version 1.1 payload, and what it leaves for the next poll (§8.1)."""
         if sync:
-            return payload, NO_CONTINUATION, pose_of(payload)
+            return parse_reply(payload, None, None)
         sent = self._sent.get(answers)
         if sent is None:
             raise ProtocolError("a reply to a poll no longer kept")
-        poll, reference = sent
-        reply, pose = reply_from_wire(payload, request_of(poll), reference)
-        return reply, continuation_of(reply, poll), pose
+        return parse_reply(payload, *sent)
 
     def receive_bytes(self, data: bytes, now: float) -> list[object]:
         self.master.stats.bytes_received += len(data)

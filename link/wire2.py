@@ -58,6 +58,7 @@ DELTA_BIT = SYNC_BIT  # reply status byte, bit 0: the pose is six differences
 V2_REPLY_STATUS = 2  # byte 0 and the status byte
 POSE_BYTES = 12
 MAX_VARINT = 3  # bytes of one difference: |d| < 2^20
+FIRST_BIT, LAST_BIT = 0x80, 0x40  # reply byte 0
 NO_CONTINUATION = (0, NO_IMAGE_DATA)  # what a SYNC leaves: no image data
 
 _BODY = {OrderCode.NONE: (0,), OrderCode.VELOCITY: (4, 5), OrderCode.POSITION: (9,), OrderCode.IMAGE: (8,),
@@ -149,6 +150,9 @@ def _unzigzag(data: bytes, i: int) -> tuple[int, int]:
         if i + k >= len(data):
             raise ProtocolError("a reply's pose difference runs past its end")
         byte = data[i + k]
+        if k and byte == 0:
+            # (decided) one encoding per value: a last byte of 0 adds nothing (`80 00`)
+            raise ProtocolError("a reply's pose difference is not in its shortest form")
         z |= (byte & 0x7F) << shift
         shift += 7
         if not byte & 0x80:
@@ -218,6 +222,8 @@ def reply_from_wire(wire: bytes, request: tuple[int, int], reference: Pose | Non
         elif offset == 0:
             raise ProtocolError("a trunk at offset 0 without FIRST")
         out += ((img << 13) | offset).to_bytes(2, "big") + trunk
+    elif head & (FIRST_BIT | LAST_BIT):
+        raise ProtocolError("a reply's FIRST/LAST need a trunk")  # §1: never chained to
     return out, pose
 
 

@@ -21,6 +21,9 @@ Decisions:
   endpoint gets at most one packet a second (the modem's rate).
 - HOLD asks POS_HOLD with a position estimate, else DEPTH_HOLD; the failsafe's
   hold does the same; its "surface" asks SURFACE.
+- HOLD and MODE are done when the autopilot takes the mode (nothing of them runs
+  after); SURFACE runs while the vehicle rises and is done at the surface, so that
+  a STOP or the failsafe on the way shows it aborted (§9.4).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ log = logging.getLogger("rovlink.rov.acoustic")
 
 THUMB_SIZE = (80, 60)  # width, height
 PACKET = 8
+SURFACE_DONE_M = 0.3  # §9.4: a SURFACE order is done when the vehicle is this shallow
 
 
 def thumbnail(image: np.ndarray, size: tuple[int, int] = THUMB_SIZE) -> np.ndarray:
@@ -77,6 +81,8 @@ class AcousticNode:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._goto: tuple[int, object] | None = None  # (oid, ticket) being flown
         self._tickets: dict[int, object] = {}  # oid -> ticket of an arm/mode/hold/surface request
+        self._surfacing: int | None = None  # a SURFACE order the autopilot took, the vehicle still rising
+        self._surface_orders: set[int] = set()  # SURFACE orders whose mode change is awaited
         self._last_sent = -math.inf
         self.log: list[str] = []
 
@@ -137,10 +143,17 @@ class AcousticNode:
                 self._goto = None
                 self.machine.order_outcome(oid, ac.R_DONE)
                 self._note(f"go-to {oid} arrived")
+        if self._surfacing is not None and self.bridge.snapshot().z_m <= SURFACE_DONE_M:
+            self.machine.order_outcome(self._surfacing, ac.R_DONE)
+            self._note(f"order {self._surfacing}: at the surface")
+            self._surfacing = None
         for oid, ticket in list(self._tickets.items()):
             if ticket.done:
                 del self._tickets[oid]
-                if ticket.status == "accepted":
+                if ticket.status == "accepted" and oid in self._surface_orders:
+                    self._surface_orders.discard(oid)
+                    self._surfacing = oid  # taken: running until the vehicle is at the surface
+                elif ticket.status == "accepted":
                     self.machine.order_outcome(oid, ac.R_DONE)
                 else:
                     self.machine.order_outcome(oid, ac.R_REFUSED)
@@ -151,6 +164,9 @@ class AcousticNode:
 
     def _on_events(self, events: list, now: float) -> None:
         for event in events:
+            if isinstance(event, (ac.Stop, ac.Hold, ac.Surface, ac.SetMode, ac.GoToWanted, ac.FailsafeEntered)):
+                self._surfacing = None  # the vehicle does something else now: a SURFACE under way ends
+                self._surface_orders.clear()
             if isinstance(event, ac.Stop):
                 self._goto = None
                 self.bridge.brake()
@@ -163,6 +179,7 @@ class AcousticNode:
             elif isinstance(event, ac.Surface):
                 self._goto = None
                 self._tickets[event.oid] = self.bridge.request_mode(int(Mode.SURFACE))
+                self._surface_orders.add(event.oid)
                 self._note(f"order {event.oid}: surface")
             elif isinstance(event, (ac.Arm, ac.Disarm)):
                 self._tickets[event.oid] = self.bridge.request_arm(isinstance(event, ac.Arm))

@@ -3,6 +3,7 @@ ends, and sessions over the emulated Modem-M64 in simulated time."""
 
 from __future__ import annotations
 
+import random
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -56,6 +57,7 @@ def vectors() -> list[bytes]:
         _down(1, ac.DOWN_THUMB_END, ac.ThumbEnd(3, ac.object_mac(K, S, 3, OBJECT)).encode()),
         _down(17, ac.DOWN_STATUS, STATUS17.encode()),
         _down(18, ac.DOWN_STATUS_SAME, ac.same_body(17, STATUS18.encode())),
+        _up(0, ac.UP_POLL, ac.Poll().encode()),
     ]
 
 
@@ -559,3 +561,136 @@ def test_a_thumbnail_packet_past_the_polls_bitmap_is_not_sent_again_until_the_bi
     rov.receive(_up(2, ac.UP_POLL, ac.Poll(0, 21, False, bitmap).encode()), now + 20)
     again = [p[0] & 63 for p in (rov.next_packet(now + 20 + k) for k in range(10)) if p[0] & 0x80]
     assert again == [21, 25]
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_at_no_loss_the_status_shown_is_never_older_than_10_s_also_when_orders_cut_a_status_short(seed):
+    """§9.4, §9.5 (issue 33): orders arriving while a full STATUS is in the air make the
+    ROV flush its second packet; a STATUS_SAME never names that STATUS, so the operator
+    never drops the statuses it holds and the status it shows stays fresh."""
+    sim = _synced(seed=seed)
+    rng = random.Random(seed)
+    shown: list[float] = []  # when the newest STATUS taken was made, as the operator dates it
+    sim.on_operator_event = lambda e, t: shown.append(e.at) if isinstance(e, ac.StatusReceived) else None
+    end, next_order, k, oldest = sim.now + 600, sim.now + 3, 0, 0.0
+    while sim.now < end:  # the vehicle still (its thumbnail already there), orders now and then
+        sim.run_until(min(next_order, sim.now + 0.5))
+        if sim.now >= next_order:
+            next_order = sim.now + rng.uniform(3, 12)
+            if sim.operator.sending_oid is None and not sim.operator.orders_waiting:
+                k += 1
+                sim.order(ac.Order(0, ac.OP_ARM if k % 2 else ac.OP_HOLD))
+        if shown:
+            oldest = max(oldest, sim.now - shown[-1])
+    assert k > 50 and sim.rov.counters.fulls_flushed > 5  # it happened, many times
+    assert oldest <= 10.0
+    assert sim.rov.counters.statuses_same > 300 and sim.operator.counters.same_unmatched == 0
+
+
+# -- §9 read one way (issue 33) ------------------------------------------------------
+
+
+def test_no_failsafe_before_the_first_frame_of_a_session():
+    rov = ac.AcousticRov(K, failsafe_s=12, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(STILL)
+    assert rov.tick(0.0) == [ac.Stop(None)]  # the start's brake holds it
+    assert rov.tick(100.0) == [] and rov.failsafe_at is None and not rov.status(100.0).failsafe
+    rov.receive(ac.seal_hello(K, CHALLENGE), 100.0)
+    assert rov.tick(130.0) == [] and not rov.status(130.0).failsafe  # a HELLO starts no timer
+    rov.receive(_up(0, ac.UP_POLL, ac.Poll().encode()), 131.0)  # the session's first frame
+    assert rov.failsafe_at == 143.0 and rov.tick(142.9) == []
+    assert [type(e) for e in rov.tick(143.0)] == [ac.FailsafeEntered]
+
+
+def test_the_first_status_of_a_rov_with_a_short_failsafe_time_shows_no_failsafe():
+    sim = _synced(seed=3, failsafe_s=5)  # a failsafe time shorter than the session takes to start
+    (_, first), *_ = sim.events(ac.StatusReceived)
+    assert first.status.hold and not first.status.failsafe
+    assert not sim.events(ac.FailsafeEntered, "rov")
+
+
+def _going(rov, now):
+    """A go-to taken and flown (GUIDED, GOING), its STATUS sent."""
+    for p in _chunks(_up(0, ac.UP_GOTO, ac.GoTo(1, 50, 0, 0, relative=True).encode())):
+        rov.receive(p, now)
+    rov.update_status(replace(STILL, mode=Mode.GUIDED, going=True))
+    _status_frame(rov, now)
+    assert rov.status(now).going and rov.status(now).mode == Mode.GUIDED
+
+
+def test_the_status_after_a_stop_waits_for_the_brake_to_show():
+    rov = _rov_in_session()
+    _going(rov, 2.0)
+    rov.receive(_up(1, ac.UP_STOP, ac.StopBody(1, 1).encode()), 3.0)
+    assert rov.next_packet(3.0) is None and rov.next_packet(4.0) is None  # the autopilot still says GUIDED
+    rov.update_status(replace(STILL, mode=Mode.POS_HOLD, going=True))  # the brake shows (GOING not yet refreshed)
+    kind, frame = _status_frame(rov, 4.2)
+    status = ac.Status.decode(frame[1:13])
+    assert kind == ac.DOWN_STATUS and status.mode == Mode.POS_HOLD and status.hold and not status.going
+    assert (status.stop_no2, status.result) == (1, ac.R_ABORTED)
+    # A brake that never shows: the STATUS goes after BRAKE_SHOWN_S and tells the truth.
+    rov.update_status(replace(STILL, mode=Mode.GUIDED))
+    rov.receive(_up(2, ac.UP_STOP, ac.StopBody(2, 1).encode()), 10.0)
+    assert rov.next_packet(10.0 + ac.BRAKE_SHOWN_S - 0.1) is None
+    kind, frame = _status_frame(rov, 10.0 + ac.BRAKE_SHOWN_S)
+    assert ac.Status.decode(frame[1:13]).mode == Mode.GUIDED
+
+
+@pytest.mark.parametrize("action,mode", [(ac.FAILSAFE_HOLD, Mode.POS_HOLD), (ac.FAILSAFE_SURFACE, Mode.SURFACE)])
+def test_the_status_reporting_a_failsafe_shows_the_brake_and_no_goto(action, mode):
+    rov = ac.AcousticRov(K, failsafe_s=20, failsafe_action=action, boot=BOOT, random_bytes=_feeder([NONCE]))
+    rov.update_status(STILL)
+    rov.tick(0.0)
+    rov.receive(ac.seal_hello(K, CHALLENGE), 0.0)
+    rov.next_packet(0.0), rov.next_packet(1.0)
+    _going(rov, 2.0)
+    assert [type(e) for e in rov.tick(22.0)] == [ac.FailsafeEntered]
+    assert rov.next_packet(22.0) is None  # GUIDED still: the STATUS waits
+    rov.update_status(replace(STILL, mode=mode, going=True))
+    kind, frame = _status_frame(rov, 22.5)
+    status = ac.Status.decode(frame[1:13])
+    assert (status.failsafe, status.hold, status.going, status.mode, status.result) == (
+        True, True, False, mode, ac.R_ABORTED)
+
+
+def test_forged_first_halves_count_as_inauthentic_and_alert_like_one_packet_forgeries():
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    op.next_packet(0.0)
+    for i, p in enumerate(_chunks(b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, 0))))):
+        op.receive(p, 1.0 + i)
+    rng = random.Random(5)
+    alerts = []
+    for k in range(6):  # six forged first halves of a STATUS, one a second, nothing authentic since 2 s
+        events = op.receive(bytes([0x10 | k]) + rng.randbytes(7), 20.0 + k)
+        alerts += [e.alert for e in events if isinstance(e, ac.InauthenticPacket)]
+    assert op.counters.unpaired == 5 and op.counters.inauthentic == 5  # the sixth waits for its pair
+    assert alerts == [False, False, False, True, True]
+
+
+def test_the_poll_before_any_thumbnail_has_t_0_and_asks_for_nothing():
+    sim = _synced(seed=4)
+    polls = [ac.Poll.decode(p[1:5]) for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_POLL]
+    assert polls and all((p.t, p.lowest_missing, p.have_end, p.bitmap) == (0, ac.MAX_SLOTS, True, 0) for p in polls)
+
+
+@pytest.mark.parametrize("latency_s", [1.5, 2.0, 2.5])
+def test_the_first_status_comes_without_a_second_hello_crossing_the_first_sync(latency_s):
+    """Modems that start 3 s after the programs and take up to 2.5 s from host to host:
+    the HELLO waits in the operator's modem, and its 8 s count from when it left."""
+    from rovlink.link.m64 import M64Params
+
+    sim = AcousticSim(K, seed=1, params=M64Params(latency_s=latency_s, sync_s=3.0))
+    sim.run_until(40.0)
+    hellos = [t for t, p in sim.handed["a"] if p[0] == 0]
+    (first, _), *_ = sim.events(ac.StatusReceived)
+    assert len(hellos) == 1 and len(sim.events(ac.Synced)) == 1
+    assert first <= 18.0  # was 22-24 s when the second HELLO crossed the first SYNC
+
+
+def test_the_operators_first_poll_after_the_sync_is_the_vector():
+    v = [bytes.fromhex(r) for r in _doc_rows()]
+    op = ac.AcousticOperator(K, random_bytes=_feeder([CHALLENGE]))
+    assert op.next_packet(0.0) == v[0]
+    for i, p in enumerate(_chunks(v[1])):
+        op.receive(p, 5.0 + i)
+    assert op.next_packet(7.0) == v[12]  # no thumbnail asked for yet, no STATUS taken

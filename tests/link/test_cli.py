@@ -168,9 +168,9 @@ def test_bench_link_prints_a_table_and_json(tmp_path):
     assert all(r["failsafes_per_hour"] >= 0 and r["pictures_per_hour"] > 0 for r in doc["under_loss"])
     # The floors printed under the two figures version 2 misses (docs/PROTOCOL.md §8, §8.1):
     # never above what version 2 measures (a floor above a measurement would be wrong),
-    # and computed from the wire: 9 replies of at most 243 picture bytes for 2000 bytes.
+    # and computed from the wire: 9 replies of at most 239 picture bytes for 2000 bytes.
     idle = doc["bounds"]["v2_idle_2000B"]
-    assert (idle["replies"], idle["picture_bytes_per_reply"], idle["picture_bytes_needed_for_one_fewer"]) == (9, 243, 250)
+    assert (idle["replies"], idle["picture_bytes_per_reply"], idle["picture_bytes_needed_for_one_fewer"]) == (9, 239, 250)
     assert v2["floor_s"] < idle["seconds"] <= by[("rovlink v2", 0.0)]["idle_image_s_median"]
     fs = doc["bounds"]["v2_failsafes_at_5%_bursts"]
     assert fs["polls_in_failsafe_time"] == 11 and 0 < fs["expected_per_hour"]

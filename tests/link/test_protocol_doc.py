@@ -7,9 +7,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from rovlink.link.auth import OperatorChain
 from rovlink.link.frame import FrameDecoder
 from rovlink.link.messages import Mode, Reply
-from rovlink.link.secure import SecureSlave
+from rovlink.link.secure import SecureSlave, parse_reply
 from rovlink.link.slave import Slave
 
 from . import test_auth, test_vectors
@@ -17,6 +18,9 @@ from . import test_auth, test_vectors
 DOC = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
 OUT_OF_RANGE_REPLY = "55 0e 3c 00 78 00 00 00 00 00 00 00 00 69 78 f0 06 16"
 HELLO_WITH_ORDER = "55 0f 44 1f ff 01 02 03 04 05 06 07 08 eb 64 74 d6"
+# §1, §8.1 (decided): authentic replies to the last vector poll with a structural fault.
+LAST_WITHOUT_TRUNK = "55 0c 51 b1 00 00 00 00 00 00 c4 d3 98 32"
+LONG_ZERO_DIFFERENCE = "55 0f 51 b1 80 00 00 00 00 00 00 64 65 0e 70 26 6e"
 
 
 def _section(title_start: str) -> str:
@@ -50,7 +54,7 @@ def test_section_6_prints_exactly_the_vectors_the_tests_check():
 def test_section_8_prints_exactly_the_vectors_and_chain_values_the_tests_check():
     rows = _rows(_section("8."))
     printed = [row[1] for row in rows]
-    assert printed == test_auth.FRAMES + [HELLO_WITH_ORDER]
+    assert printed == test_auth.FRAMES + [HELLO_WITH_ORDER, LAST_WITHOUT_TRUNK, LONG_ZERO_DIFFERENCE]
     chains = [row[2] for row in rows if row[2] != "—"]
     assert chains == test_auth.CHAINS
     for row in rows:  # each chain value starts with its frame's TAG (its last 4 bytes: no CRC, §8.1)
@@ -73,3 +77,32 @@ def test_a_hello_carrying_an_order_gets_no_sync_and_is_counted():
     # The same challenge in a proper HELLO is still answered: it was not remembered.
     out = rov.receive_bytes(bytes.fromhex(test_auth.HELLO), 0.1)
     assert out.reply is not None and rov.chain.counters.syncs == 1
+
+
+def test_a_reply_with_a_structural_fault_is_authentic_counted_and_never_chained_to():
+    # The operator's chain through §8's vectors up to the last poll, from their bytes.
+    def contents(vector):
+        return bytes.fromhex(vector)[2:]
+
+    op = OperatorChain(test_auth.K, count=0)
+    op.seal_hello(bytes.fromhex("40 1f ff"), 0.0, challenge=bytes.fromhex("01 02 03 04 05 06 07 08"))
+    assert not op.open_reply(contents(test_auth.SYNC), 0.0).late
+    for poll, reply in ((test_auth.POLL, test_auth.REPLY), (test_auth.POLL2, test_auth.REPLY2)):
+        op.seal_poll(contents(poll)[:-5], 0.0)  # without COUNT and TAG
+        assert not op.open_reply(contents(reply), 0.0).late
+    op.seal_poll(contents(test_auth.POLL3)[:-5], 0.0)
+    # Its version 1.1 payload (NONE, IMG 0 OFFSET 5) and the pose of the reply it is chained to.
+    poll11, reference = bytes.fromhex("00 00 05"), (10, -3, 2, 5, -7, 120)
+
+    def parse(payload, sync, answers):
+        return parse_reply(payload, poll11, reference)
+
+    before = op.chain_to
+    for n, vector in enumerate((LAST_WITHOUT_TRUNK, LONG_ZERO_DIFFERENCE), 1):
+        got = op.open_reply(contents(vector), 0.0, parse)
+        assert got is not None and got.malformed and not got.late  # authentic, a fault
+        assert op.chain_to == before and op.counters.malformed == n
+    # The reply of the vectors (LAST with its trunk, the pose whole) is then taken and chained to.
+    got = op.open_reply(contents(test_auth.REPLY3), 0.0, parse)
+    assert not got.malformed and op.chain_to.hex() == test_auth.CHAINS[7]
+    assert got.parsed[2] == (1250, -300, 450, 150, -220, 9000)

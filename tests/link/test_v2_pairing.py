@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import random
 
+import pytest
+
 from rovlink.link.channel import Channel, LinkParams
 from rovlink.link.master import (
     Master,
@@ -308,3 +310,133 @@ def test_the_master_says_what_it_sent_hellos_polls_and_their_orders():
     assert any(isinstance(e.poll.order, Position) and e.order_ids == (position_id,) for e in told if e.poll)
     assert any(isinstance(e.poll.order, Stop) and e.order_ids == (stop_id,) for e in told if e.poll)
     assert all(e.order_ids == () for e in told if e.poll and not isinstance(e.poll.order, (Position, Stop)))
+
+
+# -- a structural fault is never chained to (§1, issue 33) ---------------------
+
+
+def _by_hand():
+    """A SecureMaster and a SecureSlave passing frames by hand, a cycle each half second."""
+    master = SecureMaster(Master(rng=random.Random(1)), K)
+    slave = SecureSlave(Slave(image_source=_source), K)
+    slave.slave.update_status(ARMED)
+    return master, slave
+
+
+def _cycle(master, slave, t, tamper=None, deliver=True, rov_events=None):
+    """One poll and its reply; `tamper` rewrites the reply's version 2 payload before
+    the ROV seals it (an authentic reply with a fault); the master's events (the
+    slave's go to `rov_events`)."""
+    poll = master.next_poll(t)
+    assert poll is not None
+    real = slave.chain.seal_reply
+    if tamper is not None:
+        slave.chain.seal_reply = lambda payload, taken, now, info=None: real(tamper(payload), taken, now, info=info)
+    try:
+        out = slave.receive_bytes(poll, t + 0.1)
+    finally:
+        slave.chain.seal_reply = real
+    if rov_events is not None:
+        rov_events.extend(out.events)
+    return master.receive_bytes(out.reply, t + 0.2) if deliver else []
+
+
+def _pose_end(payload: bytes) -> int:
+    """Where a version 2 reply's pose ends (its trunk starts)."""
+    if not payload[1] & 0x01:
+        return 14
+    i = 2
+    for _ in range(6):
+        while payload[i] & 0x80:
+            i += 1
+        i += 1
+    return i
+
+
+def _no_trunk(bit):
+    return lambda p: bytes((p[0] | bit,)) + p[1:_pose_end(p)]
+
+
+def _differences(diffs: str):
+    return lambda p: bytes((p[0], p[1] | 0x01)) + bytes.fromhex(diffs) + p[_pose_end(p):]
+
+
+FAULTS = {
+    # (the reply rewritten, which poll it answers: "first" asks from offset 0, "after a loss"
+    # for no image data, "steering" is of SIZE 0)
+    "FIRST without a trunk": (_no_trunk(0x80), "first"),
+    "LAST without a trunk": (_no_trunk(0x40), "first"),
+    "a trunk at offset 0 without FIRST": (lambda p: bytes((p[0] & 0x7F,)) + p[1:], "first"),
+    "a trunk answering OFFSET 8191": (lambda p: p + b"x", "after a loss"),
+    "a pose difference over 3 bytes": (_differences("80 80 80 01 00 00 00 00 00"), "first"),
+    "a pose difference not in its shortest form": (_differences("80 00 00 00 00 00 00"), "first"),
+    "a value out of 16 bits after adding": (_differences("80 80 04 00 00 00 00 00"), "first"),
+    "a reply over its SIZE class": (lambda p: p + bytes(100), "steering"),
+}
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_reply_with_a_structural_fault_is_counted_ignored_and_never_chained_to(fault):
+    tamper, which = FAULTS[fault]
+    master, slave = _by_hand()
+    _cycle(master, slave, 0.0)  # HELLO and SYNC
+    t = 0.5
+    if which == "after a loss":
+        _cycle(master, slave, t, deliver=False)  # a reply lost: the next poll asks for no image data
+        t += 2.0
+    if which == "steering":
+        master.set_velocity(40, 0, 0, 0, t)
+    chained_to, continuation, reference = master.chain.chain_to, master._continuation, master._reference
+    errors, replies = master.master.stats.protocol_errors, master.master.stats.replies
+    events = _cycle(master, slave, t, tamper)
+    assert not any(isinstance(e, PoseReceived) for e in events)
+    assert master.master.stats.replies == replies
+    # Counted: a protocol error, or (too long for its poll's SIZE) never a start of a frame.
+    assert master.master.stats.protocol_errors == errors + (fault != "a reply over its SIZE class")
+    assert (master.chain.chain_to, master._continuation, master._reference) == (chained_to, continuation, reference)
+    # The next poll is made on the reply before, and the link goes on.
+    events = _cycle(master, slave, t + 2.0)
+    assert any(isinstance(e, PoseReceived) for e in events)
+
+
+def test_a_departed_pilots_wish_is_never_repeated_for_nobody_after_a_lost_reply():
+    """§5 (decided, version 2): nobody's neutral never goes as a NONE that repeats the
+    wish of the reply it is chained to: the vehicle a departed pilot was driving stops,
+    and stays stopped while replies are lost."""
+    from rovlink.link.messages import Velocity
+    from rovlink.link.slave import VelocityCommanded
+
+    master, slave = _by_hand()
+    _cycle(master, slave, 0.0)  # HELLO and SYNC: the ROV holds (its start)
+    master.set_pilot_in_force(True)
+    master.set_velocity(0, 0, 0, 0, 0.5)
+    master.recentred()
+    t = 0.5
+    for _ in range(3):  # the pilot re-centres, then drives
+        _cycle(master, slave, t)
+        master.set_velocity(60, 0, 0, 0, t)
+        t += 0.5
+    for _ in range(3):
+        _cycle(master, slave, t)
+        t += 0.5
+    assert not master.master.last_reply.hold
+    master.set_pilot_in_force(False)  # the pilot leaves: the console sets nobody's neutral
+    master.set_velocity(0, 0, 0, 0, t)
+    rov: list = []
+    _cycle(master, slave, t, deliver=False, rov_events=rov)  # four zero axes reach the ROV; their reply is lost
+    for k in range(4):  # each poll made on the reply to the last wish of the pilot, its reply lost too
+        _cycle(master, slave, t + 0.8 * (k + 1), deliver=False, rov_events=rov)
+    assert not any(isinstance(e, FailsafeEntered) for e in rov)
+    commanded = [e.velocity for e in rov if isinstance(e, VelocityCommanded)]
+    assert len(commanded) == 5 and all(v == Velocity() for v in commanded)
+
+
+def test_a_trunk_past_the_objects_last_byte_is_found_before_the_chain_moves():
+    from rovlink.link.messages import Poll, ProtocolError
+    from rovlink.link.secure import parse_reply
+
+    poll11 = Poll(img=1, offset=8189).encode()
+    wire = bytes.fromhex("01 b0") + bytes(12)
+    assert parse_reply(wire + b"ab", poll11, None)[1] == (1, 8191)  # bytes 8189 and 8190: the last
+    with pytest.raises(ProtocolError):
+        parse_reply(wire + b"abc", poll11, None)  # a third byte would be past 8190

@@ -331,3 +331,52 @@ def test_a_rov_and_operator_keep_the_same_reference_pose_while_it_moves():
     assert len(moved) > 100
     assert all((r.x_cm, r.y_cm, r.z_cm, r.roll_cdeg, r.pitch_cdeg, r.yaw_cdeg) in had for r in moved)
     assert master.master.stats.protocol_errors == 0
+
+
+# -- the text read one way (issue 33) ---------------------------------------------
+
+
+def test_a_field_sent_that_could_have_been_left_out_is_taken_as_sent():
+    poll = Poll(order=Velocity(50, 0, -20, 10), img=2, offset=140).encode()
+    short = poll_to_wire(poll, (2, 140))
+    assert len(short) == 5  # byte 0 and the four axes
+    for wire in (poll, poll[:3] + poll[4:], bytes((poll[0],)) + poll[3:]):  # request, ARM/MODE byte, both
+        assert poll_from_wire(wire, (2, 140)) == poll
+    # A whole pose where six differences would be shorter: taken as it is.
+    reply = Reply(x_cm=10, y_cm=-3).encode()
+    back, pose = reply_from_wire(reply_to_wire(reply, None), (0, NO_IMAGE_DATA), (0,) * 6)
+    assert back == reply and pose == (10, -3, 0, 0, 0, 0)
+
+
+def test_a_hello_does_not_advance_count():
+    op, rov = _chain()
+    first = op.seal_poll(bytes.fromhex("00"), 0.1)
+    op.seal_hello(bytes.fromhex("40 1f ff"), 0.2)
+    second = op.seal_poll(bytes.fromhex("00"), 0.3)
+    assert (first[-5] + 1) % 256 == second[-5]  # COUNT, before the 4-byte TAG
+
+
+def test_a_poll_for_no_image_data_waits_for_a_reply_without_a_trunk():
+    master = SecureMaster(Master(rng=random.Random(1), images=False), K)
+    slave = SecureSlave(Slave(), K)
+    out = slave.receive_bytes(master.next_poll(0.0), 0.0)
+    master.receive_bytes(out.reply, 0.1)
+    frame = master.next_poll(1.0)
+    assert Poll.decode(master._sent[max(master._sent)][0]).offset == NO_IMAGE_DATA
+    m = master.master
+    # §5 (decided): the largest reply such a poll allows has no trunk: 20 bytes with the whole pose.
+    assert m.deadline() == 1.0 + m.timeout_for(m.sizes.poll(Poll.decode(master._sent[max(master._sent)][0])), 20)
+    assert len(frame) <= 19
+
+
+def test_hellos_come_after_twice_the_failsafe_time_less_two_timeouts_of_the_largest_poll():
+    master = SecureMaster(Master(rng=random.Random(1)), K)
+    slave = SecureSlave(Slave(), K)
+    out = slave.receive_bytes(master.next_poll(0.0), 0.0)
+    master.receive_bytes(out.reply, 0.1)  # heard at 0.1 s
+    m = master.master
+    for size, silent in ((0, 4.68), (3, 3.04)):  # the defaults: 3 s, 1.9 kbit/s, 85 ms, margin 0.15 s
+        master._last_size = size
+        largest = m.timeout_for(19, m.reply_frame_bytes(size))  # a POSITION with its request, its SIZE's reply
+        assert abs((6.0 - 2 * largest) - silent) < 0.01
+        assert not master._silent_too_long(0.1 + silent - 0.02) and master._silent_too_long(0.1 + silent + 0.02)
