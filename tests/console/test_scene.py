@@ -284,25 +284,31 @@ def test_roi_drawn_on_the_picture_reaches_the_next_image(live, monkeypatch):
     scene.desk.take(page.id)
     monkeypatch.setattr(scene, "viewer_key", lambda client_id: key)
     orders_before = len(op.orders_state())
-    a, b = screen_point(scene, 40.3, 30.2), screen_point(scene, 199.6, 149.9)
-
-    # While dragging: the rectangle is drawn, nothing is sent.
-    assert scene.preview_roi_world(a, b) == (40, 30, 200, 150)
-    assert scene.roi_node.visible and len(op.orders_state()) == orders_before
-
-    # The callback's path: viser's end point lies on a camera-facing plane; the
-    # scene casts the view ray through it onto the screen.
+    # The screen follows the predicted vehicle, which really moves (a disarmed vehicle
+    # rises at about 0.09 m/s): each step is checked against the screen as it stood
+    # throughout, and made again if it moved meanwhile.
     eye = np.array([3.0, -9.0, 4.0])
-    off_plane = eye + 0.8 * (b - eye)  # on the ray through b, short of the screen
-    drag = SimpleNamespace(phase="update", start_position=tuple(a), end_position=tuple(off_plane),
-                           client=SimpleNamespace(client_id=7, camera=SimpleNamespace(position=tuple(eye))))
-    scene._on_screen_drag(drag)
-    assert len(op.orders_state()) == orders_before
-    np.testing.assert_allclose(scene._pointer_on_screen(drag), b, atol=1e-6)
-
-    # Release: the IMAGE order goes out, the ROV acknowledges it.
+    for _ in range(20):
+        a, b = screen_point(scene, 40.3, 30.2), screen_point(scene, 199.6, 149.9)
+        # While dragging: the rectangle is drawn, nothing is sent.
+        drawn = scene.preview_roi_world(a, b)
+        # The callback's path: viser's end point lies on a camera-facing plane; the
+        # scene casts the view ray through it onto the screen.
+        off_plane = eye + 0.8 * (b - eye)  # on the ray through b, short of the screen
+        drag = SimpleNamespace(phase="update", start_position=tuple(a), end_position=tuple(off_plane),
+                               client=SimpleNamespace(client_id=7, camera=SimpleNamespace(position=tuple(eye))))
+        got = scene._pointer_on_screen(drag)
+        scene._on_screen_drag(drag)
+        assert len(op.orders_state()) == orders_before
+        if np.allclose(screen_point(scene, 199.6, 149.9), b, atol=1e-9):
+            break
+    # Release: the IMAGE order goes out.
     drag.phase = "end"
     scene._on_screen_drag(drag)
+    assert drawn == (40, 30, 200, 150)
+    np.testing.assert_allclose(got, b, atol=1e-6)
+
+    # Released: the IMAGE order went out; the ROV acknowledges it.
     roi = (40, 30, 200, 150)
     orders = op.orders_state()[orders_before:]
     assert [o["kind"] for o in orders] == ["IMAGE"] and tuple(orders[0]["roi"]) == roi

@@ -67,7 +67,7 @@ def test_on_a_fast_link_the_turn_rate_shown_agrees_with_the_received_yaw(tmp_pat
     procs = Processes(tmp_path)  # rov and console over loopback UDP, no emulator between them
     try:
         base = procs.base
-        assert wait_until_up(lambda: procs.pose()["received"], 60, 0.2), procs.logs_text()
+        assert wait_until_up(lambda: procs.pose()["received"], 120, 0.2), procs.logs_text()
         client = _post(base + "/api/control/take", {"name": "speed test"})["client_id"]
         _post(base + "/api/orders/arm", {"armed": True}, client)
         assert wait_until_up(lambda: procs.pose().get("armed"), 20, 0.2), procs.logs_text()
