@@ -113,6 +113,6 @@ _.orders_stale  # unused attribute (link/acoustic.py)
 _.stops_taken  # unused attribute (link/acoustic.py)
 _.unpaired  # unused attribute (link/acoustic.py)
 _.last_status  # unused attribute (link/acoustic.py: AcousticOperator's last STATUS, for callers)
-_.up_s  # unused attribute (link/acoustic_bench.py)
+_.up_s  # unused attribute (link/acoustic/bench.py)
 _.report_every_s  # a Capabilities field, served in GET /api/config (console/session/contract.py)
 _.next_report_in_s  # response model fields (console/session/state.py), read by the page

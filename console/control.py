@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from rovlink.link.messages import MAX_BUDGET, REQUESTABLE_MODES
+from rovlink.link.radio.messages import MAX_BUDGET, REQUESTABLE_MODES
 from rovlink.rov.vehicle import BlueRovParams
 
 from .operator import Operator, OrderError

@@ -60,7 +60,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega
 
 from rovlink.console.control import Arm, Caller, Drive, GoTo, SetMode, Stop
-from rovlink.link.messages import Mode
+from rovlink.link.radio.messages import Mode
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SUB_TO_PROTOCOL, mode_name
 from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
 

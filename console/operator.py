@@ -33,8 +33,8 @@ import numpy as np
 
 from rovlink import debt
 from rovlink.link.aio import run_master
-from rovlink.link.frame import MAX_FRAME
-from rovlink.link.master import (
+from rovlink.link.radio.frame import MAX_FRAME
+from rovlink.link.radio.master import (
     ImageAbandoned,
     ImageComplete,
     ImageProgress,
@@ -51,7 +51,7 @@ from rovlink.link.master import (
     StopConfirmed,
     StopNotCarriedOut,
 )
-from rovlink.link.messages import (
+from rovlink.link.radio.messages import (
     FAILSAFE_S,
     MAX_BUDGET,
     NO_IMAGE_DATA,
@@ -62,8 +62,8 @@ from rovlink.link.messages import (
     Stop,
     Velocity,
 )
+from rovlink.link.radio.secure import InauthenticFrame, LateReply, SecureMaster, Synced
 from rovlink.link.report import VehicleReport, report_from_reply
-from rovlink.link.secure import InauthenticFrame, LateReply, SecureMaster, Synced
 from rovlink.link.transport import Endpoint, port_change, port_down_reason
 from rovlink.link.units import position_order, velocity_ints, wish_of, wrap_deg
 

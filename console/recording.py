@@ -24,9 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from rovlink.link.frame import MAX_FRAME, FrameDecoder
-from rovlink.link.messages import Velocity
-from rovlink.link.secure import poll_sent_from_frame
+from rovlink.link.radio.frame import MAX_FRAME, FrameDecoder
+from rovlink.link.radio.messages import Velocity
+from rovlink.link.radio.secure import poll_sent_from_frame
 from rovlink.link.units import wish_fractions, wish_of
 
 

@@ -41,8 +41,8 @@ import weakref
 from pathlib import Path
 from typing import Callable
 
-from rovlink.link.replay import ReplyReplayer
-from rovlink.link.secure import poll_sent_from_frame
+from rovlink.link.radio.replay import ReplyReplayer
+from rovlink.link.radio.secure import poll_sent_from_frame
 from rovlink.link.units import wish_fractions
 
 from .recording import read_records

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rovlink.link.aio import run_channel
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.messages import FAILSAFE_S, ImageSettings
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.messages import FAILSAFE_S, ImageSettings
 from rovlink.link.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera

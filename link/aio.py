@@ -16,9 +16,9 @@ import contextlib
 import logging
 from typing import Callable
 
-from .channel import Channel
-from .master import Master
-from .slave import Slave
+from .emulators.channel import Channel
+from .radio.master import Master
+from .radio.slave import Slave
 from .transport import Endpoint
 
 log = logging.getLogger("rovlink.link")

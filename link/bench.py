@@ -27,11 +27,11 @@ import random
 from dataclasses import dataclass, field
 
 from rovlink.bench import emit, format_table, median, quantile
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress, Master
-from rovlink.link.messages import VELOCITY_FULL
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import FailsafeEntered, Slave, VelocityCommanded, status_from_pose
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress, Master
+from rovlink.link.radio.messages import VELOCITY_FULL
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import FailsafeEntered, Slave, VelocityCommanded, status_from_pose
 
 BERS = (0.0, 7e-6, 1e-4, 1e-3)
 OBJECT_BYTES = 2000
@@ -77,7 +77,7 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
     master_end, slave_end = master, slave  # what the link drives
     secure = None
     if mode == "rovlink v2":
-        from rovlink.link.secure import SecureMaster, SecureSlave
+        from rovlink.link.radio.secure import SecureMaster, SecureSlave
 
         key = random.Random(seed).randbytes(32)
         master_end, slave_end = secure, _ = SecureMaster(master, key), SecureSlave(slave, key)
@@ -260,9 +260,9 @@ def _bounds(args, five_bursts: dict) -> dict:
       is a run of n lost polls; a Gilbert-Elliott burst (mean `BURST` frames) runs
       at least n frames with probability (1 - 1/BURST)^(n-1), and bursts start at
       loss / BURST per poll sent."""
-    from rovlink.link.auth import TAG_BYTES
-    from rovlink.link.messages import FAILSAFE_S, MAX_TRUNK
-    from rovlink.link.wire2 import MIN_POLL_FRAME, V2_MAX_FRAME, V2_OVERHEAD, V2_REPLY_STATUS
+    from rovlink.link.radio.auth import TAG_BYTES
+    from rovlink.link.radio.messages import FAILSAFE_S, MAX_TRUNK
+    from rovlink.link.radio.wire2 import MIN_POLL_FRAME, V2_MAX_FRAME, V2_OVERHEAD, V2_REPLY_STATUS
 
     def air(nbytes: int) -> float:
         return 8.0 * nbytes / args.bitrate
@@ -291,7 +291,7 @@ def _bounds(args, five_bursts: dict) -> dict:
 
 def run(args) -> int:
     if args.profile == "acoustic":
-        from rovlink.link.acoustic_bench import run as run_acoustic
+        from rovlink.link.acoustic.bench import run as run_acoustic
         return run_acoustic(args)
     floor_s = 8 * OBJECT_BYTES / args.bitrate
     rows = []

@@ -33,7 +33,7 @@ def _add_keygen(subparsers) -> None:
 def run_keygen(args) -> int:
     import os
 
-    from rovlink.link.auth import write_key_file
+    from rovlink.link.radio.auth import write_key_file
 
     folder = os.path.dirname(os.path.abspath(args.file))
     if not os.path.isdir(folder):
@@ -125,7 +125,7 @@ def run(args) -> int:
     import sys
 
     from rovlink.link.aio import run_channel
-    from rovlink.link.channel import Channel, LinkParams
+    from rovlink.link.emulators.channel import Channel, LinkParams
     from rovlink.link.transport import TransportError, open_transport
 
     if args.queue < 1:
@@ -217,8 +217,8 @@ def run_m64(args) -> int:
     import threading
     import time
 
-    from rovlink.link.m64 import M64Loss
-    from rovlink.link.m64serial import M64SerialError, M64SerialPair
+    from rovlink.link.emulators.m64 import M64Loss
+    from rovlink.link.emulators.m64serial import M64SerialError, M64SerialPair
 
     radio = [f"--{name.replace('_', '-')}" for name, default in RADIO_DEFAULTS.items() if getattr(args, name) != default]
     if radio:
@@ -251,7 +251,7 @@ def run_m64(args) -> int:
           f"wlmodem://{path_a}?role=a and wlmodem://{path_b}?role=b", file=sys.stderr, flush=True)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("channel: %(message)s"))
-    emulator_log = logging.getLogger("rovlink.link.m64serial")
+    emulator_log = logging.getLogger("rovlink.link.emulators.m64serial")
     emulator_log.addHandler(handler)
     emulator_log.setLevel(logging.WARNING if args.quiet else logging.INFO)
     start = time.monotonic()

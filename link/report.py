@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .frame import OVERHEAD
-from .messages import Reply
+from .radio.frame import OVERHEAD
+from .radio.messages import Reply
 
 
 @dataclass(frozen=True)

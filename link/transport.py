@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 from urllib.parse import parse_qs, urlsplit
 
-from .frame import MAX_FRAME
-from .messages import MIN_FRAME
+from .radio.frame import MAX_FRAME
+from .radio.messages import MIN_FRAME
 
 log = logging.getLogger("rovlink.link.transport")
 

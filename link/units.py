@@ -9,7 +9,7 @@ Out-of-range values raise `ProtocolError` (a ValueError) with the field named.
 
 from __future__ import annotations
 
-from .messages import VELOCITY_FULL, Position, ProtocolError, Velocity
+from .radio.messages import VELOCITY_FULL, Position, ProtocolError, Velocity
 
 WISH_AXES = ("vx", "vy", "vz", "vyaw")
 ACOUSTIC_XYZ_M = 3276.7  # an acoustic GOTO's int16 decimetres (§9.3)
@@ -44,13 +44,13 @@ def position_order(x_m: float, y_m: float, z_m: float, yaw_deg: float, *, relati
 
 def acoustic_goto(x_m: float, y_m: float, z_m: float, yaw_deg: float | None, *, relative: bool, body: bool):
     """An acoustic GOTO (§9.3: decimetres and centidegrees; no yaw when None)."""
-    from .acoustic import GoTo
+    from .acoustic import GoToBody
 
     for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m)):
         if not abs(v) <= ACOUSTIC_XYZ_M:
             raise ProtocolError(f"{name} must be within ±{ACOUSTIC_XYZ_M} m on the acoustic link, got {v!r}")
     yaw = 0 if yaw_deg is None else int(round(wrap_deg(yaw_deg) * 100))
-    goto = GoTo(0, int(round(x_m * 10)), int(round(y_m * 10)), int(round(z_m * 10)), yaw, bool(relative), bool(body),
+    goto = GoToBody(0, int(round(x_m * 10)), int(round(y_m * 10)), int(round(z_m * 10)), yaw, bool(relative), bool(body),
                 yaw_deg is not None)
     bad = goto.invalid()
     if bad:

@@ -38,7 +38,7 @@ import numpy as np
 
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
-from rovlink.link.messages import Mode
+from rovlink.link.radio.messages import Mode
 from rovlink.link.transport import Endpoint
 
 log = logging.getLogger("rovlink.rov.acoustic")
@@ -164,27 +164,27 @@ class AcousticNode:
 
     def _on_events(self, events: list, now: float) -> None:
         for event in events:
-            if isinstance(event, (ac.Stop, ac.Hold, ac.Surface, ac.SetMode, ac.GoToWanted, ac.FailsafeEntered)):
+            if isinstance(event, (ac.StopWanted, ac.HoldWanted, ac.SurfaceWanted, ac.ModeWanted, ac.GoToWanted, ac.FailsafeStarted)):
                 self._surfacing = None  # the vehicle does something else now: a SURFACE under way ends
                 self._surface_orders.clear()
-            if isinstance(event, ac.Stop):
+            if isinstance(event, ac.StopWanted):
                 self._goto = None
                 self.bridge.brake()
                 if event.new:
                     self._note("STOP: brake" if event.stop_no is not None else "brake at start")
-            elif isinstance(event, ac.Hold):
+            elif isinstance(event, ac.HoldWanted):
                 self._goto = None
                 self._tickets[event.oid] = self.bridge.request_mode(self._hold_mode())
                 self._note(f"order {event.oid}: hold")
-            elif isinstance(event, ac.Surface):
+            elif isinstance(event, ac.SurfaceWanted):
                 self._goto = None
                 self._tickets[event.oid] = self.bridge.request_mode(int(Mode.SURFACE))
                 self._surface_orders.add(event.oid)
                 self._note(f"order {event.oid}: surface")
-            elif isinstance(event, (ac.Arm, ac.Disarm)):
-                self._tickets[event.oid] = self.bridge.request_arm(isinstance(event, ac.Arm))
-                self._note(f"order {event.oid}: {'arm' if isinstance(event, ac.Arm) else 'disarm'}")
-            elif isinstance(event, ac.SetMode):
+            elif isinstance(event, (ac.ArmWanted, ac.DisarmWanted)):
+                self._tickets[event.oid] = self.bridge.request_arm(isinstance(event, ac.ArmWanted))
+                self._note(f"order {event.oid}: {'arm' if isinstance(event, ac.ArmWanted) else 'disarm'}")
+            elif isinstance(event, ac.ModeWanted):
                 self._goto = None
                 self._tickets[event.oid] = self.bridge.request_mode(int(event.mode))
                 self._note(f"order {event.oid}: mode {event.mode}")
@@ -199,7 +199,7 @@ class AcousticNode:
                 self._check_tickets()  # refused at once (impossible now): say so in the next status
             elif isinstance(event, ac.ThumbnailWanted):
                 self._thumbnail(event.oid, event.settings)
-            elif isinstance(event, ac.FailsafeEntered):
+            elif isinstance(event, ac.FailsafeStarted):
                 self._goto = None
                 surface = event.action == ac.FAILSAFE_SURFACE
                 self._note(f"FAILSAFE: nothing from the operator for {self.machine.failsafe_s} s: "
@@ -207,7 +207,7 @@ class AcousticNode:
                 self.bridge.failsafe(True)
                 if surface:
                     self.bridge.request_mode(int(Mode.SURFACE))
-            elif isinstance(event, ac.FailsafeCleared):
+            elif isinstance(event, ac.FailsafeEnded):
                 self._note("failsafe cleared: the operator is heard again")
                 self.bridge.failsafe(False)
 

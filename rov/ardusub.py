@@ -25,7 +25,7 @@ from enum import IntEnum
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from rovlink.link.messages import Mode
+from rovlink.link.radio.messages import Mode
 
 # ArduSub's custom modes (HEARTBEAT.custom_mode), as pymavlink knows them.
 SubMode = IntEnum("SubMode", {name: number for number, name in sorted(mavutil.mode_mapping_sub.items())})

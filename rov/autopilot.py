@@ -80,7 +80,7 @@ import math
 import threading
 import time
 
-from rovlink.link.messages import Reason
+from rovlink.link.radio.messages import Reason
 from rovlink.rov.ardusub import (
     MAV_RESULT_NAMES,
     TYPEMASK_POSITION_AND_YAW,

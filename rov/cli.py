@@ -88,7 +88,7 @@ def run_rov(args) -> int:
     import logging
     import sys
 
-    from rovlink.link.messages import ImageSettings, ProtocolError
+    from rovlink.link.radio.messages import ImageSettings, ProtocolError
     from rovlink.link.transport import TransportError, open_transport
     from rovlink.rov.autopilot import AutopilotBridge
     from rovlink.rov.camera import CameraError, open_camera

@@ -27,7 +27,7 @@ import math
 import threading
 from dataclasses import dataclass
 
-from rovlink.link.messages import Reason
+from rovlink.link.radio.messages import Reason
 from rovlink.rov.ardusub import MAV_RESULT_NAMES, mavlink
 
 COMMAND_RESEND_S = 0.5

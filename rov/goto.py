@@ -30,7 +30,7 @@ import logging
 import math
 from dataclasses import dataclass
 
-from rovlink.link.messages import Reason
+from rovlink.link.radio.messages import Reason
 from rovlink.rov.ardusub import SubMode
 from rovlink.rov.commands import CommandTracker, GotoTicket, Request, Ticket
 from rovlink.rov.telemetry import AutopilotSnapshot

@@ -51,10 +51,10 @@ from typing import Callable
 import numpy as np
 
 from rovlink.link.aio import run_slave
-from rovlink.link.frame import MAX_FRAME
-from rovlink.link.messages import FAILSAFE_S, VELOCITY_FULL, ImageSettings, Mode, Position, Reason, next_img
-from rovlink.link.secure import SecureSlave
-from rovlink.link.slave import (
+from rovlink.link.radio.frame import MAX_FRAME
+from rovlink.link.radio.messages import FAILSAFE_S, VELOCITY_FULL, ImageSettings, Mode, Position, Reason, next_img
+from rovlink.link.radio.secure import SecureSlave
+from rovlink.link.radio.slave import (
     ArmRequested,
     BrakeRequested,
     FailsafeCleared,
@@ -63,8 +63,8 @@ from rovlink.link.slave import (
     ImageWanted,
     ModeRequested,
     OrderAbandoned,
+    OrderDeclined,
     OrderExecuted,
-    OrderRejected,
     OrderStarted,
     Slave,
     VelocityCommanded,
@@ -256,7 +256,7 @@ class RovNode:
             elif isinstance(event, FailsafeCleared):
                 self._note("failsafe cleared: polls are back (HOLD until the sticks are re-centred)")
                 self.bridge.failsafe(False)
-            elif isinstance(event, OrderRejected):
+            elif isinstance(event, OrderDeclined):
                 self.stats.orders_rejected += 1
                 self._note(f"order rejected (REASON {event.reason}): {event.why}")
             elif isinstance(event, OrderAbandoned):

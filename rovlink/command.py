@@ -44,7 +44,7 @@ def link_key(args):
     if not args.key:
         raise UsageError("the link needs a key: --key FILE (make one with: rovlink keygen FILE), "
                          "or --insecure to run protocol version 1.1 unauthenticated")
-    from rovlink.link.auth import KeyFileError, read_key_file
+    from rovlink.link.radio.auth import KeyFileError, read_key_file
 
     try:
         return read_key_file(args.key)
@@ -55,7 +55,7 @@ def link_key(args):
 def check_frame_size(endpoint, key) -> None:
     """Version 2 needs frames of at least a SYNC reply (docs/PROTOCOL.md §8): a
     smaller `mtu` is a CommandError before anything starts."""
-    from rovlink.link.secure import SYNC_FRAME_BYTES
+    from rovlink.link.radio.secure import SYNC_FRAME_BYTES
 
     max_frame = endpoint.max_frame
     if key is not None and max_frame is not None and max_frame < SYNC_FRAME_BYTES:

@@ -49,8 +49,8 @@ from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
-from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.messages import ImageSettings, Mode
+from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
+from rovlink.link.radio.messages import ImageSettings, Mode
 from rovlink.link.report import VehicleReport, report_from_status
 from rovlink.link.transport import port_change, port_down_reason
 from rovlink.link.units import acoustic_goto, wrap_deg
@@ -282,7 +282,7 @@ class AcousticSession:
 
     def _handle(self, events: list, t: float) -> None:
         for e in events:
-            if isinstance(e, ac.Synced):
+            if isinstance(e, ac.SessionSynced):
                 self.rov_failsafe_s = float(e.failsafe_s)
                 self.failsafe_action = "surface" if e.failsafe_action == ac.FAILSAFE_SURFACE else "hold"
                 self.recorder.write({"k": "synced", "t": round(t, 4), "restarted": e.restarted,
@@ -299,10 +299,10 @@ class AcousticSession:
                 self._status(report, e.status.uplink, t)
             elif isinstance(e, ac.OrderFate):
                 self._fate(e.oid, e.state, e.reason, t)
-            elif isinstance(e, ac.StopConfirmed):
+            elif isinstance(e, ac.StopTaken):
                 # (pressed_at is the machine's clock, as now is)
                 self._stop_fate(f"acknowledged: holding, {self._clock() - e.pressed_at:.1f} s after it was pressed", t)
-            elif isinstance(e, ac.StopNotCarriedOut):
+            elif isinstance(e, ac.StopImpossible):
                 self._stop_fate("not carried out: no autopilot holds the vehicle", t)
             elif isinstance(e, ac.ThumbnailProgress):
                 self._thumbnail(e.oid, e.prefix, e.verified, t, complete=False)
@@ -440,7 +440,7 @@ class AcousticSession:
         return order_id
 
     def arm(self, armed: bool) -> int:
-        order_id = self._send(ac.Order(0, ac.OP_ARM if armed else ac.OP_DISARM, 0), "ARM", {"armed": bool(armed)})
+        order_id = self._send(ac.OrderBody(0, ac.OP_ARM if armed else ac.OP_DISARM, 0), "ARM", {"armed": bool(armed)})
         self.note("arm requested" if armed else "disarm requested")
         return order_id
 
@@ -453,7 +453,7 @@ class AcousticSession:
             if mode not in MODE_NAMES.values():
                 raise OrderError(f"mode must be 1..6, got {mode!r}")
             value = Mode(mode)
-        order_id = self._send(ac.Order(0, ac.OP_MODE, int(value)), "MODE", {"mode": value.name})
+        order_id = self._send(ac.OrderBody(0, ac.OP_MODE, int(value)), "MODE", {"mode": value.name})
         self.note(f"mode {value.name} requested")
         return order_id
 

@@ -32,10 +32,10 @@ from pathlib import Path
 from rovlink import debt
 from rovlink.bench import emit, format_table
 from rovlink.console.operator import Operator
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import Master
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import Slave
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import Master
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import Slave
 from rovlink.rov.camera import SimulatedCamera
 
 

@@ -31,11 +31,11 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e-6) -> dict:
     from rovlink.console.operator import Operator
-    from rovlink.link.channel import Channel, LinkParams
-    from rovlink.link.messages import VELOCITY_FULL, Mode
-    from rovlink.link.secure import SecureSlave
-    from rovlink.link.sim import SimLink
-    from rovlink.link.slave import BrakeRequested, Slave, VelocityCommanded, status_from_pose
+    from rovlink.link.emulators.channel import Channel, LinkParams
+    from rovlink.link.radio.messages import VELOCITY_FULL, Mode
+    from rovlink.link.radio.secure import SecureSlave
+    from rovlink.link.radio.sim import SimLink
+    from rovlink.link.radio.slave import BrakeRequested, Slave, VelocityCommanded, status_from_pose
     from rovlink.rov.vehicle import Controls, PilotInput, SubMode, VehicleModel, VehicleState
 
     rng = random.Random(seed)

@@ -32,7 +32,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from rovlink.link.messages import ImageSettings
+from rovlink.link.radio.messages import ImageSettings
 from rovlink.link.report import VehicleReport
 
 from .odometry import History, Pose

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from rovlink.link.messages import Mode
+from rovlink.link.radio.messages import Mode
 
 from .odometry import Fix
 from .orders import REPORTED_MODE_NAMES, OrderBook

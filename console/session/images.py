@@ -36,8 +36,8 @@ from typing import Any, Callable
 import numpy as np
 
 from rovlink import debt
-from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.messages import ImageSettings
+from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
+from rovlink.link.radio.messages import ImageSettings
 
 from .odometry import Fix, Pose
 

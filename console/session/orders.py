@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from rovlink.link.messages import REQUESTABLE_MODES
+from rovlink.link.radio.messages import REQUESTABLE_MODES
 
 from .odometry import Fix
 

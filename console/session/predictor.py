@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 import math
 
-from rovlink.link.messages import FAILSAFE_S, VELOCITY_LAPSE_S
+from rovlink.link.radio.messages import FAILSAFE_S, VELOCITY_LAPSE_S
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 from rovlink.rov.vehicle import (
     Controls,

@@ -28,7 +28,7 @@ from rovlink.console.session.state import (
     PoseState,
     VelocityWish,
 )
-from rovlink.link.messages import MAX_BUDGET
+from rovlink.link.radio.messages import MAX_BUDGET
 
 # The one mode list (the protocol's), as a type for the schema.
 ModeName = Literal[tuple(MODES)]  # type: ignore[valid-type]

@@ -9,7 +9,7 @@ import threading
 import time
 import urllib.request
 
-from rovlink.link.m64 import Delivery
+from rovlink.link.emulators.m64 import Delivery
 
 
 def get(url: str):

@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from rovlink.link.m64 import M64Params
+from rovlink.link.emulators.m64 import M64Params
 from rovlink.link.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
@@ -35,7 +35,7 @@ FAST = M64Params(round_s=0.25, b_offset_s=0.125, latency_s=0.4, sync_s=1.0)
 
 @pytest.fixture(scope="module")
 def acoustic(tmp_path_factory):
-    from rovlink.link.m64serial import M64SerialPair
+    from rovlink.link.emulators.m64serial import M64SerialPair
 
     tmp = tmp_path_factory.mktemp("acoustic")
     key = tmp / "link.key"
@@ -175,7 +175,7 @@ def test_a_ground_station_sees_the_acoustic_vehicle_and_its_go_to_and_stops_it(a
     64 bit/s); DO_PAUSE_CONTINUE is the STOP, ACCEPTED once the ROV confirms it."""
     from pymavlink import mavutil
 
-    from rovlink.link.messages import Mode
+    from rovlink.link.radio.messages import Mode
     from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 
     m = mavutil.mavlink

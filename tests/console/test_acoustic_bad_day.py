@@ -19,7 +19,7 @@ import sys
 
 import pytest
 
-from rovlink.link.m64 import M64Params
+from rovlink.link.emulators.m64 import M64Params
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from .acoustic_rig import HostileRadio, end_processes, get, post_status, wait_for
@@ -40,7 +40,7 @@ def start_rov(tmp, key, n: int) -> subprocess.Popen:
 def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    from rovlink.link.m64serial import M64SerialPair
+    from rovlink.link.emulators.m64serial import M64SerialPair
 
     key = tmp_path / "link.key"
     subprocess.run(ROVLINK + ["keygen", str(key)], check=True, capture_output=True, timeout=60)

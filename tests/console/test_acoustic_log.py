@@ -9,7 +9,7 @@ from rovlink.console.acoustic.session import AcousticSession
 from rovlink.link import acoustic as ac
 
 K = bytes(range(32))
-HOLDING = ac.Status(hold=True, autopilot=True, uplink=True, mode=4)
+HOLDING = ac.StatusBody(hold=True, autopilot=True, uplink=True, mode=4)
 
 
 def _texts(session: AcousticSession) -> list[str]:

@@ -8,9 +8,9 @@ answer could carry that trunk.  A fake clock; the operator fed as its link loop 
 from __future__ import annotations
 
 from rovlink.console.operator import Operator
-from rovlink.link.frame import encode_frame
-from rovlink.link.master import ImageComplete, ImageProgress, PollSent, PoseReceived
-from rovlink.link.messages import Mode, Poll, Reply, Velocity
+from rovlink.link.radio.frame import encode_frame
+from rovlink.link.radio.master import ImageComplete, ImageProgress, PollSent, PoseReceived
+from rovlink.link.radio.messages import Mode, Poll, Reply, Velocity
 
 from ..helpers import FakeClock
 

@@ -15,9 +15,9 @@ from rovlink.console import control
 from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, Replaying
 from rovlink.console.operator import Operator
 from rovlink.console.web.app import create_app
-from rovlink.link.frame import encode_frame
-from rovlink.link.master import PollSent, PoseReceived, ReplyLost
-from rovlink.link.messages import Mode, Poll, Reply, Velocity
+from rovlink.link.radio.frame import encode_frame
+from rovlink.link.radio.master import PollSent, PoseReceived, ReplyLost
+from rovlink.link.radio.messages import Mode, Poll, Reply, Velocity
 
 from ..helpers import FakeClock, local_test_client
 
@@ -280,7 +280,7 @@ def test_the_recording_holds_stop_as_a_neutral_wish_and_each_orders_outcome(oper
 
 
 def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator, clock):
-    from rovlink.link.secure import InauthenticFrame, LateReply
+    from rovlink.link.radio.secure import InauthenticFrame, LateReply
 
     for _ in range(4):
         operator.handle_events([InauthenticFrame("reply"), LateReply(False)], operator.now())
@@ -295,9 +295,9 @@ def test_protocol_2_alerts_after_more_than_3_inauthentic_frames_in_10_s(operator
 def test_frames_failing_their_tag_while_replies_come_are_counted_not_alerted(operator, clock):
     """Version 2 has no CRC (§8.1): a reply hit by noise fails its tag like a forged one.
     While replies keep coming that is a noisy link (counted, shown), not an alert."""
-    from rovlink.link.master import PoseReceived
-    from rovlink.link.messages import Reply
-    from rovlink.link.secure import InauthenticFrame
+    from rovlink.link.radio.master import PoseReceived
+    from rovlink.link.radio.messages import Reply
+    from rovlink.link.radio.secure import InauthenticFrame
 
     for _ in range(8):
         operator.handle_events([PoseReceived(Reply(autopilot=True), operator.now(), 0.4), InauthenticFrame("reply")],

@@ -6,8 +6,8 @@ clock, the operator fed as its link loop feeds it."""
 from __future__ import annotations
 
 from rovlink.console.operator import Operator
-from rovlink.link.master import PoseReceived
-from rovlink.link.messages import Mode, Reply
+from rovlink.link.radio.master import PoseReceived
+from rovlink.link.radio.messages import Mode, Reply
 
 from ..helpers import FakeClock
 
@@ -95,7 +95,7 @@ def test_a_relative_goto_goes_from_the_pose_it_was_given_at():
 
 
 def test_without_a_picture_the_pilot_is_told_why():
-    from rovlink.link.master import ImageProgress
+    from rovlink.link.radio.master import ImageProgress
 
     op, clock = _session()
     clock.t += 1.0

@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 
 from rovlink.console.operator import Operator
-from rovlink.link.frame import encode_frame
-from rovlink.link.master import PollSent, PoseReceived
-from rovlink.link.messages import Mode, Poll, Reply, Stop, Velocity
+from rovlink.link.radio.frame import encode_frame
+from rovlink.link.radio.master import PollSent, PoseReceived
+from rovlink.link.radio.messages import Mode, Poll, Reply, Stop, Velocity
 
 from ..helpers import FakeClock
 

@@ -21,7 +21,7 @@ import pytest
 from rovlink.console.operator import Operator
 from rovlink.console.replaycontrol import MAX_SPEED, ReplayController, controller_of
 from rovlink.console.stack import Stack, StackConfig
-from rovlink.link.messages import ImageSettings
+from rovlink.link.radio.messages import ImageSettings
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, local_test_client, needs_chromium
 from .conftest import wait_for

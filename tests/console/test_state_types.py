@@ -17,10 +17,10 @@ from pydantic import BaseModel
 from rovlink import debt
 from rovlink.console.operator import Operator
 from rovlink.console.session import state as types
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import Master
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import Slave
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import Master
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import Slave
 
 
 def _fits(model: type[BaseModel], value, where: str) -> None:

@@ -13,8 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rovlink.link import acoustic as ac
-from rovlink.link.acoustic_sim import AcousticSim, fixed_camera
-from rovlink.link.messages import Mode
+from rovlink.link.acoustic.sim import AcousticSim, fixed_camera
+from rovlink.link.radio.messages import Mode
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
 K = bytes(range(32))
@@ -33,12 +33,12 @@ def _down(ctr, kind, body):
     return b"".join(ac.seal_control(K, ac.LABEL_DOWN, S, ctr, kind, body))
 
 
-STATUS0 = ac.Status(x_dm=125, y_dm=-30, z_dm=45, heading_cdeg=9000, armed=True, hold=True, position_valid=True,
+STATUS0 = ac.StatusBody(x_dm=125, y_dm=-30, z_dm=45, heading_cdeg=9000, armed=True, hold=True, position_valid=True,
                     attitude_valid=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, battery_dv=158)
-STATUS17 = ac.Status(hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE, stop_no2=1, oid=3)
-STATUS18 = ac.Status(armed=True, hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE,
+STATUS17 = ac.StatusBody(hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE, stop_no2=1, oid=3)
+STATUS18 = ac.StatusBody(armed=True, hold=True, autopilot=True, uplink=True, mode=Mode.POS_HOLD, result=ac.R_DONE,
                      stop_no2=1, oid=3)  # STATUS17 and ARMED: a STATUS_SAME says it
-GOTO = ac.GoTo(2, 125, -30, 45, -9000, yaw_set=True)
+GOTO = ac.GoToBody(2, 125, -30, 45, -9000, yaw_set=True)
 THUMB = ac.ThumbRequest(3, budget=198, roi=(20, 15, 60, 45), shift=4, mono=True)
 
 
@@ -48,8 +48,8 @@ def vectors() -> list[bytes]:
         ac.seal_hello(K, CHALLENGE),
         b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, ac.FAILSAFE_HOLD))),
         _down(0, ac.DOWN_STATUS, STATUS0.encode()),
-        _up(0, ac.UP_POLL, ac.Poll(1, 3, False, 0b011 << 16, have_status=True, held=0).encode()),
-        _up(1, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode()),
+        _up(0, ac.UP_POLL, ac.PollBody(1, 3, False, 0b011 << 16, have_status=True, held=0).encode()),
+        _up(1, ac.UP_ORDER, ac.OrderBody(1, ac.OP_ARM).encode()),
         _up(2, ac.UP_GOTO, GOTO.encode()),
         _up(3, ac.UP_THUMB, THUMB.encode()),
         _up(4, ac.UP_STOP, ac.StopBody(1, 3).encode()),
@@ -57,7 +57,7 @@ def vectors() -> list[bytes]:
         _down(1, ac.DOWN_THUMB_END, ac.ThumbEnd(3, ac.object_mac(K, S, 3, OBJECT)).encode()),
         _down(17, ac.DOWN_STATUS, STATUS17.encode()),
         _down(18, ac.DOWN_STATUS_SAME, ac.same_body(17, STATUS18.encode())),
-        _up(0, ac.UP_POLL, ac.Poll().encode()),
+        _up(0, ac.UP_POLL, ac.PollBody().encode()),
     ]
 
 
@@ -97,20 +97,20 @@ def test_the_rov_end_makes_and_takes_the_vectors():
     rov = ac.AcousticRov(K, boot=BOOT, random_bytes=_feeder([NONCE]))
     rov.update_status(ac.VehicleState(12.5, -3.0, 4.5, 90.0, armed=True, mode=Mode.POS_HOLD, position_valid=True,
                                       attitude_valid=True, autopilot=True, battery_v=15.8))
-    assert rov.tick(0.0) == [ac.Stop(None)]
+    assert rov.tick(0.0) == [ac.StopWanted(None)]
     assert rov.receive(v[0], 1.0) == [ac.SessionStarted(CHALLENGE)]
     assert rov.wants_flush
     assert rov.next_packet(1.0) + rov.next_packet(2.0) == v[1]
     assert rov.next_packet(3.0) + rov.next_packet(4.0) == v[1]  # the SYNC again, until a frame of its session comes
     assert rov.receive(v[3], 5.0) == []
     assert rov.next_packet(5.0) + rov.next_packet(6.0) == v[2]
-    assert rov.receive(v[4], 6.0) == [ac.Arm(1)]
+    assert rov.receive(v[4], 6.0) == [ac.ArmWanted(1)]
     rov.order_outcome(1, ac.R_DONE)
     events = []
     for i, p in enumerate(_chunks(v[5]) + _chunks(v[6])):
         events += rov.receive(p, 7.0 + i)
     assert events == [ac.GoToWanted(2, GOTO), ac.ThumbnailWanted(3, THUMB)]
-    assert rov.receive(v[7], 11.0) == [ac.Stop(1, True)]
+    assert rov.receive(v[7], 11.0) == [ac.StopWanted(1, True)]
     assert rov.last_oid == 3 and rov.hold and rov.counters.frames_taken == 5
 
 
@@ -121,14 +121,14 @@ def test_the_operator_end_makes_and_takes_the_vectors():
     events = []
     for i, p in enumerate(_chunks(v[1]) + _chunks(v[2])):
         events += op.receive(p, 5.0 + i)
-    assert events[0] == ac.Synced(BOOT, False, 60, ac.FAILSAFE_HOLD)
+    assert events[0] == ac.SessionSynced(BOOT, False, 60, ac.FAILSAFE_HOLD)
     assert events[1] == ac.StatusReceived(STATUS0, 8.0 - ac.STATUS_TRANSIT_S, 0)
-    poll = ac.Poll(have_status=True, held=0)  # nothing wanted yet; it holds STATUS 0
+    poll = ac.PollBody(have_status=True, held=0)  # nothing wanted yet; it holds STATUS 0
     assert op.ready and op.next_packet(9.0) == _up(0, ac.UP_POLL, poll.encode())
-    assert op.send_order(ac.Order(0, ac.OP_ARM), 9.0) == 1
+    assert op.send_order(ac.OrderBody(0, ac.OP_ARM), 9.0) == 1
     assert op.next_packet(10.0) == v[4]
     # The operator's own THUMB request 3, and the ROV's answer from the table.
-    op.thumb = ac._Wanted(3)
+    op.thumb = ac.operator._Wanted(3)
     got = op.receive(v[8], 12.0) + op.receive(v[9], 13.0)
     assert got == [ac.ThumbnailProgress(3, OBJECT), ac.ThumbnailComplete(3, OBJECT)]
     assert op.rx_last == 1
@@ -146,19 +146,19 @@ def test_the_operator_end_makes_and_takes_the_vectors():
 u8 = st.integers(0, 255)
 i16 = st.integers(-32768, 32767)
 BODIES = st.one_of(
-    st.builds(ac.Poll, st.integers(0, 1), st.integers(0, 63), st.booleans(), st.integers(0, 2**ac.BITMAP_BITS - 1),
+    st.builds(ac.PollBody, st.integers(0, 1), st.integers(0, 63), st.booleans(), st.integers(0, 2**ac.BITMAP_BITS - 1),
               st.booleans(), st.integers(0, 15)),
     st.builds(ac.StopBody, u8, u8),
-    st.builds(ac.Order, u8, u8, st.integers(0, 65535)),
-    st.builds(ac.GoTo, u8, i16, i16, i16, i16, st.booleans(), st.booleans(), st.booleans()),
+    st.builds(ac.OrderBody, u8, u8, st.integers(0, 65535)),
+    st.builds(ac.GoToBody, u8, i16, i16, i16, i16, st.booleans(), st.booleans(), st.booleans()),
     st.builds(ac.ThumbRequest, u8, st.integers(0, 65535), st.tuples(u8, u8, u8, u8), st.integers(0, 15),
               st.booleans()),
-    st.builds(ac.Status, i16, i16, i16, st.integers(0, 35999), *[st.booleans()] * 8, st.integers(0, 7),
+    st.builds(ac.StatusBody, i16, i16, i16, st.integers(0, 35999), *[st.booleans()] * 8, st.integers(0, 7),
               st.integers(0, 7), st.integers(0, 3), u8, u8),
     st.builds(ac.ThumbEnd, u8, st.binary(min_size=3, max_size=3)),
 )
-KINDS = {ac.Poll: (ac.UP_POLL, True), ac.StopBody: (ac.UP_STOP, True), ac.Order: (ac.UP_ORDER, True),
-         ac.GoTo: (ac.UP_GOTO, True), ac.ThumbRequest: (ac.UP_THUMB, True), ac.Status: (ac.DOWN_STATUS, False),
+KINDS = {ac.PollBody: (ac.UP_POLL, True), ac.StopBody: (ac.UP_STOP, True), ac.OrderBody: (ac.UP_ORDER, True),
+         ac.GoToBody: (ac.UP_GOTO, True), ac.ThumbRequest: (ac.UP_THUMB, True), ac.StatusBody: (ac.DOWN_STATUS, False),
          ac.ThumbEnd: (ac.DOWN_THUMB_END, False)}
 
 
@@ -189,7 +189,7 @@ def test_data_packets_round_trip(t, idx, chunk):
 @given(junk=st.lists(st.binary(min_size=0, max_size=20), max_size=30))
 def test_bad_packets_are_counted_and_ignored_never_a_crash(junk):
     rov, op = ac.AcousticRov(K, boot=BOOT), ac.AcousticOperator(K)
-    op.thumb = ac._Wanted(1)
+    op.thumb = ac.operator._Wanted(1)
     for end in (rov, op):
         end.session = S
         for i, p in enumerate(junk):
@@ -236,16 +236,16 @@ def _fates(sim, oid):
 
 def test_a_goto_is_taken_flown_and_done_and_a_stop_is_confirmed():
     sim = _synced()
-    oid = sim.order(ac.GoTo(0, 50, 0, 0, relative=True))
+    oid = sim.order(ac.GoToBody(0, 50, 0, 0, relative=True))
     sim.run_until(sim.now + 40)
     assert _fates(sim, oid) == ["taken", "done"]
     assert abs(sim.vehicle.x - 5.0) < 1e-6
-    assert [e for _, e in sim.events(ac.GoToWanted, "rov")] == [ac.GoToWanted(oid, ac.GoTo(oid, 50, 0, 0, relative=True))]
+    assert [e for _, e in sim.events(ac.GoToWanted, "rov")] == [ac.GoToWanted(oid, ac.GoToBody(oid, 50, 0, 0, relative=True))]
     pressed = sim.now
     n = sim.stop()
     sim.run_until(sim.now + 15)
-    (t, confirmed), = sim.events(ac.StopConfirmed)
-    assert confirmed == ac.StopConfirmed(n, pressed) and t - pressed < 8.0
+    (t, confirmed), = sim.events(ac.StopTaken)
+    assert confirmed == ac.StopTaken(n, pressed) and t - pressed < 8.0
     assert sim.operator.ready
 
 
@@ -254,7 +254,7 @@ def test_stop_goes_first_ahead_of_an_order_and_a_thumbnail_under_way():
     sim.order(ac.ThumbRequest(0))
     sim.run_until(sim.now + 15)  # thumbnail data flowing
     assert sim.operator.thumb.slots
-    oid = sim.order(ac.GoTo(0, 300, 0, 0, relative=True))
+    oid = sim.order(ac.GoToBody(0, 300, 0, 0, relative=True))
     sim.run_until(sim.now + 0.3)
     assert sim.channel.queue_length("a") == 1  # the order waits in the modem
     pressed = sim.now
@@ -263,9 +263,9 @@ def test_stop_goes_first_ahead_of_an_order_and_a_thumbnail_under_way():
     handed = [p for t, p in sim.handed["a"] if t >= pressed]
     assert handed and handed[0][0] >> 4 == ac.UP_STOP  # flushed: the STOP is the next packet on the air
     sim.run_until(pressed + 20)
-    (t_rov, _), *_ = [(t, e) for t, e in sim.events(ac.Stop, "rov") if e.stop_no == n]
+    (t_rov, _), *_ = [(t, e) for t, e in sim.events(ac.StopWanted, "rov") if e.stop_no == n]
     assert t_rov - pressed <= 2.6
-    assert sim.events(ac.StopConfirmed)
+    assert sim.events(ac.StopTaken)
     # The order the STOP overtook: cancelled (never taken) or aborted, and never run after the STOP.
     assert _fates(sim, oid)[-1] in ("cancelled", "aborted")
     assert all(t < t_rov for t, e in sim.events(ac.GoToWanted, "rov"))
@@ -318,11 +318,11 @@ def test_a_forged_thumbnail_byte_fails_verification_is_counted_and_the_thumbnail
 
 def test_a_replayed_or_held_back_packet_is_refused():
     sim = _synced(seed=6)
-    arm = sim.order(ac.Order(0, ac.OP_ARM))
+    arm = sim.order(ac.OrderBody(0, ac.OP_ARM))
     sim.run_until(sim.now + 12)
     assert _fates(sim, arm)[-1] == "done"
     order_packets = [p for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_ORDER]
-    disarm = sim.order(ac.Order(0, ac.OP_DISARM))
+    disarm = sim.order(ac.OrderBody(0, ac.OP_DISARM))
     sim.run_until(sim.now + 12)
     assert _fates(sim, disarm)[-1] == "done" and not sim.vehicle.armed
     rov = sim.rov
@@ -336,7 +336,7 @@ def test_a_replayed_or_held_back_packet_is_refused():
 def test_a_held_back_frame_is_refused_once_a_newer_one_was_taken():
     rov = ac.AcousticRov(K, boot=BOOT)
     rov.session = S
-    older, newer = _up(0, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode()), _up(1, ac.UP_POLL, ac.Poll().encode())
+    older, newer = _up(0, ac.UP_ORDER, ac.OrderBody(1, ac.OP_ARM).encode()), _up(1, ac.UP_POLL, ac.PollBody().encode())
     rov.update_status(ac.VehicleState(autopilot=True))
     assert rov.receive(newer, 0.0) == [] and rov.rx_last == 1
     assert rov.receive(older, 0.1) == [] and rov.counters.inauthentic == 1 and rov.last_oid == 0
@@ -356,12 +356,12 @@ def test_a_rov_restart_is_seen_by_its_boot_and_the_pending_order_is_of_unknown_f
     sim = _synced(seed=7)
     first_boot = sim.rov.boot
     sim.rov_down = True  # the ROV's process dies ...
-    oid = sim.order(ac.GoTo(0, 50, 0, 0, relative=True))
+    oid = sim.order(ac.GoToBody(0, 50, 0, 0, relative=True))
     sim.run_until(sim.now + 10)
     sim.restart_rov()  # ... and starts again
     sim.rov_down = False
     sim.run_until(sim.now + 60)
-    synced = [e for _, e in sim.events(ac.Synced)]
+    synced = [e for _, e in sim.events(ac.SessionSynced)]
     assert synced[-1].restarted and synced[-1].boot != first_boot
     assert _fates(sim, oid) == ["unknown"]
     assert sim.operator.ready  # orders again once the new ROV's STATUS came
@@ -370,14 +370,14 @@ def test_a_rov_restart_is_seen_by_its_boot_and_the_pending_order_is_of_unknown_f
 @pytest.mark.parametrize("action,mode", [(ac.FAILSAFE_HOLD, Mode.POS_HOLD), (ac.FAILSAFE_SURFACE, Mode.SURFACE)])
 def test_failsafe_after_failsafe_s_of_silence_with_the_configured_action(action, mode):
     sim = _synced(seed=8, failsafe_s=30, failsafe_action=action)
-    synced = [e for _, e in sim.events(ac.Synced)][-1]
+    synced = [e for _, e in sim.events(ac.SessionSynced)][-1]
     assert (synced.failsafe_s, synced.failsafe_action) == (30, action)
-    oid = sim.order(ac.GoTo(0, 400, 0, 0, relative=True))
+    oid = sim.order(ac.GoToBody(0, 400, 0, 0, relative=True))
     sim.run_until(sim.now + 8)
     silent_from = sim.now
     sim.tamper = lambda to, p, now: None if to == "b" else p  # the uplink goes silent
     sim.run_until(sim.now + 45)
-    (t, entered), = sim.events(ac.FailsafeEntered, "rov")
+    (t, entered), = sim.events(ac.FailsafeStarted, "rov")
     assert entered.action == action and 30 - 3 <= t - silent_from <= 30 + 3
     assert sim.vehicle.mode == mode and sim.vehicle.target is None
     statuses = [e.status for _, e in sim.events(ac.StatusReceived) if _ > t]
@@ -385,12 +385,12 @@ def test_failsafe_after_failsafe_s_of_silence_with_the_configured_action(action,
     assert _fates(sim, oid)[-1] == "aborted"
     sim.tamper = None
     sim.run_until(sim.now + 40)
-    assert sim.events(ac.FailsafeCleared, "rov")
+    assert sim.events(ac.FailsafeEnded, "rov")
 
 
 def test_thirty_percent_loss_still_converges():
     sim = _synced(seed=9, loss=0.3)
-    oid = sim.order(ac.GoTo(0, 30, 0, 0, relative=True))
+    oid = sim.order(ac.GoToBody(0, 30, 0, 0, relative=True))
     sim.run_until(sim.now + 90)
     assert _fates(sim, oid)[-1] == "done"
     thumb = sim.order(ac.ThumbRequest(0))
@@ -398,7 +398,7 @@ def test_thirty_percent_loss_still_converges():
     assert [e.oid for _, e in sim.events(ac.ThumbnailComplete)] == [thumb]
     n = sim.stop()
     sim.run_until(sim.now + 60)
-    assert [e.stop_no for _, e in sim.events(ac.StopConfirmed)] == [n]
+    assert [e.stop_no for _, e in sim.events(ac.StopTaken)] == [n]
 
 
 # ---------------------------------------------------------------------------
@@ -428,10 +428,10 @@ def _status_frame(rov, now) -> tuple[int, bytes]:
 
 def test_the_rov_sends_status_same_only_for_a_full_status_the_operator_says_it_holds():
     rov = _rov_in_session()
-    rov.receive(_up(0, ac.UP_POLL, ac.Poll(have_status=True, held=0).encode()), 2.0)  # HELD 0: no full sent yet
+    rov.receive(_up(0, ac.UP_POLL, ac.PollBody(have_status=True, held=0).encode()), 2.0)  # HELD 0: no full sent yet
     assert _status_frame(rov, 2.0)[0] == ac.DOWN_STATUS  # CTR 0
     assert _status_frame(rov, 4.0)[0] == ac.DOWN_STATUS  # the last POLL named nothing of ours: full again
-    rov.receive(_up(1, ac.UP_POLL, ac.Poll(have_status=True, held=1).encode()), 6.0)  # holds CTR 1
+    rov.receive(_up(1, ac.UP_POLL, ac.PollBody(have_status=True, held=1).encode()), 6.0)  # holds CTR 1
     kind, frame = _status_frame(rov, 6.0)
     assert kind == ac.DOWN_STATUS_SAME and frame == _down(2, ac.DOWN_STATUS_SAME, ac.same_body(1, rov.status(6.0).encode()))
     rov.update_status(replace(STILL, armed=False))  # flags travel in STATUS_SAME too
@@ -440,7 +440,7 @@ def test_the_rov_sends_status_same_only_for_a_full_status_the_operator_says_it_h
     rov.update_status(replace(STILL, z_m=4.6))  # 1 dm deeper: the position is news, a full STATUS
     assert _status_frame(rov, 8.0)[0] == ac.DOWN_STATUS  # CTR 4
     assert _status_frame(rov, 10.0)[0] == ac.DOWN_STATUS  # HELD still names CTR 1, not the newest (4)
-    rov.receive(_up(2, ac.UP_POLL, ac.Poll(have_status=False).encode()), 12.0)
+    rov.receive(_up(2, ac.UP_POLL, ac.PollBody(have_status=False).encode()), 12.0)
     assert _status_frame(rov, 12.0)[0] == ac.DOWN_STATUS
     assert rov.counters.statuses_same == 2
 
@@ -450,14 +450,14 @@ def test_the_operator_takes_status_same_only_naming_the_newest_full_status_it_to
     op.next_packet(0.0)
     for i, p in enumerate(_chunks(b"".join(ac.seal_sync(K, CHALLENGE, ac.SyncBody(BOOT, NONCE, 60, 0))))):
         op.receive(p, 1.0 + i)
-    assert ac.Poll.decode(op._poll().encode()).have_status is False  # no STATUS yet
+    assert ac.PollBody.decode(op._poll().encode()).have_status is False  # no STATUS yet
     same = ac.same_body(0, STATUS0.encode())
     assert op.receive(_down(0, ac.DOWN_STATUS_SAME, same), 3.0) == []  # names a STATUS it never took
     assert op.counters.same_unmatched == 1 and op.last_status is None
     full = _down(1, ac.DOWN_STATUS, STATUS0.encode())
     (got,) = op.receive(full[:8], 4.0) + op.receive(full[8:], 5.0)
     assert got == ac.StatusReceived(STATUS0, 5.0 - ac.STATUS_TRANSIT_S, 1)
-    poll = ac.Poll.decode(op._poll().encode())
+    poll = ac.PollBody.decode(op._poll().encode())
     assert poll.have_status and poll.held == 1
     renewed = replace(STATUS0, armed=False, result=ac.R_DONE, oid=7)
     (got,) = op.receive(_down(2, ac.DOWN_STATUS_SAME, ac.same_body(1, renewed.encode())), 7.0)
@@ -465,7 +465,7 @@ def test_the_operator_takes_status_same_only_naming_the_newest_full_status_it_to
     # One naming CTR 17 (REF 17) when it holds CTR 1: ignored, and its POLLs ask for a full one.
     assert op.receive(_down(3, ac.DOWN_STATUS_SAME, ac.same_body(17, renewed.encode())), 8.0) == []
     assert op.counters.same_unmatched == 2 and op.last_status == renewed
-    assert not ac.Poll.decode(op._poll().encode()).have_status
+    assert not ac.PollBody.decode(op._poll().encode()).have_status
     assert op.receive(_down(4, ac.DOWN_STATUS_SAME, ac.same_body(1, renewed.encode())), 9.0) == []  # forgotten: no
     assert op.counters.same_unmatched == 3
 
@@ -473,11 +473,11 @@ def test_the_operator_takes_status_same_only_naming_the_newest_full_status_it_to
 def _record_truth(sim) -> tuple[dict, list]:
     """What the ROV meant by each STATUS / STATUS_SAME it sealed, (session, CTR) ->
     Status; and what the operator took, [(session, CTR, Status)]."""
-    intended: dict[tuple[bytes, int], ac.Status] = {}
-    taken: list[tuple[bytes, int, ac.Status]] = []
+    intended: dict[tuple[bytes, int], ac.StatusBody] = {}
+    taken: list[tuple[bytes, int, ac.StatusBody]] = []
     rov, op = sim.rov, sim.operator
     status, seal, op_status = rov.status, rov._seal, op._status
-    last: list[ac.Status] = []
+    last: list[ac.StatusBody] = []
 
     def spy_status(now):
         last[:] = [status(now)]
@@ -506,7 +506,7 @@ def test_every_status_the_operator_takes_is_what_the_rov_meant_while_it_moves_an
     for k in range(3):  # hold still with a thumbnail, then move, then hold again
         sim.order(ac.ThumbRequest(0))
         sim.run_until(sim.now + 50)
-        sim.order(ac.GoTo(0, 40, 30 * k, 10, relative=True))
+        sim.order(ac.GoToBody(0, 40, 30 * k, 10, relative=True))
         sim.run_until(sim.now + 30)
     assert len(taken) > 30
     for session, ctr, status in taken:
@@ -553,12 +553,12 @@ def test_a_thumbnail_packet_past_the_polls_bitmap_is_not_sent_again_until_the_bi
         now += 1.0
     assert sent == list(range(29))  # each once, then nothing until a POLL tells
     # Packet 1 lost: LOWEST_MISSING 1, the bitmap tells of 2..20 (all held); 21..28 lie past it.
-    rov.receive(_up(1, ac.UP_POLL, ac.Poll(0, 1, False, (1 << ac.BITMAP_BITS) - 1).encode()), now)
+    rov.receive(_up(1, ac.UP_POLL, ac.PollBody(0, 1, False, (1 << ac.BITMAP_BITS) - 1).encode()), now)
     again = [p[0] & 63 for p in (rov.next_packet(now + k) for k in range(20)) if p[0] & 0x80]
     assert again == [1]
     # Packets 1..20 held: now 21..28 are within the bitmap, and it says 21 and 25 are missing.
     bitmap = sum(1 << (ac.BITMAP_BITS - 1 - k) for k in range(8) if 22 + k != 25)
-    rov.receive(_up(2, ac.UP_POLL, ac.Poll(0, 21, False, bitmap).encode()), now + 20)
+    rov.receive(_up(2, ac.UP_POLL, ac.PollBody(0, 21, False, bitmap).encode()), now + 20)
     again = [p[0] & 63 for p in (rov.next_packet(now + 20 + k) for k in range(10)) if p[0] & 0x80]
     assert again == [21, 25]
 
@@ -579,7 +579,7 @@ def test_at_no_loss_the_status_shown_is_never_older_than_10_s_also_when_orders_c
             next_order = sim.now + rng.uniform(3, 12)
             if sim.operator.sending_oid is None and not sim.operator.orders_waiting:
                 k += 1
-                sim.order(ac.Order(0, ac.OP_ARM if k % 2 else ac.OP_HOLD))
+                sim.order(ac.OrderBody(0, ac.OP_ARM if k % 2 else ac.OP_HOLD))
         if shown:
             oldest = max(oldest, sim.now - shown[-1])
     assert k > 50 and sim.rov.counters.fulls_flushed > 5  # it happened, many times
@@ -593,25 +593,25 @@ def test_at_no_loss_the_status_shown_is_never_older_than_10_s_also_when_orders_c
 def test_no_failsafe_before_the_first_frame_of_a_session():
     rov = ac.AcousticRov(K, failsafe_s=12, boot=BOOT, random_bytes=_feeder([NONCE]))
     rov.update_status(STILL)
-    assert rov.tick(0.0) == [ac.Stop(None)]  # the start's brake holds it
+    assert rov.tick(0.0) == [ac.StopWanted(None)]  # the start's brake holds it
     assert rov.tick(100.0) == [] and rov.failsafe_at is None and not rov.status(100.0).failsafe
     rov.receive(ac.seal_hello(K, CHALLENGE), 100.0)
     assert rov.tick(130.0) == [] and not rov.status(130.0).failsafe  # a HELLO starts no timer
-    rov.receive(_up(0, ac.UP_POLL, ac.Poll().encode()), 131.0)  # the session's first frame
+    rov.receive(_up(0, ac.UP_POLL, ac.PollBody().encode()), 131.0)  # the session's first frame
     assert rov.failsafe_at == 143.0 and rov.tick(142.9) == []
-    assert [type(e) for e in rov.tick(143.0)] == [ac.FailsafeEntered]
+    assert [type(e) for e in rov.tick(143.0)] == [ac.FailsafeStarted]
 
 
 def test_the_first_status_of_a_rov_with_a_short_failsafe_time_shows_no_failsafe():
     sim = _synced(seed=3, failsafe_s=5)  # a failsafe time shorter than the session takes to start
     (_, first), *_ = sim.events(ac.StatusReceived)
     assert first.status.hold and not first.status.failsafe
-    assert not sim.events(ac.FailsafeEntered, "rov")
+    assert not sim.events(ac.FailsafeStarted, "rov")
 
 
 def _going(rov, now):
     """A go-to taken and flown (GUIDED, GOING), its STATUS sent."""
-    for p in _chunks(_up(0, ac.UP_GOTO, ac.GoTo(1, 50, 0, 0, relative=True).encode())):
+    for p in _chunks(_up(0, ac.UP_GOTO, ac.GoToBody(1, 50, 0, 0, relative=True).encode())):
         rov.receive(p, now)
     rov.update_status(replace(STILL, mode=Mode.GUIDED, going=True))
     _status_frame(rov, now)
@@ -625,7 +625,7 @@ def test_the_status_after_a_stop_waits_for_the_brake_to_show():
     assert rov.next_packet(3.0) is None and rov.next_packet(4.0) is None  # the autopilot still says GUIDED
     rov.update_status(replace(STILL, mode=Mode.POS_HOLD, going=True))  # the brake shows (GOING not yet refreshed)
     kind, frame = _status_frame(rov, 4.2)
-    status = ac.Status.decode(frame[1:13])
+    status = ac.StatusBody.decode(frame[1:13])
     assert kind == ac.DOWN_STATUS and status.mode == Mode.POS_HOLD and status.hold and not status.going
     assert (status.stop_no2, status.result) == (1, ac.R_ABORTED)
     # A brake that never shows: the STATUS goes after BRAKE_SHOWN_S and tells the truth.
@@ -633,7 +633,7 @@ def test_the_status_after_a_stop_waits_for_the_brake_to_show():
     rov.receive(_up(2, ac.UP_STOP, ac.StopBody(2, 1).encode()), 10.0)
     assert rov.next_packet(10.0 + ac.BRAKE_SHOWN_S - 0.1) is None
     kind, frame = _status_frame(rov, 10.0 + ac.BRAKE_SHOWN_S)
-    assert ac.Status.decode(frame[1:13]).mode == Mode.GUIDED
+    assert ac.StatusBody.decode(frame[1:13]).mode == Mode.GUIDED
 
 
 @pytest.mark.parametrize("action,mode", [(ac.FAILSAFE_HOLD, Mode.POS_HOLD), (ac.FAILSAFE_SURFACE, Mode.SURFACE)])
@@ -644,11 +644,11 @@ def test_the_status_reporting_a_failsafe_shows_the_brake_and_no_goto(action, mod
     rov.receive(ac.seal_hello(K, CHALLENGE), 0.0)
     rov.next_packet(0.0), rov.next_packet(1.0)
     _going(rov, 2.0)
-    assert [type(e) for e in rov.tick(22.0)] == [ac.FailsafeEntered]
+    assert [type(e) for e in rov.tick(22.0)] == [ac.FailsafeStarted]
     assert rov.next_packet(22.0) is None  # GUIDED still: the STATUS waits
     rov.update_status(replace(STILL, mode=mode, going=True))
     kind, frame = _status_frame(rov, 22.5)
-    status = ac.Status.decode(frame[1:13])
+    status = ac.StatusBody.decode(frame[1:13])
     assert (status.failsafe, status.hold, status.going, status.mode, status.result) == (
         True, True, False, mode, ac.R_ABORTED)
 
@@ -669,7 +669,7 @@ def test_forged_first_halves_count_as_inauthentic_and_alert_like_one_packet_forg
 
 def test_the_poll_before_any_thumbnail_has_t_0_and_asks_for_nothing():
     sim = _synced(seed=4)
-    polls = [ac.Poll.decode(p[1:5]) for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_POLL]
+    polls = [ac.PollBody.decode(p[1:5]) for _, p in sim.handed["a"] if p[0] >> 4 == ac.UP_POLL]
     assert polls and all((p.t, p.lowest_missing, p.have_end, p.bitmap) == (0, ac.MAX_SLOTS, True, 0) for p in polls)
 
 
@@ -677,13 +677,13 @@ def test_the_poll_before_any_thumbnail_has_t_0_and_asks_for_nothing():
 def test_the_first_status_comes_without_a_second_hello_crossing_the_first_sync(latency_s):
     """Modems that start 3 s after the programs and take up to 2.5 s from host to host:
     the HELLO waits in the operator's modem, and its 8 s count from when it left."""
-    from rovlink.link.m64 import M64Params
+    from rovlink.link.emulators.m64 import M64Params
 
     sim = AcousticSim(K, seed=1, params=M64Params(latency_s=latency_s, sync_s=3.0))
     sim.run_until(40.0)
     hellos = [t for t, p in sim.handed["a"] if p[0] == 0]
     (first, _), *_ = sim.events(ac.StatusReceived)
-    assert len(hellos) == 1 and len(sim.events(ac.Synced)) == 1
+    assert len(hellos) == 1 and len(sim.events(ac.SessionSynced)) == 1
     assert first <= 18.0  # was 22-24 s when the second HELLO crossed the first SYNC
 
 

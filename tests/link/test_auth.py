@@ -10,7 +10,7 @@ import stat
 
 import pytest
 
-from rovlink.link.auth import (
+from rovlink.link.radio.auth import (
     AuthFrameDecoder,
     HelloIn,
     KeyFileError,
@@ -75,7 +75,7 @@ def test_the_section_8_vectors_byte_for_byte():
     translation makes each version 2 payload from the version 1.1 one and back."""
     import struct
 
-    from rovlink.link.wire2 import (
+    from rovlink.link.radio.wire2 import (
         NO_CONTINUATION,
         continuation_of,
         poll_from_wire,
@@ -319,7 +319,7 @@ def test_an_authentic_frame_behind_an_incomplete_candidate_is_delivered_at_once(
 
 
 def test_a_crc_valid_frame_with_a_wrong_tag_is_dropped_like_a_crc_failure():
-    from rovlink.link.frame import encode_frame
+    from rovlink.link.radio.frame import encode_frame
 
     decoder = AuthFrameDecoder(lambda c: False)
     forged = encode_frame(REPLY_PAYLOAD + b"\0\0\0\0")

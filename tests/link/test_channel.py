@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from rovlink.link.channel import Channel, LinkParams
+from rovlink.link.emulators.channel import Channel, LinkParams
 
 
 def test_serialisation_and_delay_set_the_arrival_time():

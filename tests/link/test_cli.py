@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from rovlink.link.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
 from rovlink.link.transport import free_udp_port
 
 ROVLINK = [sys.executable, "-m", "rovlink"]
@@ -181,7 +181,7 @@ def test_bench_link_prints_a_table_and_json(tmp_path):
 def test_keygen_writes_a_private_key_once(tmp_path):
     import stat
 
-    from rovlink.link.auth import read_key_file
+    from rovlink.link.radio.auth import read_key_file
 
     path = tmp_path / "link.key"
     out = subprocess.run(ROVLINK + ["keygen", str(path)], capture_output=True, text=True, timeout=60)

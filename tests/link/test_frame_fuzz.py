@@ -4,8 +4,8 @@ import random
 
 import pytest
 
-from rovlink.link.frame import START, FrameDecoder, encode_frame
-from rovlink.link.messages import Poll, ProtocolError, Reply
+from rovlink.link.radio.frame import START, FrameDecoder, encode_frame
+from rovlink.link.radio.messages import Poll, ProtocolError, Reply
 
 
 def test_false_start_with_len_over_the_cap_is_no_start():

@@ -11,8 +11,8 @@ from types import SimpleNamespace
 import pytest
 
 from rovlink.link.aio import run_channel
-from rovlink.link.m64 import M64Channel, M64Loss, M64Params
-from rovlink.link.sim import SimLink
+from rovlink.link.emulators.m64 import M64Channel, M64Loss, M64Params
+from rovlink.link.radio.sim import SimLink
 from rovlink.link.transport import inproc_pair
 
 

@@ -24,15 +24,15 @@ import tty
 
 import pytest
 
-from rovlink.link.m64 import M64Loss, M64Params
-from rovlink.link.m64serial import M64SerialError, M64SerialPair, take_sentence
+from rovlink.link.emulators.m64 import M64Loss, M64Params
+from rovlink.link.emulators.m64serial import M64SerialError, M64SerialPair, take_sentence
 from rovlink.link.wlmodem import open_wlmodem
 
 from ..helpers import run_async
 from ..helpers import until as wait_until
 
 ROVLINK = [sys.executable, "-m", "rovlink"]
-LOGGER = "rovlink.link.m64serial"
+LOGGER = "rovlink.link.emulators.m64serial"
 WLMODEM_LOGGER = "rovlink.link.wlmodem"
 FAST = M64Params(round_s=0.1, b_offset_s=0.05, latency_s=0.15, sync_s=0.3)
 

@@ -5,9 +5,9 @@ import random
 
 import pytest
 
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import (
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.master import (
     ImageComplete,
     ImageProgress,
     Master,
@@ -18,10 +18,10 @@ from rovlink.link.master import (
     RequestExpired,
     StopConfirmed,
 )
-from rovlink.link.master import (
+from rovlink.link.radio.master import (
     OrderRejected as MasterOrderRejected,
 )
-from rovlink.link.messages import (
+from rovlink.link.radio.messages import (
     ImageSettings,
     Mode,
     Poll,
@@ -31,16 +31,16 @@ from rovlink.link.messages import (
     Stop,
     Velocity,
 )
-from rovlink.link.sim import SimLink, accept_at_once
-from rovlink.link.slave import (
+from rovlink.link.radio.sim import SimLink, accept_at_once
+from rovlink.link.radio.slave import (
     ArmRequested,
     BrakeRequested,
     FailsafeCleared,
     FailsafeEntered,
     ImageWanted,
     ModeRequested,
+    OrderDeclined,
     OrderExecuted,
-    OrderRejected,
     Slave,
     Status,
     VelocityCommanded,
@@ -301,7 +301,7 @@ def test_reserved_and_invalid_orders_are_answered_and_rejected_reason_0():
     out = slave.receive(Poll(seq=1, order=ReservedOrder(9, b"\x01\x02")).encode(), 0.0)
     reply = Reply.decode(FrameDecoder().feed(out.reply)[0])
     assert (reply.ack, reply.rejected, reply.reason) == (1, True, 0)
-    assert isinstance(out.events[-1], OrderRejected) and out.events[-1].reason == 0
+    assert isinstance(out.events[-1], OrderDeclined) and out.events[-1].reason == 0
     bad_velocity = bytes([0x01, 0x1F, 0xFF, 0x00, 0x80, 0, 0, 0])  # VX -128: an invalid wish
     out = slave.receive(bad_velocity, 0.1)
     assert out.reply is not None

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.messages import (
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.messages import (
     ImageSettings,
     InvalidOrder,
     NoOrder,

@@ -5,9 +5,9 @@ import random
 
 import pytest
 
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import (
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.master import (
     ImageAbandoned,
     ImageComplete,
     ImageProgress,
@@ -20,10 +20,10 @@ from rovlink.link.master import (
     StopConfirmed,
     StopNotCarriedOut,
 )
-from rovlink.link.master import (
+from rovlink.link.radio.master import (
     OrderRejected as MasterRejected,
 )
-from rovlink.link.messages import (
+from rovlink.link.radio.messages import (
     NO_IMAGE_DATA,
     Arm,
     ImageSettings,
@@ -36,8 +36,8 @@ from rovlink.link.messages import (
     Stop,
     Velocity,
 )
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import (
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import (
     ArmRequested,
     BrakeRequested,
     FailsafeCleared,
@@ -45,8 +45,8 @@ from rovlink.link.slave import (
     ImageWanted,
     ModeRequested,
     OrderAbandoned,
+    OrderDeclined,
     OrderExecuted,
-    OrderRejected,
     OrderStarted,
     Slave,
     Status,
@@ -226,9 +226,9 @@ def test_a_reserved_order_is_rejected_reason_0_and_consumes_its_seq():
     slave = ready_slave()
     reply, events = send(slave, Poll(seq=1, order=ReservedOrder(12, b"\x01" * 9)), 0.0)
     assert (reply.ack, reply.rejected, reply.reason) == (1, True, 0)
-    assert [e.reason for e in of(events, OrderRejected)] == [0]
+    assert [e.reason for e in of(events, OrderDeclined)] == [0]
     reply, events = send(slave, Poll(seq=1, order=ReservedOrder(12, b"\x01" * 9)), 0.1)
-    assert not of(events, OrderRejected) and reply.rejected  # a repeat: answered, not taken again
+    assert not of(events, OrderDeclined) and reply.rejected  # a repeat: answered, not taken again
 
 
 @pytest.mark.parametrize("body", [
@@ -261,7 +261,7 @@ def test_a_position_impossible_now_is_rejected_reason_1(status, why):
     slave.update_status(status)
     reply, events = send(slave, Poll(seq=1, order=TARGET), 0.0)
     assert (reply.ack, reply.rejected, reply.reason) == (1, True, 1)
-    assert of(events, OrderRejected)[0].why == why and not of(events, OrderStarted)
+    assert of(events, OrderDeclined)[0].why == why and not of(events, OrderStarted)
 
 
 def test_ack_flips_when_the_autopilot_accepts_and_the_order_is_never_started_twice():
@@ -286,7 +286,7 @@ def test_an_autopilot_refusal_is_reason_2_and_no_answer_in_2_s_too():
     assert of(events, OrderStarted)
     assert slave.tick(2.9) == []
     events = slave.tick(3.0)
-    assert of(events, OrderAbandoned) and [e.reason for e in of(events, OrderRejected)] == [2]
+    assert of(events, OrderAbandoned) and [e.reason for e in of(events, OrderDeclined)] == [2]
     reply, _ = send(slave, Poll(seq=0), 3.1)
     assert (reply.ack, reply.rejected, reply.reason) == (0, True, 2)
 
@@ -361,7 +361,7 @@ def test_failsafe_abandons_brakes_reports_then_holds_until_re_centred_and_keeps_
     assert of(events, OrderStarted)
     assert slave.tick(1.9) == []
     events = slave.tick(2.0)
-    assert of(events, FailsafeEntered) and [e.reason for e in of(events, OrderRejected)] == [1]
+    assert of(events, FailsafeEntered) and [e.reason for e in of(events, OrderDeclined)] == [1]
     assert slave.velocity.is_neutral and slave.hold and slave.standing == "brake"
     assert slave.held_img == 2
     reply, events = send(slave, Poll(seq=1, order=Velocity(80, 0, 0, 0), img=2, offset=24), 9.0)

@@ -7,11 +7,11 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from rovlink.link.auth import OperatorChain
-from rovlink.link.frame import FrameDecoder
-from rovlink.link.messages import Mode, Reply
-from rovlink.link.secure import SecureSlave, parse_reply
-from rovlink.link.slave import Slave
+from rovlink.link.radio.auth import OperatorChain
+from rovlink.link.radio.frame import FrameDecoder
+from rovlink.link.radio.messages import Mode, Reply
+from rovlink.link.radio.secure import SecureSlave, parse_reply
+from rovlink.link.radio.slave import Slave
 
 from . import test_auth, test_vectors
 

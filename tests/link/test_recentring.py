@@ -11,12 +11,12 @@ import random
 
 import pytest
 
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import Master
-from rovlink.link.messages import Mode, NoOrder, Poll, Stop, Velocity
-from rovlink.link.secure import SecureMaster, SecureSlave
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import Slave, Status, VelocityCommanded
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import Master
+from rovlink.link.radio.messages import Mode, NoOrder, Poll, Stop, Velocity
+from rovlink.link.radio.secure import SecureMaster, SecureSlave
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import Slave, Status, VelocityCommanded
 
 ARMED = Status(armed=True, mode=Mode.POS_HOLD, autopilot=True, position_valid=True, attitude_valid=True)
 

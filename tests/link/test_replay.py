@@ -6,9 +6,9 @@ ReplyReplayer: the same pictures come out, abandoned and completed alike."""
 
 from __future__ import annotations
 
-from rovlink.link.master import ImageAbandoned, ImageComplete, ImageProgress, Master
-from rovlink.link.messages import Poll, Reply
-from rovlink.link.replay import ReplyReplayer
+from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress, Master
+from rovlink.link.radio.messages import Poll, Reply
+from rovlink.link.radio.replay import ReplyReplayer
 
 
 def obj(stream: bytes) -> bytes:

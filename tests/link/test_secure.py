@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import random
 
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import Master, OrderAcknowledged, PoseReceived
-from rovlink.link.messages import Mode, Position
-from rovlink.link.secure import InauthenticFrame, SecureMaster, SecureSlave, Synced
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import OrderExecuted, Slave, Status, VelocityCommanded
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import Master, OrderAcknowledged, PoseReceived
+from rovlink.link.radio.messages import Mode, Position
+from rovlink.link.radio.secure import InauthenticFrame, SecureMaster, SecureSlave, Synced
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import OrderExecuted, Slave, Status, VelocityCommanded
 
 K = bytes(range(32))
 
@@ -85,7 +85,7 @@ def test_forged_and_bit_flipped_replies_never_reach_the_master():
 
 
 def _fake_poll():
-    from rovlink.link.auth import PollIn
+    from rovlink.link.radio.auth import PollIn
 
     return PollIn(b"\x00\x1f\xff", 0, b"\x11" * 32, b"\x22" * 32, False)
 
@@ -118,13 +118,13 @@ def test_the_replies_handed_to_the_master_are_reported_without_their_tags():
     link.run_until(15.0)
     assert seen[0][1] is True and len(seen[0][0]) == 14  # the SYNC's reply payload
     assert all(not sync for _, sync in seen[1:]) and len(seen) > 5
-    from rovlink.link.messages import Reply
+    from rovlink.link.radio.messages import Reply
 
     assert all(Reply.decode(payload) for payload, _ in seen[1:])  # plain 1.1 replies
 
 
 def test_after_a_rov_restart_an_unanswered_order_is_of_unknown_fate_and_not_resent():
-    from rovlink.link.master import OrderFateUnknown
+    from rovlink.link.radio.master import OrderFateUnknown
 
     master = SecureMaster(Master(rng=random.Random(5)), K)
     armed = Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
@@ -150,7 +150,7 @@ def test_after_a_rov_restart_an_unanswered_order_is_of_unknown_fate_and_not_rese
     assert [e.order_id for e in unknown] == [order_id]
     assert any(isinstance(e, Synced) and e.restarted for e in events)
     # The new ROV never saw the order: it was not sent again.
-    from rovlink.link.slave import OrderStarted
+    from rovlink.link.radio.slave import OrderStarted
 
     started_after = [e for e in executed if isinstance(e, OrderStarted)]
     assert len(started_after) == 1  # the old ROV's, before the restart

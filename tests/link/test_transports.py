@@ -9,11 +9,11 @@ import tempfile
 import pytest
 
 from rovlink.link.aio import run_channel, run_master, run_slave
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import ImageComplete, Master, PoseReceived, StopConfirmed
-from rovlink.link.messages import ImageSettings, Mode, Poll, Stop
-from rovlink.link.slave import BrakeRequested, OrderExecuted, Slave, Status
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.master import ImageComplete, Master, PoseReceived, StopConfirmed
+from rovlink.link.radio.messages import ImageSettings, Mode, Poll, Stop
+from rovlink.link.radio.slave import BrakeRequested, OrderExecuted, Slave, Status
 from rovlink.link.transport import TransportError, free_udp_port, inproc_pair, open_transport
 
 from ..helpers import Pty
@@ -231,8 +231,8 @@ def test_bad_urls_say_what_is_wrong(url, words):
 
 def test_an_mtu_below_the_smallest_reply_is_refused_before_anything_starts():
     # mtu=20 passed here once and then crashed `rovlink rov` with a traceback in the slave.
-    from rovlink.link.messages import MIN_FRAME
-    from rovlink.link.slave import Slave
+    from rovlink.link.radio.messages import MIN_FRAME
+    from rovlink.link.radio.slave import Slave
 
     with pytest.raises(TransportError, match=f"mtu must be a frame size of {MIN_FRAME}.."):
         open_transport(f"udp://127.0.0.1:0?peer=127.0.0.1:9&mtu={MIN_FRAME - 1}")

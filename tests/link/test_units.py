@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from rovlink.link import acoustic as ac
-from rovlink.link.messages import Reply
+from rovlink.link.radio.messages import Reply
 from rovlink.link.report import report_from_reply, report_from_status
 from rovlink.link.units import acoustic_goto, position_order, velocity_ints, wish_fractions
 
@@ -37,7 +37,7 @@ def test_acoustic_go_tos_carry_decimetres_and_say_what_is_out_of_range():
 
 
 def test_a_status_reads_in_si_with_a_heading_and_no_tilt():
-    s = ac.Status(x_dm=15, y_dm=-7, z_dm=32, heading_cdeg=27000, armed=True, attitude_valid=True, position_valid=True,
+    s = ac.StatusBody(x_dm=15, y_dm=-7, z_dm=32, heading_cdeg=27000, armed=True, attitude_valid=True, position_valid=True,
                   autopilot=True, going=True, mode=5, battery_dv=158)
     r = report_from_status(s, sampled_at=10.0, arrived_at=13.0)
     assert (r.x_m, r.y_m, r.z_m, r.yaw_deg) == pytest.approx((1.5, -0.7, 3.2, -90.0))

@@ -11,8 +11,8 @@ import random
 
 import pytest
 
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import (
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.master import (
     Master,
     OrderAcknowledged,
     OrderCancelled,
@@ -20,10 +20,10 @@ from rovlink.link.master import (
     PoseReceived,
     StopConfirmed,
 )
-from rovlink.link.messages import Mode, Position, Reply, Stop
-from rovlink.link.secure import LateReply, SecureMaster, SecureSlave, Synced
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import (
+from rovlink.link.radio.messages import Mode, Position, Reply, Stop
+from rovlink.link.radio.secure import LateReply, SecureMaster, SecureSlave, Synced
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import (
     BrakeRequested,
     FailsafeEntered,
     OrderAbandoned,
@@ -31,7 +31,7 @@ from rovlink.link.slave import (
     Slave,
     Status,
 )
-from rovlink.link.slave import OrderRejected as SlaveRejected
+from rovlink.link.radio.slave import OrderDeclined as SlaveRejected
 
 K = bytes(range(32))
 ARMED = Status(armed=True, mode=Mode.MANUAL, autopilot=True, position_valid=True, attitude_valid=True)
@@ -245,8 +245,8 @@ def test_a_hello_goes_out_only_when_no_poll_awaits_its_reply():
 def test_a_new_boot_keeps_arm_and_mode_requests_back_until_a_velocity_reply():
     """A mode asked for the moment a restarted ROV's SYNC comes must not ride in the
     first VELOCITY the new ROV takes (that one only sets its reference, §2)."""
-    from rovlink.link.messages import Poll
-    from rovlink.link.slave import ModeRequested
+    from rovlink.link.radio.messages import Poll
+    from rovlink.link.radio.slave import ModeRequested
 
     master, slave, link, mev, sev = _link(7)
     link.run_until(8.0)
@@ -292,7 +292,7 @@ def test_an_angle_out_of_range_shows_the_attitude_unknown_and_the_rest_is_used()
 def test_the_master_says_what_it_sent_hellos_polls_and_their_orders():
     """PollSent (issue 17 of the console's house): the frame as it left (sealed), the
     poll it carried, the ids of the orders in it; nobody decodes the bytes again."""
-    from rovlink.link.master import PollSent
+    from rovlink.link.radio.master import PollSent
 
     master, slave, link, mev, sev = _link(8)
     sent_frames: list[bytes] = []
@@ -403,8 +403,8 @@ def test_a_departed_pilots_wish_is_never_repeated_for_nobody_after_a_lost_reply(
     """§5 (decided, version 2): nobody's neutral never goes as a NONE that repeats the
     wish of the reply it is chained to: the vehicle a departed pilot was driving stops,
     and stays stopped while replies are lost."""
-    from rovlink.link.messages import Velocity
-    from rovlink.link.slave import VelocityCommanded
+    from rovlink.link.radio.messages import Velocity
+    from rovlink.link.radio.slave import VelocityCommanded
 
     master, slave = _by_hand()
     _cycle(master, slave, 0.0)  # HELLO and SYNC: the ROV holds (its start)
@@ -432,8 +432,8 @@ def test_a_departed_pilots_wish_is_never_repeated_for_nobody_after_a_lost_reply(
 
 
 def test_a_trunk_past_the_objects_last_byte_is_found_before_the_chain_moves():
-    from rovlink.link.messages import Poll, ProtocolError
-    from rovlink.link.secure import parse_reply
+    from rovlink.link.radio.messages import Poll, ProtocolError
+    from rovlink.link.radio.secure import parse_reply
 
     poll11 = Poll(img=1, offset=8189).encode()
     wire = bytes.fromhex("01 b0") + bytes(12)

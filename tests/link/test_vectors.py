@@ -2,8 +2,8 @@
 
 import pytest
 
-from rovlink.link.frame import FrameDecoder, crc16, encode_frame
-from rovlink.link.messages import Arm, ImageSettings, Mode, Poll, Position, Reason, Reply, Velocity
+from rovlink.link.radio.frame import FrameDecoder, crc16, encode_frame
+from rovlink.link.radio.messages import Arm, ImageSettings, Mode, Poll, Position, Reason, Reply, Velocity
 
 VECTORS = [
     (

@@ -12,14 +12,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rovlink.link.auth import OperatorChain, RovChain
-from rovlink.link.channel import Channel, LinkParams
-from rovlink.link.master import Master
-from rovlink.link.messages import NO_IMAGE_DATA, Mode, NoOrder, Poll, ProtocolError, Reply, Velocity
-from rovlink.link.secure import SecureMaster, SecureSlave
-from rovlink.link.sim import SimLink
-from rovlink.link.slave import Slave, Status, VelocityCommanded
-from rovlink.link.wire2 import (
+from rovlink.link.emulators.channel import Channel, LinkParams
+from rovlink.link.radio.auth import OperatorChain, RovChain
+from rovlink.link.radio.master import Master
+from rovlink.link.radio.messages import NO_IMAGE_DATA, Mode, NoOrder, Poll, ProtocolError, Reply, Velocity
+from rovlink.link.radio.secure import SecureMaster, SecureSlave
+from rovlink.link.radio.sim import SimLink
+from rovlink.link.radio.slave import Slave, Status, VelocityCommanded
+from rovlink.link.radio.wire2 import (
     NO_CONTINUATION,
     V2_CYCLE,
     continuation_of,
@@ -265,7 +265,7 @@ def test_after_a_lost_reply_the_next_poll_waits_with_the_shortest_margin():
     answer with §5's shortest margin (50 ms), so that a run of lost polls leaves
     the ROV without one for less time; once a reply comes, the usual margin.
     Version 1.1's master keeps its margin (only version 2 asks for this)."""
-    from rovlink.link.master import OUTAGE_MARGIN_S
+    from rovlink.link.radio.master import OUTAGE_MARGIN_S
 
     def timeouts(master, inner):
         seen: list = []

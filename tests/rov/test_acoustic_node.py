@@ -55,14 +55,14 @@ def _result(n: AcousticNode) -> int:
 
 def test_surface_runs_while_the_vehicle_rises_so_a_stop_aborts_it_and_is_done_at_the_surface(node):
     n, vehicle = node
-    _send(n, 0, ac.UP_ORDER, ac.Order(1, ac.OP_ARM).encode())
+    _send(n, 0, ac.UP_ORDER, ac.OrderBody(1, ac.OP_ARM).encode())
     assert wait_for(lambda: _result(n) == ac.R_DONE, 5.0)  # an arm is done when the autopilot arms
-    _send(n, 1, ac.UP_ORDER, ac.Order(2, ac.OP_SURFACE).encode())
+    _send(n, 1, ac.UP_ORDER, ac.OrderBody(2, ac.OP_SURFACE).encode())
     assert wait_for(lambda: _result(n) == ac.R_TAKEN and n._surfacing == 2, 5.0)  # the autopilot took SURFACE ...
     assert _result(n) == ac.R_TAKEN and n.bridge.snapshot().z_m > SURFACE_DONE_M  # ... and it rises
     _send(n, 2, ac.UP_STOP, ac.StopBody(1, 2).encode())
     assert n.machine.result == ac.R_ABORTED  # stopped on the way: not done
     assert wait_for(lambda: _result(n) == ac.R_ABORTED and n._surfacing is None, 1.0)
-    _send(n, 3, ac.UP_ORDER, ac.Order(3, ac.OP_SURFACE).encode())
+    _send(n, 3, ac.UP_ORDER, ac.OrderBody(3, ac.OP_SURFACE).encode())
     assert wait_for(lambda: _result(n) == ac.R_DONE, 15.0)  # at the surface
     assert n.bridge.snapshot().z_m <= SURFACE_DONE_M

@@ -16,7 +16,7 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from rovlink.link.messages import Reason
+from rovlink.link.radio.messages import Reason
 from rovlink.rov.autopilot import AutopilotBridge, Ticket
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import PilotInput, SubMode, VehicleState

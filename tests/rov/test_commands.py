@@ -8,7 +8,7 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from rovlink.link.messages import Reason
+from rovlink.link.radio.messages import Reason
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SubMode, protocol_mode, sub_mode
 from rovlink.rov.commands import CommandTracker, GotoTicket, Ticket
 from rovlink.rov.goto import GotoDriver, GotoOrder

@@ -20,8 +20,8 @@ import pytest
 
 from rovlink import debt
 from rovlink.link.aio import run_master
-from rovlink.link.frame import FrameDecoder, encode_frame
-from rovlink.link.master import (
+from rovlink.link.radio.frame import FrameDecoder, encode_frame
+from rovlink.link.radio.master import (
     ImageComplete,
     Master,
     OrderAcknowledged,
@@ -29,7 +29,7 @@ from rovlink.link.master import (
     PoseReceived,
     StopConfirmed,
 )
-from rovlink.link.messages import (
+from rovlink.link.radio.messages import (
     ImageSettings,
     Mode,
     Poll,

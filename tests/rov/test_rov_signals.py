@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from rovlink.link.frame import encode_frame
-from rovlink.link.messages import Poll, Velocity
+from rovlink.link.radio.frame import encode_frame
+from rovlink.link.radio.messages import Poll, Velocity
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import PilotInput, VehicleState
 

@@ -19,7 +19,7 @@ import heapq
 import math
 from typing import Callable
 
-from .channel import Channel
+from ..emulators.channel import Channel
 from .master import Master
 from .slave import OrderStarted, Slave
 

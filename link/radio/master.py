@@ -71,12 +71,28 @@ import random
 from dataclasses import dataclass
 from typing import Deque
 
+from ..report import VehicleReport, report_from_reply
 from .assembly import ImageAssembly
+from .events import (
+    ImageAbandoned,
+    ImageComplete,
+    ImageProgress,
+    OrderAcknowledged,
+    OrderCancelled,
+    OrderFateUnknown,
+    OrderNotSent,
+    OrderRejected,
+    PollSent,
+    PoseReceived,
+    ReplyLost,
+    RequestExpired,
+    StopConfirmed,
+    StopNotCarriedOut,
+)
 from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
     IMG_IDS,
     NO_IMAGE_DATA,
-    REASON_TEXT,
     REPLY_HEADER,
     REPLY_IMAGE_HEADER,
     REQUESTABLE_MODES,
@@ -88,14 +104,12 @@ from .messages import (
     Poll,
     Position,
     ProtocolError,
-    Reason,
     Reply,
     ReservedOrder,
     Stop,
     Velocity,
     next_img,
 )
-from .report import VehicleReport, report_from_reply
 
 # §5's shortest margin: the timeout's after a lost reply, in version 2 (§8.1).
 OUTAGE_MARGIN_S = 0.05
@@ -126,132 +140,6 @@ class FrameSizes:
     def velocity_poll(self) -> int:
         """The poll the SIZE choice reckons with: the wish, every other cycle at least."""
         return self.poll(Poll(order=Velocity()))
-
-
-# ---------------------------------------------------------------------------
-# Events handed to the console
-# ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class PollSent:
-    """A poll (or, in version 2, a HELLO) went out: what it carried, so that no one
-    decodes the master's bytes again.  `order_ids`: the master's ids of the one-shot
-    order or the STOP it carried (a STOP pressed twice: both), else empty."""
-
-    at: float
-    frame: bytes  # as sent (version 2: sealed)
-    poll: Poll | None  # None for a HELLO
-    order_ids: tuple[int, ...] = ()
-
-    @property
-    def hello(self) -> bool:
-        return self.poll is None
-
-
-@dataclass(frozen=True)
-class PoseReceived:
-    reply: Reply
-    at: float
-    round_trip_s: float | None
-    # The same in SI, with when the ROV sampled it (link/report.py): what the console reads.
-    report: VehicleReport | None = None
-
-
-@dataclass(frozen=True)
-class OrderAcknowledged:
-    order_id: int
-    order: object
-    at: float
-
-
-@dataclass(frozen=True)
-class OrderRejected:
-    """The ROV took the order (ACK flipped) and rejected it: docs/PROTOCOL.md §3 REASON."""
-
-    order_id: int
-    order: object
-    reason: int  # 0 invalid, 1 impossible now / abandoned, 2 refused by the autopilot, 3 unknown
-    at: float
-
-    @property
-    def reason_text(self) -> str:
-        return REASON_TEXT[Reason(self.reason)]
-
-
-@dataclass(frozen=True)
-class OrderCancelled:
-    order_id: int
-    order: object
-    reason: str
-
-
-@dataclass(frozen=True)
-class OrderNotSent:
-    """A queued order a STOP cancelled before it went out."""
-
-    order_id: int
-    order: object
-    reason: str
-
-
-@dataclass(frozen=True)
-class OrderFateUnknown:
-    """Version 2 (§8): the ROV restarted (a new BOOT) before the answer to this
-    sent order came; the old ROV may have run it, so it is not sent again."""
-
-    order_id: int
-    order: object
-    at: float
-
-
-@dataclass(frozen=True)
-class StopConfirmed:
-    order_id: int
-    mode: int  # POS_HOLD or DEPTH_HOLD
-    at: float
-
-
-@dataclass(frozen=True)
-class StopNotCarriedOut:
-    """A reply to a STOP poll shows no autopilot: nothing holds the vehicle."""
-
-    order_id: int
-    at: float
-
-
-@dataclass(frozen=True)
-class ImageProgress:
-    img: int
-    received_bytes: int  # contiguous bytes of the object held
-    total_bytes: int | None  # object size, once its first two bytes are in
-    prefix: bytes  # the DEBT stream prefix held (object without its length)
-
-
-@dataclass(frozen=True)
-class ImageComplete:
-    img: int
-    data: bytes  # the whole DEBT stream
-    started_at: float
-    at: float
-
-
-@dataclass(frozen=True)
-class ImageAbandoned:
-    img: int
-    received_bytes: int
-    reason: str
-
-
-@dataclass(frozen=True)
-class ReplyLost:
-    poll_sent_at: float
-    at: float
-
-
-@dataclass(frozen=True)
-class RequestExpired:
-    what: str  # "arm" or "mode"
 
 
 @dataclass

@@ -85,7 +85,7 @@ from typing import IO, Callable
 
 from .m64 import PACKET_BYTES, M64Channel, M64Loss, M64Params
 
-log = logging.getLogger("rovlink.link.m64serial")
+log = logging.getLogger("rovlink.link.emulators.m64serial")
 
 PROTOCOL_VERSION = b"1,0,1"
 CHANNELS = range(1, 8)

@@ -22,7 +22,7 @@ Events for the node:
 - `ArmRequested(arm)`, `ModeRequested(mode)`: an ARM/MODE request acted on (§2).
 - `OrderStarted(token, order)`: a POSITION the autopilot must answer.
 - `OrderExecuted(order)`: IMAGE settings taken, or a POSITION the autopilot
-  accepted; `OrderRejected(code, reason, why)`: ACK flipped with REJECTED.
+  accepted; `OrderDeclined(code, reason, why)`: ACK flipped with REJECTED.
 - `OrderAbandoned(token, why)`: an order in progress given up (STOP, failsafe,
   superseded, no answer within 2 s).  The node keeps watching its ticket: a
   late accept is still reported with `order_outcome`.
@@ -71,6 +71,21 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
+from .events import (
+    ArmRequested,
+    BrakeRequested,
+    FailsafeCleared,
+    FailsafeEntered,
+    ImageDelivered,
+    ImageWanted,
+    ModeRequested,
+    OrderAbandoned,
+    OrderDeclined,
+    OrderExecuted,
+    OrderStarted,
+    VelocityCommanded,
+    WishInvalid,
+)
 from .frame import MAX_FRAME, OVERHEAD, FrameDecoder, encode_frame
 from .messages import (
     ANGLE_CDEG,
@@ -98,86 +113,6 @@ from .messages import (
     Stop,
     Velocity,
 )
-
-# ---------------------------------------------------------------------------
-# Events handed to the ROV node
-# ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class VelocityCommanded:
-    velocity: Velocity  # the axes to apply now (ARM/MODE come as their own events)
-    replaces_target: bool = False  # a standing POSITION target or brake ends here
-
-
-@dataclass(frozen=True)
-class ArmRequested:
-    arm: bool  # True arm, False disarm
-
-
-@dataclass(frozen=True)
-class ModeRequested:
-    mode: Mode
-
-
-@dataclass(frozen=True)
-class WishInvalid:
-    why: str
-
-
-@dataclass(frozen=True)
-class OrderStarted:
-    """A one-shot order that needs the autopilot's answer: call `Slave.order_outcome(token, ...)`."""
-
-    token: int
-    order: Position
-
-
-@dataclass(frozen=True)
-class OrderExecuted:
-    order: Position | ImageSettings
-
-
-@dataclass(frozen=True)
-class OrderRejected:
-    code: int
-    reason: int  # docs/PROTOCOL.md §3 REASON
-    why: str
-
-
-@dataclass(frozen=True)
-class OrderAbandoned:
-    token: int
-    why: str
-
-
-@dataclass(frozen=True)
-class BrakeRequested:
-    why: str  # "start", "STOP", "late accept"
-    hold: bool
-
-
-@dataclass(frozen=True)
-class ImageWanted:
-    img: int
-    settings: ImageSettings
-
-
-@dataclass(frozen=True)
-class ImageDelivered:
-    """The reply carries the LAST trunk of image `img` (it may still be lost)."""
-
-    img: int
-
-
-@dataclass(frozen=True)
-class FailsafeEntered:
-    silent_s: float
-
-
-@dataclass(frozen=True)
-class FailsafeCleared:
-    pass
 
 
 @dataclass(frozen=True)
@@ -317,7 +252,7 @@ class Slave:
             why_reason = Reason.REFUSED if reason is None else int(reason)
             self._flip(running.seq, why_reason)
             self.stats.orders_rejected += 1
-            return [OrderRejected(running.order.code, why_reason, "refused by the autopilot")]
+            return [OrderDeclined(running.order.code, why_reason, "refused by the autopilot")]
         taken = self._abandoned.pop(token, None)
         if taken is not None and accepted and taken == self._positions_taken:
             self.standing = "brake"
@@ -514,7 +449,7 @@ class Slave:
     def _reject_now(self, seq: int, code: int, reason: int, why: str) -> list[object]:
         self._flip(seq, reason)
         self.stats.orders_rejected += 1
-        return [OrderRejected(code, reason, why)]
+        return [OrderDeclined(code, reason, why)]
 
     def _flip(self, seq: int, reason: int | None) -> None:
         self.ack = seq
@@ -535,7 +470,7 @@ class Slave:
         if reason is not None:
             self._flip(running.seq, reason)
             self.stats.orders_rejected += 1
-            events.append(OrderRejected(running.order.code, reason, why))
+            events.append(OrderDeclined(running.order.code, reason, why))
         return events
 
     def _brake(self) -> None:

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 from rovlink.bench import emit, format_table, median, quantile
 
-from . import acoustic as ac
-from .acoustic_sim import AcousticSim, budget_camera
+from .. import acoustic as ac
+from .sim import AcousticSim, budget_camera
 
 ROWS = ((0.0, 1.0), (0.10, 1.0), (0.30, 1.0), (0.10, 3.0), (0.30, 3.0))
 REPEATS = 4
@@ -69,7 +69,7 @@ def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Fi
             t = sim.rov.status_sent.get(e.ctr)
             if t is not None and (made["status"] is None or t > made["status"]):
                 made["status"] = t
-        elif isinstance(e, ac.StopConfirmed):
+        elif isinstance(e, ac.StopTaken):
             pressed = pending_stop.pop(e.stop_no, None)
             if pressed is not None:
                 fig.stop_confirmed_s.append(now - pressed)
@@ -97,10 +97,10 @@ def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Fi
             fig.resyncs += 1
 
     def on_rov(e, now):
-        if isinstance(e, ac.Stop) and e.stop_no in pending_stop and e.stop_no not in at_rov:
+        if isinstance(e, ac.StopWanted) and e.stop_no in pending_stop and e.stop_no not in at_rov:
             at_rov.add(e.stop_no)
             fig.stop_at_rov_s.append(now - pending_stop[e.stop_no])
-        elif isinstance(e, ac.FailsafeEntered):
+        elif isinstance(e, ac.FailsafeStarted):
             fig.failsafes += 1
 
     sim = AcousticSim(loss=loss, burst=burst, seed=seed, camera=camera, on_operator_event=on_op,
@@ -129,7 +129,7 @@ def run_session(loss: float, burst: float, duration_s: float, seed: int, fig: Fi
             continue
         if busy and phase in ("start", "idle") and now >= phase_at and not op.orders_waiting:
             angle = rng.uniform(0, 2 * math.pi)
-            target = ac.GoTo(0, int(GOTO_M * 10 * math.cos(angle)), int(GOTO_M * 10 * math.sin(angle)), 0,
+            target = ac.GoToBody(0, int(GOTO_M * 10 * math.cos(angle)), int(GOTO_M * 10 * math.sin(angle)), 0,
                              relative=True)
             goto.clear()
             goto.update(oid=op.send_order(target, now), sent=now)

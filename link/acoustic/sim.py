@@ -24,9 +24,9 @@ import os
 import random
 from typing import Callable
 
-from . import acoustic as ac
-from .m64 import M64Channel, M64Loss, M64Params
-from .messages import Mode
+from .. import acoustic as ac
+from ..emulators.m64 import M64Channel, M64Loss, M64Params
+from ..radio.messages import Mode
 
 GOTO_SPEED = 0.5  # m/s
 SURFACE_SPEED = 0.25  # m/s up
@@ -97,28 +97,28 @@ class SimVehicle:
             self.z += dz * f
 
     def handle(self, event, rov: ac.AcousticRov, failsafe_action: int) -> None:
-        if isinstance(event, ac.Stop):
+        if isinstance(event, ac.StopWanted):
             self.brake()
-        elif isinstance(event, ac.FailsafeEntered):
+        elif isinstance(event, ac.FailsafeStarted):
             self.brake()
             if event.action == ac.FAILSAFE_SURFACE:
                 self.mode = Mode.SURFACE
                 self.surfacing_oid = -1
-        elif isinstance(event, ac.Hold):
+        elif isinstance(event, ac.HoldWanted):
             self.brake()
             rov.order_outcome(event.oid, ac.R_DONE)
-        elif isinstance(event, ac.Surface):
+        elif isinstance(event, ac.SurfaceWanted):
             self.brake()
             self.mode = Mode.SURFACE
             self.surfacing_oid = event.oid
-        elif isinstance(event, ac.Arm):
+        elif isinstance(event, ac.ArmWanted):
             self.armed = True
             rov.order_outcome(event.oid, ac.R_DONE)
-        elif isinstance(event, ac.Disarm):
+        elif isinstance(event, ac.DisarmWanted):
             self.armed = False
             self.brake()
             rov.order_outcome(event.oid, ac.R_DONE)
-        elif isinstance(event, ac.SetMode):
+        elif isinstance(event, ac.ModeWanted):
             self.target = None
             self.mode = Mode(event.mode)
             rov.order_outcome(event.oid, ac.R_DONE)

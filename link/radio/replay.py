@@ -10,10 +10,10 @@ they came.
 
 from __future__ import annotations
 
+from ..report import report_from_reply
 from .frame import FrameDecoder
 from .master import Master, PoseReceived
 from .messages import Poll, ProtocolError, Reply
-from .report import report_from_reply
 
 
 class ReplyReplayer:

@@ -51,6 +51,11 @@ from .auth import (
     PollIn,
     RovChain,
 )
+from .events import (
+    InauthenticFrame,
+    LateReply,
+    Synced,
+)
 from .frame import frame_contents
 from .master import FrameSizes, Master, MasterStats, PollSent
 from .messages import (
@@ -147,29 +152,6 @@ def parse_reply(payload: bytes, poll11: bytes | None, reference: Pose | None) ->
     reply, pose = reply_from_wire(payload, request_of(poll11), reference)
     Reply.decode(reply)
     return reply, continuation_of(reply, poll11), pose
-
-
-@dataclass(frozen=True)
-class InauthenticFrame:
-    """A frame whose CRC held but whose tag no kept chain value makes (counted, dropped)."""
-
-    side: str  # "reply" (operator) or "poll" (ROV)
-
-
-@dataclass(frozen=True)
-class LateReply:
-    """An authentic reply to a poll already answered, older than one answered, or past its timeout."""
-
-    sync: bool
-
-
-@dataclass(frozen=True)
-class Synced:
-    """A SYNC taken: the chain is (re)started; `restarted` when the ROV's BOOT changed."""
-
-    boot: bytes
-    restarted: bool
-    first: bool
 
 
 @dataclass
