@@ -178,14 +178,16 @@ class CorrelationTracker:
 
 class FeatureTracker:
     """Corners inside the ROI followed by pyramidal Lucas-Kanade flow, one affine
-    motion fitted to them per frame (RANSAC): the seabed is locally a plane, so the
-    ROI's four corners move with it, and its box is their bounds.  Lost when too
-    few corners agree or less than half of the box is in the picture; while lost,
-    the last template is looked for around the last place (normalised correlation)."""
+    motion fitted to them (RANSAC) from the frame they were found in: the seabed is
+    locally a plane, so the ROI's four corners move with it, and its box is their
+    bounds.  Where too few corners agree (bare, hazy sand far off), the ROI's own
+    patch is looked for around it instead (normalised correlation).  Lost when neither
+    finds it, or less than half of the box is in the picture; while lost, the patch is
+    looked for in a wider window, and a clear match takes the object back."""
 
     MIN_POINTS = 8
     MAX_POINTS = 60
-    REGAIN_SCORE = 0.75
+    MATCH_SCORE = 0.8  # the patch's best correlation: found (also to take a lost object back)
 
     def __init__(self, cv2) -> None:
         self.cv2 = cv2
@@ -195,7 +197,8 @@ class FeatureTracker:
         grey = self._grey8(frame)
         x0, y0, x1, y1 = (float(v) for v in box)
         self.corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], np.float32)
-        self.template = grey[int(y0):int(y1), int(x0):int(x1)].copy()
+        self.template = None
+        self.velocity = np.zeros(2, np.float32)  # the box's last move, pixels a frame: where to look first
         self._anchor(grey)
         self.lost = False
 
@@ -206,6 +209,9 @@ class FeatureTracker:
         self.anchor_corners = self.corners.copy()
         self.anchor_points = self._features(grey)
         self.points = self.anchor_points.copy()
+        x0, y0, x1, y1 = self._box()
+        if x0 >= 0 and y0 >= 0 and x1 <= grey.shape[1] and y1 <= grey.shape[0] and x1 - x0 >= 4 and y1 - y0 >= 4:
+            self.template = grey[y0:y1, x0:x1].copy()  # a patch wholly in the picture, else the last one
 
     def _grey8(self, frame: np.ndarray) -> np.ndarray:
         if frame.ndim == 2:
@@ -224,51 +230,83 @@ class FeatureTracker:
         return (int(round(float(c[:, 0].min()))), int(round(float(c[:, 1].min()))),
                 int(round(float(c[:, 0].max()))), int(round(float(c[:, 1].max()))))
 
-    def update(self, frame: np.ndarray) -> Box | None:
-        grey = self._grey8(frame)
+    def _flow(self, grey: np.ndarray):
+        """The affine motion from the anchor to this frame, or None when too few corners agree."""
         cv2 = self.cv2
-        if self.lost:
-            return self._regain(grey)
-        moved = None
-        if len(self.points) >= self.MIN_POINTS:
-            after, status, _ = cv2.calcOpticalFlowPyrLK(self.prev, grey, self.points, None, winSize=(15, 15), maxLevel=2)
-            ok = status.ravel() == 1
-            self.anchor_points, self.points = self.anchor_points[ok], after[ok]
-            if ok.sum() >= self.MIN_POINTS:
-                affine, inliers = cv2.estimateAffine2D(self.anchor_points, self.points, method=cv2.RANSAC,
-                                                       ransacReprojThreshold=1.5)
-                if affine is not None and inliers.sum() >= self.MIN_POINTS:
-                    moved = affine
-                    keep = inliers.ravel() == 1  # a corner that went its own way is not followed further
-                    self.anchor_points, self.points = self.anchor_points[keep], self.points[keep]
-        self.prev = grey
-        height, width = grey.shape
-        if moved is not None:
-            self.corners = (self.anchor_corners @ moved[:, :2].T + moved[:, 2]).astype(np.float32)
-        box = self._box()
-        if moved is None or visible_fraction(box, width, height) < 0.5:
-            self.lost = True
+        if len(self.points) < self.MIN_POINTS:
             return None
-        if len(self.points) < self.MAX_POINTS // 2:
-            self._anchor(grey)
-        return box
+        guess = (self.points + self.velocity).astype(np.float32)
+        after, status, _ = cv2.calcOpticalFlowPyrLK(self.prev, grey, self.points, guess, winSize=(15, 15), maxLevel=3,
+                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+        ok = status.ravel() == 1
+        self.anchor_points, self.points = self.anchor_points[ok], after[ok]
+        if ok.sum() < self.MIN_POINTS:
+            return None
+        affine, inliers = cv2.estimateAffine2D(self.anchor_points, self.points, method=cv2.RANSAC,
+                                               ransacReprojThreshold=1.5)
+        if affine is None or inliers.sum() < self.MIN_POINTS:
+            return None
+        keep = inliers.ravel() == 1  # a corner that went its own way is not followed further
+        self.anchor_points, self.points = self.anchor_points[keep], self.points[keep]
+        return affine
 
-    def _regain(self, grey: np.ndarray) -> Box | None:
-        cv2 = self.cv2
-        x0, y0, x1, y1 = self._box()
+    def _match(self, grey: np.ndarray, reach: float) -> tuple[float, float] | None:
+        """Where the ROI's patch moved (dx, dy), looked for `reach` patch sizes around it; None if not clearly found."""
+        if self.template is None:
+            return None
         th, tw = self.template.shape
-        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
-        sx0, sy0 = int(max(cx - 1.5 * tw, 0)), int(max(cy - 1.5 * th, 0))
-        sx1, sy1 = int(min(cx + 1.5 * tw, grey.shape[1])), int(min(cy + 1.5 * th, grey.shape[0]))
-        self.prev = grey
+        x0, y0, x1, y1 = self._box()
+        cx, cy = (x0 + x1) / 2 + float(self.velocity[0]), (y0 + y1) / 2 + float(self.velocity[1])
+        sx0, sy0 = int(max(cx - (0.5 + reach) * tw, 0)), int(max(cy - (0.5 + reach) * th, 0))
+        sx1, sy1 = int(min(cx + (0.5 + reach) * tw, grey.shape[1])), int(min(cy + (0.5 + reach) * th, grey.shape[0]))
         if sx1 - sx0 <= tw or sy1 - sy0 <= th:
             return None
-        result = cv2.matchTemplate(grey[sy0:sy1, sx0:sx1], self.template, cv2.TM_CCOEFF_NORMED)
-        _, peak, _, (u, v) = cv2.minMaxLoc(result)
-        if peak < self.REGAIN_SCORE:
+        result = self.cv2.matchTemplate(grey[sy0:sy1, sx0:sx1], self.template, self.cv2.TM_CCOEFF_NORMED)
+        _, peak, _, (u, v) = self.cv2.minMaxLoc(result)
+        if peak < self.MATCH_SCORE:
             return None
-        self.init(grey, (sx0 + u, sy0 + v, sx0 + u + tw, sy0 + v + th))
-        return self._box()
+        return sx0 + u + tw / 2 - (x0 + x1) / 2, sy0 + v + th / 2 - (y0 + y1) / 2
+
+    def update(self, frame: np.ndarray) -> Box | None:
+        before = self.corners.mean(axis=0)
+        box = self._update(frame)
+        if box is not None:
+            self.velocity = (self.corners.mean(axis=0) - before).astype(np.float32)
+        else:
+            self.velocity = np.zeros(2, np.float32)
+        return box
+
+    def _update(self, frame: np.ndarray) -> Box | None:
+        grey = self._grey8(frame)
+        height, width = grey.shape
+        if self.lost:
+            shift = self._match(grey, reach=1.5)
+            self.prev = grey
+            if shift is None:
+                return None
+            self.corners = self.corners + np.float32(shift)
+            self._anchor(grey)
+            self.lost = False
+            self.velocity = np.zeros(2, np.float32)
+            return self._box()
+        moved = self._flow(grey)
+        if moved is not None:
+            self.corners = (self.anchor_corners @ moved[:, :2].T + moved[:, 2]).astype(np.float32)
+            self.prev = grey
+            if len(self.points) < self.MAX_POINTS // 2:
+                self._anchor(grey)
+        else:
+            shift = self._match(grey, reach=1.0)
+            if shift is not None:
+                self.corners = self.corners + np.float32(shift)
+                self._anchor(grey)
+            else:
+                self.prev = grey
+        box = self._box()
+        if (moved is None and shift is None) or visible_fraction(box, width, height) < 0.5:
+            self.lost = True
+            return None
+        return box
 
 
 class OpenCVTracker:

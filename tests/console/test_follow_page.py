@@ -1,0 +1,153 @@
+"""FOLLOW on the console (issue 34, docs/PROTOCOL.md §10): over REST and in headless
+Chromium against the whole running system, whose simulated ROV has a tracker.  An ROI
+dragged on a picture and set to follow; the vehicle turned with the keys; the ROI each
+picture was coded with (drawn solid) moves with what it framed; the page says when
+the track is lost."""
+
+from __future__ import annotations
+
+import pytest
+
+from rovlink.link.messages import FollowSettings
+
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, get_json, needs_chromium
+from .conftest import running_console, wait_for
+from .pages import take_control, wish
+
+FIRST_IMAGE_MS = 90000
+
+
+def post(url: str, body: dict, headers: dict | None = None) -> tuple[int, dict]:
+    import json
+    import urllib.error
+    import urllib.request
+
+    request = urllib.request.Request(url, json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json", **(headers or {})})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+@pytest.fixture(scope="module")
+def live():
+    # 3 m over the seabed, amphorae ahead on the right: something to follow.
+    with running_console(tracker="klt", start_depth_m=5.0) as console:
+        yield console
+
+
+def test_follow_over_rest_codes_each_picture_with_the_tracked_roi_and_its_track(live):
+    assert wait_for(lambda: live.operator.image_state()["serial"] >= 2, 90), "no picture"
+    img = live.operator.image_state()["img"]
+    status, taken = post(live.url + "/api/control/take", {"name": "script"})
+    assert status == 200, taken
+    headers = {"X-Rovlink-Client": taken["client_id"]}
+    status, sent = post(live.url + "/api/image/follow", {"roi": [160, 96, 272, 180], "img": img, "keep": False},
+                        headers)
+    assert status == 200 and sent["kind"] == "IMAGE", sent
+    assert isinstance(live.operator.requested_settings, FollowSettings)
+    assert live.operator.requested_settings.drawn_on == img and not live.operator.requested_settings.keep
+    assert wait_for(lambda: (get_json(live.url + "/api/image").get("track") or {}).get("state") == "holds", 60), \
+        get_json(live.url + "/api/image")
+    state = get_json(live.url + "/api/image")
+    assert state["track"] == {"state": "holds", "keep": False, "lost_for_s": 0.0}
+    roi = state["settings"]["roi"]  # the ROI the ROV coded the picture with (its DEBT header's)
+    assert roi is not None and roi[0] < roi[2] <= 320 and roi[1] < roi[3] <= 240
+    # The pictures kept say it too, once complete.
+    assert wait_for(lambda: any((e.get("track") or {}).get("state") == "holds" and e["settings"]["roi"]
+                                for e in get_json(live.url + "/api/images")), 60)
+    # No ROI: refused before anything goes.
+    status, refused = post(live.url + "/api/image/follow", {"roi": [0, 0, 0, 0], "img": 0}, headers)
+    assert status == 422 and "ROI" in refused["message"], refused
+    post(live.url + "/api/control/release", {}, headers)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def open_page(browser, live):
+    contexts, errors = [], []
+
+    def open_():
+        context = browser.new_context()
+        contexts.append(context)
+        page = context.new_page()
+        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+        page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
+        page.goto(live.url)
+        page.wait_for_function("document.body.dataset.clientId !== undefined")
+        return page
+
+    yield open_
+    for context in contexts:
+        context.close()
+    assert not errors, errors
+
+
+SHOWN = """() => {
+  const box = document.getElementById('roi-box');
+  const track = document.getElementById('track-text');
+  return [document.getElementById('image').dataset.key || '', box.hidden ? null : parseFloat(box.style.left),
+          track.dataset.state || '', track.textContent];
+}"""
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_a_followed_roi_moves_with_its_object_as_the_vehicle_turns_and_the_page_says_the_track_is_lost(
+        open_page, live):
+    page = open_page()
+    take_control(page)
+    page.click("#arm")
+    page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=30000)
+    page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=FIRST_IMAGE_MS)
+    # An ROI round the amphorae, dragged on the arriving picture, set to follow.
+    box = page.locator("#image").bounding_box()
+    page.mouse.move(box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.4)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] * 0.85, box["y"] + box["height"] * 0.75, steps=5)
+    page.mouse.up()
+    assert page.is_visible("#roi-follow") and page.is_checked("#roi-keep")
+    page.click("#roi-follow")
+    assert wait_for(lambda: isinstance(live.operator.requested_settings, FollowSettings), 5), "no FOLLOW order"
+    page.wait_for_function("document.getElementById('track-text').dataset.state === 'holds'", timeout=60000)
+    assert "track holds" in page.text_content("#track-text")
+
+    # Turning right in taps of E: what the ROI framed slides left, picture after picture, then out.
+    def shown():
+        key, left, state, text = page.evaluate(SHOWN)
+        return int(key.split(":")[0] or 0), left, state, text
+
+    lefts, last = [shown()[1]], shown()
+    for _ in range(20):
+        page.keyboard.down("KeyE")
+        try:
+            assert wait_for(lambda: wish(live)["vyaw"] > 0, 5), "E sent no yaw"
+            page.wait_for_timeout(400)
+        finally:
+            page.keyboard.up("KeyE")
+        assert wait_for(lambda: wish(live)["vyaw"] == 0, 3), "letting go of E did not stop the turn"
+        serial = shown()[0]
+        # Two pictures later: one captured after the turn, drawn with the ROI it was coded with.
+        assert wait_for(lambda serial=serial: shown()[0] >= serial + 2, 60), "no new picture"
+        last = shown()
+        if last[2] != "holds":
+            break
+        lefts.append(last[1])
+    _, left_lost, state, text = last
+    assert state == "lost" and "track LOST" in text and "last ROI kept" in text, last
+    assert left_lost is not None  # kept: the last ROI is still drawn
+    assert len(lefts) >= 3, lefts
+    assert all(b <= a + 2 for a, b in zip(lefts, lefts[1:])) and lefts[-1] < lefts[0] - 20, lefts  # it went left
+    assert wait_for(lambda: wish(live)["vyaw"] == 0, 3)
+    page.keyboard.press("Space")
