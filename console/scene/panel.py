@@ -45,6 +45,7 @@ from rovlink.console.operator import OrderError
 from rovlink.console.scene import chase
 from rovlink.console.scene.colours import (
     CAPTURE_RGB,
+    FOLLOW_RGB,
     FRUSTUM_RGB,
     GHOST_RGB,
     ROV_RGB,
@@ -117,6 +118,7 @@ def legend_html() -> str:
             + swatch(ROV_RGB, "line: trail of poses received")
             + swatch(FRUSTUM_RGB, "camera now, its seabed footprint")
             + swatch(CAPTURE_RGB, "camera at the picture's capture")
+            + swatch(FOLLOW_RGB, "ray to the followed object (Follow)")
             + "</div>")
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from rovlink.link.messages import FollowSettings
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, get_json, needs_chromium
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, get_json, needs_chromium
 from .conftest import running_console, wait_for
 from .pages import take_control, wish
 
@@ -62,6 +62,38 @@ def test_follow_over_rest_codes_each_picture_with_the_tracked_roi_and_its_track(
     status, refused = post(live.url + "/api/image/follow", {"roi": [0, 0, 0, 0], "img": 0}, headers)
     assert status == 422 and "ROI" in refused["message"], refused
     post(live.url + "/api/control/release", {}, headers)
+
+
+def test_the_scene_draws_the_ray_from_the_capture_through_the_coded_roi_to_the_seabed(live):
+    import numpy as np
+
+    from rovlink.console.scene import frames
+    from rovlink.console.scene.app import CAMERA_IN_BODY_FLU, ConsoleScene
+    from rovlink.console.scene.follow import followed_ray
+
+    scene = ConsoleScene(live.operator, port=free_tcp_port()).start()
+    try:
+        assert wait_for(lambda: live.operator.image_state()["img"] is not None, 60)
+        live.operator.follow_roi((160, 96, 272, 180), keep=True, drawn_on=live.operator.image_state()["img"], shift=6)
+        assert wait_for(lambda: (live.operator.image_state().get("track") or {}).get("state") == "holds", 60)
+        assert wait_for(lambda: scene.follow_node.visible, 10), "no ray drawn"
+
+        def drawn_as_state() -> bool:
+            image = live.operator.image_state()
+            want = followed_ray(image["capture"]["pose"], image["settings"]["roi"], hfov_deg=scene.hfov_deg,
+                                tilt_deg=scene.tilt_deg, size_px=scene.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU,
+                                floor_z=scene.seabed.floor_z)
+            return np.allclose(np.asarray(scene.follow_node.points)[0], want, atol=1e-3)
+
+        assert wait_for(drawn_as_state, 10)
+        hit = np.asarray(scene.follow_node.points)[0][1]
+        assert hit[2] == pytest.approx(scene.seabed.floor_z, abs=1e-3)  # it ends on the seabed
+        assert frames.world_to_ned(hit)[0] > live.operator.image_state()["capture"]["pose"]["x_m"]  # ahead (north)
+        # A plain IMAGE order ends the following: the ray goes once the pictures say no track.
+        live.operator.set_image_settings(roi=None)
+        assert wait_for(lambda: not scene.follow_node.visible, 60)
+    finally:
+        scene.stop()
 
 
 @pytest.fixture(scope="module")
