@@ -155,7 +155,7 @@ def run_rov(args) -> int:
                        f"failsafe: {args.failsafe_action} position" if args.failsafe_action == "hold" else
                        "acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: surface")
         else:
-            follower, follow = _follower(args)
+            follower, follow = _follower(args, camera)
             node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key,
                            follower=follower, camera_hz=args.camera_hz)
             version = ("link version 2, every frame authenticated" if key is not None else
@@ -188,11 +188,16 @@ def run_rov(args) -> int:
         pass
     return 0
 
-def _follower(args):
+def _follower(args, camera):
     """The ROV's follower for FOLLOW, or None, and what to say of it: a missing
     extra is said, and the ROV runs on, refusing FOLLOW with its reason."""
+    from rovlink.rov.camera import FolderCamera
+
     if args.tracker == "none":
         return None, "FOLLOW refused (--tracker none)"
+    if isinstance(camera, FolderCamera):
+        # Its pictures step one a capture: at the camera's rate they would flash by.
+        return None, "FOLLOW refused: a folder of pictures is no camera to track in"
     from rovlink.rov.follow import RoiFollower, TrackerMissing
 
     try:
