@@ -357,6 +357,12 @@ class RovNode:
             self.take_frame(frame, time.monotonic())
             self._camera_stop.wait(max(period - (time.monotonic() - started), 0.0))
 
+    @property
+    def last_frame_at(self) -> float | None:
+        """When the newest camera frame kept was captured (monotonic), None before the first."""
+        with self._follow_lock:
+            return self._frames[-1][0] if self._frames else None
+
     def take_frame(self, frame: np.ndarray, at: float) -> None:
         """One camera frame: kept, and followed when a FOLLOW stands."""
         with self._follow_lock:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 import random
+import time
 
 import pytest
 
@@ -178,6 +179,10 @@ def test_the_rov_codes_each_picture_with_the_followed_roi_and_says_when_the_trac
             for i in range(1, 21):
                 scripted.pose = facing(ladder, side_m=-2.0 + 0.1 * i)
                 await asyncio.sleep(0.1)
+            # Pictures come faster than camera frames on this fast link: wait for a frame of the last pose.
+            moved_at = time.monotonic()
+            assert await until(lambda: (node.last_frame_at or 0) > moved_at)
+            seen = len(pictures)
             assert await until(lambda: len(pictures) >= seen + 2)
             img, track, coded_roi = pictures[-1]
             assert track is not None and track.state == TrackState.HOLDS and not track.keep
