@@ -67,14 +67,28 @@ def test_follow_over_rest_codes_each_picture_with_the_tracked_roi_and_its_track(
 def test_the_scene_draws_the_ray_from_the_capture_through_the_coded_roi_to_the_seabed(live):
     import numpy as np
 
+    from rovlink.console import control
     from rovlink.console.scene import frames
     from rovlink.console.scene.app import CAMERA_IN_BODY_FLU, ConsoleScene
     from rovlink.console.scene.follow import followed_ray
+    from rovlink.console.scene.panel import ControlPanel, PanelCallbacks
 
-    scene = ConsoleScene(live.operator, port=free_tcp_port()).start()
+    desk = live.app.state.desk
+    scene = ConsoleScene(live.operator, port=free_tcp_port())
+    scene.use_desk(desk)
+    scene.start()
+    holder = desk.take(None, "test script")
     try:
         assert wait_for(lambda: live.operator.image_state()["img"] is not None, 60)
-        live.operator.follow_roi((160, 96, 272, 180), keep=True, drawn_on=live.operator.image_state()["img"], shift=6)
+        # The scene's panel: an ROI dragged on the scene's picture (an IMAGE order), then Follow ROI.
+        panel = ControlPanel(scene.server.gui, live.operator, PanelCallbacks(
+            submit=lambda order: desk.submit(order, control.Caller(holder.id))), image_px=scene.image_px)
+        desk.submit(control.ChangeImage(roi=(160, 96, 272, 180), shift=6), control.Caller(holder.id))
+        shown = live.operator.image_state()["img"]
+        assert panel.follow_roi() is not None
+        followed = live.operator.requested_settings
+        assert isinstance(followed, FollowSettings) and followed.roi == (160, 96, 272, 180) and followed.keep
+        assert followed.drawn_on == shown
         assert wait_for(lambda: (live.operator.image_state().get("track") or {}).get("state") == "holds", 60)
         assert wait_for(lambda: scene.follow_node.visible, 10), "no ray drawn"
 
@@ -90,9 +104,12 @@ def test_the_scene_draws_the_ray_from_the_capture_through_the_coded_roi_to_the_s
         assert hit[2] == pytest.approx(scene.seabed.floor_z, abs=1e-3)  # it ends on the seabed
         assert frames.world_to_ned(hit)[0] > live.operator.image_state()["capture"]["pose"]["x_m"]  # ahead (north)
         # A plain IMAGE order ends the following: the ray goes once the pictures say no track.
-        live.operator.set_image_settings(roi=None)
+        panel.refresh()
+        assert "track holds" in panel.image_md.content or "track lost" in panel.image_md.content
+        desk.submit(control.ChangeImage(roi=None), control.Caller(holder.id))
         assert wait_for(lambda: not scene.follow_node.visible, 60)
     finally:
+        desk.release(holder.id)
         scene.stop()
 
 
