@@ -213,7 +213,9 @@ class SimulatedCamera:
         whole = _bounds(corners)
         if len(inside) < 3:
             return TrueBox(whole, None)
-        return TrueBox(whole, _bounds(inside), _polygon_area(inside) / max(_polygon_area(corners), 1e-9))
+        x0, y0, x1, y1 = _bounds(inside)  # rounding in the clipping may leave a hair outside the picture
+        clipped = (max(x0, 0.0), max(y0, 0.0), min(x1, float(self.width)), min(y1, float(self.height)))
+        return TrueBox(whole, clipped, _polygon_area(inside) / max(_polygon_area(corners), 1e-9))
 
     def _camera_rays(self) -> np.ndarray:
         """Unit ray directions in the body frame: forward, right, down arrays of H*W."""

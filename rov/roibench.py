@@ -113,7 +113,7 @@ def _psnr_in(box, reference, picture) -> float | None:
 
     if box is None:
         return None
-    x0, y0 = int(math.floor(box[0])), int(math.floor(box[1]))
+    x0, y0 = max(int(math.floor(box[0])), 0), max(int(math.floor(box[1])), 0)
     x1, y1 = int(math.ceil(box[2])), int(math.ceil(box[3]))
     a = reference[y0:y1, x0:x1].astype(np.float64)
     b = picture[y0:y1, x0:x1].astype(np.float64)

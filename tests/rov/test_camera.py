@@ -219,3 +219,12 @@ def test_iou_of_boxes():
     assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(50 / 150)
     assert iou((0, 0, 10, 10), (20, 20, 30, 30)) == 0.0
     assert iou(None, (0, 0, 1, 1)) == 0.0
+
+
+def test_a_clipped_box_never_reaches_outside_the_picture():
+    obj = next(o for o in Seabed.load().objects if o.kind == "ladder")
+    camera = SimulatedCamera()
+    for yaw_deg in range(0, 80, 2):  # the ladder sliding out on the left, through every rounding of the edge
+        box = camera.object_box((obj.x_m - 4.3, obj.y_m, SEABED_DEPTH_M - 3.0, math.radians(yaw_deg)), obj).clipped
+        if box is not None:
+            assert 0.0 <= box[0] < box[2] <= 320.0 and 0.0 <= box[1] < box[3] <= 240.0, (yaw_deg, box)
