@@ -338,7 +338,9 @@ class RovNode:
             self._prefetched_image = None  # encoded with the old settings
             self._note(f"IMAGE settings: {order}")
             if self.follower is not None:
-                self._follow(order)
+                # Off the loop (catching up may take a few hundred ms), and before the next
+                # picture's encode, which queues behind it on the same worker.
+                self._worker.submit(self._follow, order)
 
     # ------------------------------------------------------------------
     # FOLLOW (§10)
