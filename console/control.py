@@ -9,7 +9,7 @@ resends an old value.
 Plan:
 - Orders are frozen dataclasses (`Arm`, `SetMode`, `Drive`, `GoTo`,
   `PreviewTarget`, `ClearTarget`, `SendTarget`, `ChangeImage`, `NextImage`,
-  `Stop`); an adapter builds one and hands it to `ControlDesk.submit(order,
+  `FollowRoi`, `Stop`); an adapter builds one and hands it to `ControlDesk.submit(order,
   caller)`.  The adapters hold no state of their own: what they show comes
   from the operator's events ("wish", "target", "control", "order", ...).
 - One permission table, `PERMISSION`: STOP is open to all, everything else
@@ -167,6 +167,17 @@ class ChangeImage(Order):
 
 
 @dataclass(frozen=True)
+class FollowRoi(Order):
+    """FOLLOW (docs/PROTOCOL.md §10): `roi`, drawn on the picture whose IMG is `drawn_on`,
+    follows its object; `keep`: a lost track keeps its last ROI."""
+
+    roi: tuple = ()
+    keep: bool = True
+    drawn_on: int = 0
+    kind = "FOLLOW"
+
+
+@dataclass(frozen=True)
 class NextImage(Order):
     kind = "NEXT_IMAGE"
 
@@ -188,7 +199,7 @@ class CancelStop(Order):
 ANYONE, HOLDER = "anyone", "holder"
 PERMISSION: dict[type, str] = {Stop: ANYONE, Arm: HOLDER, SetMode: HOLDER, Drive: HOLDER, GoTo: HOLDER,
                                PreviewTarget: HOLDER, ClearTarget: HOLDER, SendTarget: HOLDER,
-                               ChangeImage: HOLDER, NextImage: HOLDER, CancelStop: HOLDER}
+                               ChangeImage: HOLDER, NextImage: HOLDER, CancelStop: HOLDER, FollowRoi: HOLDER}
 
 
 @dataclass(frozen=True)
@@ -313,7 +324,8 @@ class ControlDesk:
         self._effects: dict[type, Callable] = {
             Arm: self._arm, SetMode: self._mode, Drive: self._drive, GoTo: self._go_to,
             PreviewTarget: self._preview, ClearTarget: self._clear_target, SendTarget: self._send_target,
-            ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop}
+            ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop,
+            FollowRoi: self._follow}
         assert set(self._effects) == set(PERMISSION)
         operator.set_pilot_in_force(False)  # nobody holds control yet
         operator.set_attended(False)
@@ -445,6 +457,11 @@ class ControlDesk:
             shift = DEFAULT_ROI_SHIFT  # an ROI raised by nothing would do nothing
         return self.operator.set_image_settings(roi=roi, shift=shift, mono=order.mono,
                                                 budget_bytes=order.budget_bytes)
+
+    def _follow(self, order: FollowRoi, caller: Caller) -> int:
+        shift = self.operator.requested_settings.shift
+        return self.operator.follow_roi(order.roi, keep=order.keep, drawn_on=order.drawn_on,
+                                        shift=shift if shift else DEFAULT_ROI_SHIFT)
 
     def _next_image(self, order: NextImage, caller: Caller) -> None:
         self.operator.next_image()

@@ -55,6 +55,7 @@ from rovlink.link.radio.messages import (
     FAILSAFE_S,
     MAX_BUDGET,
     NO_IMAGE_DATA,
+    FollowSettings,
     ImageSettings,
     Mode,
     ProtocolError,
@@ -566,6 +567,28 @@ class Operator:
         order_id = self._queue(settings, "IMAGE", {"roi": list(settings.roi) if settings.roi else None,
                                                "shift": settings.shift, "mono": settings.mono,
                                                "budget_bytes": settings.budget_bytes})
+        self.orders.image_order(order_id, settings)
+        return order_id
+
+    def follow_roi(self, roi, *, keep: bool = True, drawn_on: int = 0, shift: int | None = None) -> int:
+        """FOLLOW (docs/PROTOCOL.md §10): the ROI `roi`, drawn on the picture whose IMG is
+        `drawn_on`, follows its object; the other settings stay as requested.  An IMAGE
+        order (set_image_settings) ends it."""
+        current = self.requested_settings
+        try:
+            settings = FollowSettings(
+                roi=tuple(int(v) for v in roi) if roi is not None else None,
+                shift=current.shift if shift is None else shift, mono=current.mono,
+                budget_bytes=current.budget_bytes, keep=bool(keep), drawn_on=int(drawn_on),
+            )
+        except (ProtocolError, TypeError, ValueError) as exc:
+            raise OrderError(str(exc)) from None
+        with self._lock:
+            self.requested_settings = settings
+        # Kind IMAGE: its acknowledgement confirms the settings as an IMAGE order's does.
+        order_id = self._queue(settings, "IMAGE", {"roi": list(settings.roi), "shift": settings.shift,
+                                               "mono": settings.mono, "budget_bytes": settings.budget_bytes,
+                                               "follow": True, "keep": settings.keep, "drawn_on": settings.drawn_on})
         self.orders.image_order(order_id, settings)
         return order_id
 

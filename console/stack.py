@@ -50,6 +50,9 @@ class StackConfig:
     # The link key (32 bytes): protocol version 2, every frame authenticated
     # (docs/PROTOCOL.md §8).  None: version 1.1, unauthenticated.
     key: bytes | None = None
+    # The ROV's tracker for FOLLOW (docs/PROTOCOL.md §10, rov/follow.py): None, the
+    # ROV refuses FOLLOW (and runs no camera thread: the tests' default).
+    tracker: str | None = None
 
 
 class VehicleSide:
@@ -87,7 +90,7 @@ class VehicleSide:
         self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
                                log=self._channel_log)
         self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
-                            default_settings=c.image_settings, key=c.key)
+                            default_settings=c.image_settings, key=c.key, follower=_follower(c.tracker))
         loop = asyncio.get_running_loop()
         self.tasks = [
             loop.create_task(run_channel(self.channel, self.console_end, chan_b), name="channel"),
@@ -109,6 +112,18 @@ class VehicleSide:
             self.sim.stop()
         if self._channel_log:
             self._channel_log.close()
+
+
+def _follower(tracker: str | None):
+    if tracker is None:
+        return None
+    from rovlink.rov.follow import RoiFollower, TrackerMissing
+
+    try:
+        return RoiFollower(tracker)
+    except TrackerMissing as exc:
+        log.warning("the simulated ROV refuses FOLLOW: %s", exc)
+        return None
 
 
 class Stack:

@@ -33,12 +33,13 @@ A pose is anything with `x_m`, `y_m`, `z_m`, `yaw_rad` and optionally `roll_rad`
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from rovlink.rov.seabed import Seabed
+from rovlink.rov.seabed import Seabed, SeabedObject
 
 DEFAULT_SIZE = (320, 240)  # width, height
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
@@ -46,6 +47,63 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".tif", ".tif
 
 class CameraError(RuntimeError):
     """A camera source that cannot deliver (missing folder, device, library)."""
+
+
+@dataclass(frozen=True)
+class TrueBox:
+    """Where an object lies in one picture, in pixels (x0, y0, x1, y1), edges exclusive
+    of nothing: `whole` as if the picture had no edges, `clipped` to the picture (None
+    when nothing of it shows, or it lies behind the camera)."""
+
+    whole: tuple[float, float, float, float] | None
+    clipped: tuple[float, float, float, float] | None
+    visible_fraction: float = 0.0  # of the object's area in the picture
+
+    @property
+    def in_view(self) -> bool:
+        """At least half of the object in the picture: what a tracker can be asked to hold."""
+        return self.visible_fraction >= 0.5
+
+
+def _bounds(points) -> tuple[float, float, float, float]:
+    xs, ys = [p[0] for p in points], [p[1] for p in points]
+    return (min(xs), min(ys), max(xs), max(ys))
+
+
+def _polygon_area(points) -> float:
+    return 0.5 * abs(sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(points, points[1:] + points[:1])))
+
+
+def _clip_polygon(points, width: float, height: float) -> list[tuple[float, float]]:
+    """The part of a convex polygon inside 0..width x 0..height (one edge of the picture at a time)."""
+    edges = ((0, 0.0, 1), (0, width, -1), (1, 0.0, 1), (1, height, -1))  # axis, bound, side kept
+    for axis, bound, side in edges:
+        kept: list[tuple[float, float]] = []
+        for i, p in enumerate(points):
+            q = points[i - 1]
+            p_in, q_in = side * (p[axis] - bound) >= 0, side * (q[axis] - bound) >= 0
+            if p_in != q_in:
+                t = (bound - q[axis]) / (p[axis] - q[axis])
+                kept.append((q[0] + t * (p[0] - q[0]), q[1] + t * (p[1] - q[1])))
+            if p_in:
+                kept.append(p)
+        points = kept
+        if not points:
+            break
+    return points
+
+
+def box_area(box) -> float:
+    return max(0.0, box[2] - box[0]) * max(0.0, box[3] - box[1])
+
+
+def iou(a, b) -> float:
+    """Intersection over union of two (x0, y0, x1, y1) boxes; 0 when either is None."""
+    if a is None or b is None:
+        return 0.0
+    inter = box_area((max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3])))
+    union = box_area(a) + box_area(b) - inter
+    return inter / union if union > 0 else 0.0
 
 
 class CameraSource(Protocol):
@@ -112,6 +170,52 @@ class SimulatedCamera:
         self._flat_texture = np.ascontiguousarray(padded.reshape(-1, 3))
         self._rays = self._camera_rays()
         self._cached_geometry: tuple = (None, ())
+
+    @property
+    def focal_px(self) -> float:
+        return (self.width / 2) / math.tan(math.radians(self.hfov_deg) / 2)
+
+    def project(self, pose: Any, north_m, east_m, down_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where world points (local NED, arrays) fall in this camera's picture:
+        fractional (column, row) of pixel centres' grid, and whether each lies in
+        front of the camera.  The exact inverse of the rays `capture` casts."""
+        x, y, z, roll, pitch, yaw = _pose_tuple(pose)
+        rot = self._body_to_ned(roll, pitch, yaw).astype(np.float64)
+        world = np.stack([np.asarray(north_m, float) - x, np.asarray(east_m, float) - y, np.asarray(down_m, float) - z])
+        body = rot.T @ world.reshape(3, -1)
+        tilt = math.radians(self.tilt_deg)
+        forward = math.cos(tilt) * body[0] + math.sin(tilt) * body[2]
+        down = -math.sin(tilt) * body[0] + math.cos(tilt) * body[2]
+        right = body[1]
+        ahead = forward > 1e-6
+        safe = np.where(ahead, forward, 1.0)
+        focal = self.focal_px
+        col = focal * right / safe + self.width / 2 - 0.5
+        row = focal * down / safe + self.height / 2 - 0.5
+        return col, row, ahead
+
+    def object_box(self, pose: Any, obj: SeabedObject) -> "TrueBox":
+        """The object's true box in the picture taken from `pose`: the bounds of its
+        footprint's four corners on the seabed (a plane maps a rectangle to a convex
+        quadrilateral, so they bound it exactly), whole and clipped to the picture."""
+        c, s = math.cos(obj.heading_rad), math.sin(obj.heading_rad)
+        half_len, half_w = obj.length_m / 2, obj.width_m / 2
+        along = np.array([1, 1, -1, -1]) * half_len
+        across = np.array([1, -1, -1, 1]) * half_w
+        north = obj.x_m + along * c - across * s
+        east = obj.y_m + along * s + across * c
+        col, row, ahead = self.project(pose, north, east, np.full(4, self.seabed.depth_m))
+        if not ahead.all():
+            return TrueBox(None, None)
+        # Pixel edges: a pixel centre at column i covers i - 0.5 .. i + 0.5.
+        corners = [(float(cx) + 0.5, float(cy) + 0.5) for cx, cy in zip(col, row)]
+        inside = _clip_polygon(corners, float(self.width), float(self.height))
+        whole = _bounds(corners)
+        if len(inside) < 3:
+            return TrueBox(whole, None)
+        x0, y0, x1, y1 = _bounds(inside)  # rounding in the clipping may leave a hair outside the picture
+        clipped = (max(x0, 0.0), max(y0, 0.0), min(x1, float(self.width)), min(y1, float(self.height)))
+        return TrueBox(whole, clipped, _polygon_area(inside) / max(_polygon_area(corners), 1e-9))
 
     def _camera_rays(self) -> np.ndarray:
         """Unit ray directions in the body frame: forward, right, down arrays of H*W."""

@@ -77,6 +77,11 @@ def _add_rov(subparsers) -> None:
     p.add_argument("--budget", type=int, default=2000, metavar="BYTES",
                    help="image budget until the operator sets one (default 2000)")
     p.add_argument("--colour", action="store_true", help="colour images until the operator sets otherwise")
+    p.add_argument("--tracker", choices=("klt", "ncc", "csrt", "kcf", "none"), default="klt",
+                   help="the tracker behind FOLLOW, an ROI that follows its object (docs/PROTOCOL.md §10; "
+                        "needs the 'tracking' extra); none: FOLLOW is refused (default klt)")
+    p.add_argument("--camera-hz", type=positive, default=10.0, metavar="HZ",
+                   help="camera frames a second the tracker follows (default 10)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     add_key_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
@@ -150,9 +155,11 @@ def run_rov(args) -> int:
                        f"failsafe: {args.failsafe_action} position" if args.failsafe_action == "hold" else
                        "acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: surface")
         else:
-            node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key)
+            follower, follow = _follower(args, camera)
+            node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key,
+                           follower=follower, camera_hz=args.camera_hz)
             version = ("link version 2, every frame authenticated" if key is not None else
-                       "INSECURE: link version 1.1, frames not authenticated")
+                       "INSECURE: link version 1.1, frames not authenticated") + f"; {follow}"
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
               f"camera {args.camera}, failsafe {failsafe:g} s; {version}", file=sys.stderr, flush=True)
         task = asyncio.create_task(node.run())
@@ -180,6 +187,25 @@ def run_rov(args) -> int:
     except KeyboardInterrupt:  # a second signal while cleaning up: give up the rest quietly
         pass
     return 0
+
+def _follower(args, camera):
+    """The ROV's follower for FOLLOW, or None, and what to say of it: a missing
+    extra is said, and the ROV runs on, refusing FOLLOW with its reason."""
+    from rovlink.rov.camera import FolderCamera
+
+    if args.tracker == "none":
+        return None, "FOLLOW refused (--tracker none)"
+    if isinstance(camera, FolderCamera):
+        # Its pictures step one a capture: at the camera's rate they would flash by.
+        return None, "FOLLOW refused: a folder of pictures is no camera to track in"
+    from rovlink.rov.follow import RoiFollower, TrackerMissing
+
+    try:
+        follower = RoiFollower(args.tracker)
+    except TrackerMissing as exc:
+        return None, f"FOLLOW refused: {exc}"
+    return follower, f"FOLLOW by the {args.tracker} tracker at {args.camera_hz:g} frames/s"
+
 
 DEFAULT_URL = "udpout:127.0.0.1:14550"
 

@@ -12,9 +12,11 @@ Plan
 - Sand from a few octaves of smooth value noise, ripples whose crests wander with
   the noise, darker patches of weed and gravel, scattered pebbles.
 - Objects are painted into the texture with soft shadows and cylindrical shading
-  so that they read as relief from above: a wreck (keel, ribs, a few loose planks)
-  and a scatter of amphorae.  Their positions are listed in the JSON, so a test or
-  the console can point at them.
+  so that they read as relief from above: a wreck (keel, ribs, a few loose planks),
+  a scatter of amphorae, a ladder and a pipe lying on their own.  Their positions
+  are listed in the JSON, so a test or the console can point at them, and
+  `rov.camera.SimulatedCamera.object_box` says where each lies in a picture (the
+  truth `rovlink bench roi` measures a tracker against).
 
 World mapping (also in the JSON): the texture covers `x_min_m..x_max_m` (north)
 by `y_min_m..y_max_m` (east) of the local NED frame, at depth `depth_m` (z down).
@@ -44,7 +46,7 @@ SEED = 20260421
 
 @dataclass(frozen=True)
 class SeabedObject:
-    kind: str  # "amphora", "timber"
+    kind: str  # "amphora", "timber", "ladder", "pipe"
     x_m: float  # centre, local NED north
     y_m: float  # east
     length_m: float
@@ -165,6 +167,10 @@ def _object_layout(rng: np.random.Generator) -> list[SeabedObject]:
         )
     for x, y in ((-5.0, 6.0), (-8.0, -3.0), (10.0, 7.0), (2.0, -10.0)):
         objects.append(SeabedObject("amphora", x, y, 0.9, 0.32, rng.uniform(0, 2 * math.pi)))
+    # Placed by hand, after everything drawn from the generator, so that the
+    # objects above (and their pixels) stay as they were before these came.
+    objects.append(SeabedObject("ladder", -3.0, 11.0, 2.4, 0.55, math.radians(20)))
+    objects.append(SeabedObject("pipe", -9.5, 1.0, 6.0, 0.3, math.radians(70)))
     return objects
 
 
@@ -194,6 +200,17 @@ def _paint_object(image: np.ndarray, height: np.ndarray, seabed: Seabed, obj: Se
         inside |= handles
         base = np.array([176, 96, 58]) * rng.uniform(0.85, 1.1)
         prof = np.where(radius > 0, np.clip(b / np.maximum(radius, 1e-6), -1, 1), 0)
+    elif obj.kind == "ladder":
+        # Two rails along the long axis and a rung every 0.3 m: galvanised grey.
+        rail = np.abs(np.abs(b) - half_w * 0.85) < half_w * 0.15
+        rung = (np.abs(((a + half_len) % 0.3) - 0.15) < 0.025) & (np.abs(b) < half_w * 0.85)
+        inside = (np.abs(a) <= half_len) & (rail | rung)
+        base = np.array([150, 156, 160]) * rng.uniform(0.9, 1.05)
+        prof = np.where(rail, np.clip((np.abs(b) - half_w * 0.85) / (half_w * 0.15), -1, 1), 0.0)
+    elif obj.kind == "pipe":
+        inside = (np.abs(a) <= half_len) & (np.abs(b) <= half_w)
+        base = np.array([64, 84, 78]) * rng.uniform(0.9, 1.1)  # grown over
+        prof = np.clip(b / half_w, -1, 1)
     else:
         inside = (np.abs(a) <= half_len) & (np.abs(b) <= half_w)
         base = np.array([92, 68, 44]) * rng.uniform(0.8, 1.15)

@@ -51,6 +51,7 @@ BENCHMARKS = {
     "console": "rovlink.console.bench.console",
     "debt": "rovlink.debt.bench",
     "camera": "rovlink.rov.camerabench",
+    "roi": "rovlink.rov.roibench",
 }
 
 

@@ -41,7 +41,7 @@ def _console_parts(modules: list[str]) -> list[str]:
 @pytest.mark.parametrize("args", [["rov", "--help"], ["sim", "--help"], ["keygen", "--help"],
                                   ["channel", "--help"], ["debt", "encode", "--help"],
                                   ["bench", "link", "--help"], ["bench", "debt", "--help"],
-                                  ["bench", "camera", "--help"]])
+                                  ["bench", "camera", "--help"], ["bench", "roi", "--help"]])
 def test_the_rov_side_commands_import_nothing_of_the_console(args):
     modules = _imported(*args)
     assert _console_parts(modules) == []

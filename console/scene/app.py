@@ -68,7 +68,8 @@ from rovlink.console.operator import Operator, OrderError, Pose
 
 from . import chase, frames
 from .chase import SCREEN_WIDTH_M, ViewerView
-from .colours import CAPTURE_RGB, FRUSTUM_RGB, GHOST_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
+from .colours import CAPTURE_RGB, FOLLOW_RGB, FRUSTUM_RGB, GHOST_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
+from .follow import followed_ray
 from .panel import ControlPanel, PanelCallbacks
 from .roi import draw_roi, roi_from_world, roi_outline
 from .rov_model import load_rov_mesh
@@ -333,6 +334,9 @@ class ConsoleScene:
             "/capture/camera", fov=frames.vertical_fov_rad(self.hfov_deg, w, h), aspect=w / h, scale=0.55,
             color=CAPTURE_RGB, thickness=0.015, position=CAMERA_IN_BODY_FLU,
             wxyz=tf.SO3.from_matrix(frames.camera_rotation_in_body(self.tilt_deg)).wxyz)
+        self.follow_node = self.server.scene.add_line_segments(
+            "/follow", np.zeros((1, 2, 3), np.float32), FOLLOW_RGB, thickness=0.04, visible=False)
+        self._follow_shown = None
 
     def _build_screen(self) -> None:
         w, h = self.image_px
@@ -710,6 +714,7 @@ class ConsoleScene:
     def refresh_panels(self) -> None:
         pose, link, image = self.operator.pose_state(), self.operator.link_state(), self.operator.image_state()
         self.show_capture(image.get("capture"))
+        self.show_followed(image)
         for panel in list(self.panels.values()):
             try:
                 panel.refresh(pose, link, image)
@@ -868,6 +873,26 @@ class ConsoleScene:
         centre, wxyz = chase.screen_pose(position, pose.yaw_deg)
         self.screen_node.position, self.screen_node.wxyz = centre, wxyz
         # The ROI drawn on it is the screen's child: it moves along.
+
+    def show_followed(self, image: dict) -> None:
+        """A followed picture (docs/PROTOCOL.md §10): the ray from the camera at capture
+        through the ROI it was coded with (the last one, while the track is lost), to where
+        the object lies on the seabed; gone once the track is dropped."""
+        track, capture, settings = image.get("track"), image.get("capture") or {}, image.get("settings") or {}
+        state = (track or {}).get("state")
+        ray = None
+        if state in ("holds", "lost"):
+            ray = followed_ray(capture.get("pose"), settings.get("roi"), hfov_deg=self.hfov_deg, tilt_deg=self.tilt_deg,
+                               size_px=self.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU, floor_z=self.seabed.floor_z)
+        key = None if ray is None else (state, tuple(np.round(ray, 3).ravel()))
+        if key == self._follow_shown:
+            return
+        self._follow_shown = key
+        if ray is None:
+            self.follow_node.visible = False
+            return
+        self.follow_node.points = ray[None].astype(np.float32)
+        _show(self.follow_node)
 
     def show_capture(self, capture: dict | None) -> None:
         """The camera frustum at the vehicle's pose when the current picture

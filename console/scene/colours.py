@@ -6,3 +6,4 @@ TARGET_RGB = (80, 230, 120)      # a position target and its previewed path
 UNCERTAINTY_RGB = (255, 80, 80)  # how far off the prediction may be
 FRUSTUM_RGB = (255, 230, 120)    # the camera now, and its seabed footprint
 CAPTURE_RGB = (230, 120, 255)    # the camera where the picture shown was captured
+FOLLOW_RGB = (255, 210, 0)       # the ray to the followed object (the ROI's colour)

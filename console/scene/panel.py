@@ -45,6 +45,7 @@ from rovlink.console.operator import OrderError
 from rovlink.console.scene import chase
 from rovlink.console.scene.colours import (
     CAPTURE_RGB,
+    FOLLOW_RGB,
     FRUSTUM_RGB,
     GHOST_RGB,
     ROV_RGB,
@@ -117,6 +118,7 @@ def legend_html() -> str:
             + swatch(ROV_RGB, "line: trail of poses received")
             + swatch(FRUSTUM_RGB, "camera now, its seabed footprint")
             + swatch(CAPTURE_RGB, "camera at the picture's capture")
+            + swatch(FOLLOW_RGB, "ray to the followed object (Follow)")
             + "</div>")
 
 
@@ -372,10 +374,13 @@ class ControlPanel:
             self.mono = self.gui.add_checkbox("Mono", initial_value=settings.mono)
             self.apply_button = self.gui.add_button("Apply image settings")
             self.clear_roi_button = self.gui.add_button("Clear ROI")
+            self.follow_button = self.gui.add_button("Follow ROI")
             self.next_button = self.gui.add_button("Next image")
-            self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI.")
+            self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI; "
+                                  "Follow ROI: the ROV keeps it on what it framed.")
         self.order_widgets += [self.budget, self.shift_slider, self.mono, self.apply_button, self.clear_roi_button,
-                               self.next_button]
+                               self.follow_button, self.next_button]
+        self.follow_button.on_click(lambda _event: self.follow_roi())
         self.apply_button.on_click(lambda _event: self.apply_image_settings())
         self.clear_roi_button.on_click(lambda _event: self.submit(control.ChangeImage(roi=None)))
         self.next_button.on_click(lambda _event: self.submit(control.NextImage()))
@@ -388,6 +393,16 @@ class ControlPanel:
         roi = self.operator.requested_settings.roi  # keep the ROI the pilot drew
         return self.submit(control.ChangeImage(roi=roi, shift=self.shift if roi else 0, mono=bool(self.mono.value),
                                                budget_bytes=int(self.budget.value)))
+
+    def follow_roi(self):
+        """FOLLOW (docs/PROTOCOL.md §10) of the ROI last requested, drawn on the picture shown now."""
+        roi = self.operator.requested_settings.roi
+        img = self.operator.image_state()["img"]
+        if roi is None or img is None:
+            if self.callbacks.notify is not None:
+                self.callbacks.notify("No ROI to follow", "Drag a rectangle on the picture first.")
+            return None
+        return self.submit(control.FollowRoi(roi=tuple(roi), keep=True, drawn_on=img))
 
     def render_image_settings(self) -> None:
         """The settings last requested, whoever requested them."""
@@ -414,6 +429,10 @@ class ControlPanel:
         settings = s["settings"] or {}
         roi = settings.get("roi")
         roi_text = f", ROI {tuple(roi)} shift {settings.get('shift')}" if roi else ""
+        track = s.get("track")
+        if track:
+            lost = f" for {track['lost_for_s']:.1f} s" if track["state"] != "holds" else ""
+            roi_text += f", track {track['state']}{lost}"
         self.image_md.content = (
             f"image {s['img']}: {s['received_bytes']}/{total or '?'} bytes, shown {s['decoded_bytes']}"
             f"{' · complete' if s['complete'] else ''}  \n"

@@ -39,6 +39,7 @@ from rovlink import debt
 from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.radio.messages import ImageSettings
 
+from .follow import coded_settings, read_picture
 from .odometry import Fix, Pose
 
 IMAGE_HISTORY = 24        # pictures kept to look back at (320x240x3 is 230 kB each)
@@ -61,6 +62,8 @@ class ImageView:
     images_completed: int = 0
     serial: int = 0                   # counts images, never wraps (IMG wraps at 8)
     capture: dict | None = None       # when and where the ROV captured it (ImageReceiver._capture_stamp)
+    track: dict | None = None         # a followed picture's track (session/follow.py), else None
+    coded_roi: tuple | None = None    # a followed picture's ROI, from its DEBT header
 
 
 def settings_dict(s: ImageSettings | None) -> dict | None:
@@ -174,15 +177,16 @@ class ImageReceiver:
                 view.capture = self._capture_stamp(t)
             view.received_bytes = event.received_bytes
             view.total_bytes = event.total_bytes
-            view.stream = event.prefix
+            view.track, view.coded_roi, view.stream = read_picture(event.prefix)
+            stream = view.stream
         self._publish("image_progress", self.state())
-        self._decode_later(event.img, event.prefix)
+        self._decode_later(event.img, stream)
 
     def _complete(self, event: ImageComplete, t: float) -> None:
         with self._lock:
             self.view.complete = True
             self.view.images_completed += 1
-            self.view.stream = event.data
+            self.view.track, self.view.coded_roi, self.view.stream = read_picture(event.data)
             self._keep(t, partial=False)
             self._mark_capture_window(t, "prefetch", img=event.img, total=2 + len(event.data),
                                       since=event.started_at)
@@ -247,7 +251,8 @@ class ImageReceiver:
             "total_bytes": v.total_bytes, "partial": partial,
             "received_wall": round(self._wall(t), 3),
             "seconds": None if v.started_at is None else round(t - v.started_at, 2),
-            "settings": settings_dict(v.settings),
+            "settings": coded_settings(settings_dict(v.settings), v.track, v.coded_roi),
+            "track": v.track,
             "stream": bytes(v.stream),
         })
 
@@ -312,5 +317,6 @@ class ImageReceiver:
                 "img": v.img, "received_bytes": v.received_bytes, "total_bytes": v.total_bytes,
                 "complete": v.complete, "decoded_bytes": v.decoded_bytes, "started_at": v.started_at,
                 "decoded_at": v.decoded_at, "images_completed": v.images_completed, "serial": v.serial,
-                "capture": v.capture, "settings": settings_dict(v.settings),
+                "capture": v.capture, "settings": coded_settings(settings_dict(v.settings), v.track, v.coded_roi),
+                "track": v.track,
             }

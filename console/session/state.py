@@ -58,6 +58,14 @@ class ImageSettingsState(BaseModel):
     budget_bytes: int
 
 
+class FollowTrack(BaseModel):
+    """A followed picture's track, as the ROV said it (docs/PROTOCOL.md §10)."""
+
+    state: Literal["holds", "lost", "dropped", "unknown"]
+    keep: bool = Field(description="while lost, the pictures keep the last ROI (else none)")
+    lost_for_s: float = Field(description="how long the track had been lost when the picture was captured")
+
+
 class Capture(BaseModel):
     t: float = Field(description="session seconds of the best estimate")
     wall: float = Field(description="clock time of the best estimate, Unix seconds")
@@ -77,6 +85,7 @@ class PastImage(BaseModel):
     received_wall: float
     seconds: float | None = Field(description="from its first trunk to its last")
     settings: ImageSettingsState | None
+    track: FollowTrack | None = Field(None, description="a followed picture's track (its settings' ROI: the one it was coded with)")
 
 
 class ImageState(BaseModel):
@@ -95,6 +104,7 @@ class ImageState(BaseModel):
                                                     "until it does); null on the radio link, where every trunk "
                                                     "is authenticated as it comes")
     settings: ImageSettingsState | None
+    track: FollowTrack | None = Field(None, description="a followed picture's track (its settings' ROI: the one it was coded with)")
 
 
 class LinkState(BaseModel):

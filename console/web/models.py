@@ -100,6 +100,15 @@ class ImageSettingsOrder(Request):
     budget_bytes: int | None = Field(None, ge=0, le=MAX_BUDGET, description=f"image size, bytes, 0..{MAX_BUDGET}")
 
 
+class FollowOrder(Request):
+    """FOLLOW (docs/PROTOCOL.md §10): the ROI follows what it framed in picture `img`."""
+
+    roi: tuple[StrictInt, StrictInt, StrictInt, StrictInt] = Field(
+        strict=False, description="region of interest (x0, y0, x1, y1) in pixels of picture img, x0 < x1, y0 < y1")
+    img: int = Field(ge=0, le=7, description="IMG of the picture the ROI was drawn on")
+    keep: bool = Field(True, description="while the track is lost, keep its last ROI (false: no ROI)")
+
+
 class TakeControl(Request):
     name: str = Field("", max_length=40, description="shown to the other clients, e.g. 'pilot laptop'")
 

@@ -30,8 +30,12 @@ not exactly as specified is refused rather than guessed at):
   reply decodes with ATTITUDE_VALID cleared and roll, pitch and yaw 0 (the
   attitude is unknown), the rest of it used.  REASON 3, or a REASON without
   REJECTED, decodes as it is (shown as unknown, not an error).
-- Reserved order codes 5–15 decode to `ReservedOrder` with the body that
+- Reserved order codes 6–15 decode to `ReservedOrder` with the body that
   follows (at most 9 bytes).
+
+FOLLOW (ORDER 5, docs/PROTOCOL.md §10) is IMAGE settings whose ROI follows its
+content: `FollowSettings`, an `ImageSettings` (the slave takes it as one), and
+each picture coded under it starts its stream with a `TrackRecord`.
 """
 
 from __future__ import annotations
@@ -114,6 +118,7 @@ class OrderCode(enum.IntEnum):
     POSITION = 2
     IMAGE = 3
     STOP = 4
+    FOLLOW = 5  # §10: IMAGE settings whose ROI follows its content
 
 
 def _check_int(name: str, value: object, lo: int, hi: int) -> None:
@@ -249,6 +254,7 @@ class ImageSettings:
 
     code: ClassVar[int] = OrderCode.IMAGE
     one_shot: ClassVar[bool] = True
+    follow: ClassVar[bool] = False  # the ROI stays where it is in the picture
 
     def __post_init__(self) -> None:
         if self.roi is not None:
@@ -302,13 +308,107 @@ class Stop:
         return cls()
 
 
+@dataclass(frozen=True)
+class FollowSettings(ImageSettings):
+    """FOLLOW (§10): IMAGE settings whose ROI follows what it framed in picture
+    `drawn_on` (its IMG); `keep`: a lost track keeps its last ROI, else the
+    pictures go without one until it holds again."""
+
+    keep: bool = True
+    drawn_on: int = 0
+
+    code: ClassVar[int] = OrderCode.FOLLOW
+    follow: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.roi is None:
+            raise ProtocolError("FOLLOW needs an ROI to follow")
+        _check_bool("FOLLOW KEEP", self.keep)
+        _check_int("FOLLOW IMG", self.drawn_on, 0, IMG_IDS - 1)
+
+    def encode_body(self) -> bytes:
+        return super().encode_body() + bytes(((self.keep << 7) | self.drawn_on,))
+
+    @classmethod
+    def decode_body(cls, body: bytes) -> "FollowSettings | InvalidOrder":
+        if len(body) != 9:
+            raise ProtocolError(f"FOLLOW body must be 9 bytes, got {len(body)}")
+        if body[8] & 0x78:
+            raise ProtocolError("FOLLOW byte 8 bits 6-3 are reserved and must be 0")
+        settings = ImageSettings.decode_body(body[:8])
+        if isinstance(settings, InvalidOrder):
+            return InvalidOrder(cls.code, bytes(body), settings.why)
+        try:
+            return cls(settings.roi, settings.shift, settings.mono, settings.budget_bytes,
+                       keep=bool(body[8] & 0x80), drawn_on=body[8] & 0x07)
+        except ProtocolError as exc:  # no ROI
+            return InvalidOrder(cls.code, bytes(body), str(exc))
+
+
+class TrackState(enum.IntEnum):
+    """STATE of a picture's TRACK record (§10)."""
+
+    HOLDS = 0  # the ROI is where the object is in this picture
+    LOST = 1  # not found in this picture; the ROV still looks for it
+    DROPPED = 2  # the ROV no longer looks for it
+    UNKNOWN = 3  # reserved: shown as unknown
+
+
+TRACK_MAGIC = 0b0110  # a stream's first four bits: a TRACK record, not a DEBT header (1010)
+TRACK_RECORD_BYTES = 2
+TRACK_LOST_FOR_MAX_DS = 255  # LOST_FOR saturates: 25.5 s or more
+
+
+@dataclass(frozen=True)
+class TrackRecord:
+    """The track as the ROV saw it when it captured a picture coded under FOLLOW:
+    [0110:4][STATE:2][KEEP:1][0:1] [LOST_FOR:8, tenths of a second]."""
+
+    state: int = TrackState.HOLDS
+    keep: bool = True
+    lost_for_ds: int = 0
+
+    def __post_init__(self) -> None:
+        _check_int("TRACK STATE", int(self.state), 0, 3)
+        _check_bool("TRACK KEEP", self.keep)
+        _check_int("TRACK LOST_FOR", self.lost_for_ds, 0, TRACK_LOST_FOR_MAX_DS)
+
+    @property
+    def lost_for_s(self) -> float:
+        return self.lost_for_ds / 10.0
+
+    def encode(self) -> bytes:
+        return bytes(((TRACK_MAGIC << 4) | (int(self.state) << 2) | (self.keep << 1), self.lost_for_ds))
+
+    @classmethod
+    def decode(cls, data: bytes) -> "TrackRecord":
+        if len(data) < TRACK_RECORD_BYTES or data[0] >> 4 != TRACK_MAGIC:
+            raise ProtocolError("not a TRACK record")
+        if data[0] & 0x01:
+            raise ProtocolError("TRACK byte 0 bit 0 is reserved and must be 0")
+        return cls((data[0] >> 2) & 0x3, bool(data[0] & 0x02), data[1])
+
+
+def split_track(stream: bytes) -> tuple[TrackRecord | None, bytes]:
+    """A picture's stream as (its TRACK record or None, its DEBT stream).  A record
+    cut short or with its reserved bit set is left in the stream (the picture then
+    does not decode: it is not one this page describes)."""
+    if len(stream) >= TRACK_RECORD_BYTES and stream[0] >> 4 == TRACK_MAGIC:
+        try:
+            return TrackRecord.decode(stream[:TRACK_RECORD_BYTES]), bytes(stream[TRACK_RECORD_BYTES:])
+        except ProtocolError:
+            pass
+    return None, bytes(stream)
+
+
 MAX_RESERVED_BODY = 9
 MAX_POLL_PAYLOAD = POLL_HEADER + MAX_RESERVED_BODY  # the largest poll: a POSITION (9) or a reserved order
 
 
 @dataclass(frozen=True)
 class ReservedOrder:
-    """An order code 5..15 with a body of 0..9 bytes: a one-shot the ROV rejects (REASON 0)."""
+    """An order code 6..15 with a body of 0..9 bytes: a one-shot the ROV rejects (REASON 0)."""
 
     order_code: int
     body: bytes = b""
@@ -316,7 +416,7 @@ class ReservedOrder:
     one_shot: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
-        _check_int("reserved ORDER", self.order_code, 5, 15)
+        _check_int("reserved ORDER", self.order_code, 6, 15)
         if not isinstance(self.body, (bytes, bytearray)):
             raise ProtocolError("reserved order body must be bytes")
         object.__setattr__(self, "body", bytes(self.body))
@@ -357,7 +457,7 @@ class InvalidOrder:
 
 Order = Union[NoOrder, Velocity, Position, ImageSettings, Stop, ReservedOrder, InvalidOrder]
 
-_ORDER_CLASSES = {c.code: c for c in (NoOrder, Velocity, Position, ImageSettings, Stop)}
+_ORDER_CLASSES = {c.code: c for c in (NoOrder, Velocity, Position, ImageSettings, Stop, FollowSettings)}
 
 
 # --------------------------------------------------------------------------

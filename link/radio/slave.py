@@ -197,6 +197,7 @@ class Slave:
         # (version 2 sizes its trunks itself: link.secure).
         self.trunk_room: Callable[[int], int] | None = None
         self.settings = default_settings or ImageSettings(mono=True, budget_bytes=2000)
+        self.follows = False  # §10: the ROV has a tracker for FOLLOW (its node says so)
         self.ack = 0
         self.rejected = False  # REJECTED/REASON describe the order named by ACK
         self.reason = 0
@@ -427,6 +428,8 @@ class Slave:
             why = order.why if isinstance(order, InvalidOrder) else f"reserved order code {order.code}"
             return self._reject_now(poll.seq, order.code, Reason.INVALID, why)
         if isinstance(order, ImageSettings):
+            if order.follow and not self.follows:
+                return self._reject_now(poll.seq, order.code, Reason.IMPOSSIBLE, "FOLLOW: this ROV has no tracker")
             self._flip(poll.seq, None)
             self.settings = order
             self.stats.orders_executed += 1

@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from rovlink.link.radio.frame import FrameDecoder, encode_frame
 from rovlink.link.radio.messages import (
+    FollowSettings,
     ImageSettings,
     InvalidOrder,
     NoOrder,
@@ -43,8 +44,17 @@ def image_settings(draw):
     return ImageSettings(roi, draw(st.integers(0, 15)), draw(st.booleans()), draw(st.integers(0, 8189)))
 
 
-reserved = st.builds(ReservedOrder, st.integers(5, 15), st.binary(max_size=9))
-orders = st.one_of(st.just(NoOrder()), velocities, positions(), image_settings(), st.just(Stop()), reserved)
+@st.composite
+def follow_settings(draw):
+    x0, y0 = draw(st.integers(0, 1022)), draw(st.integers(0, 1022))
+    roi = (x0, y0, draw(st.integers(x0 + 1, 1023)), draw(st.integers(y0 + 1, 1023)))
+    return FollowSettings(roi, draw(st.integers(0, 15)), draw(st.booleans()), draw(st.integers(0, 8189)),
+                          keep=draw(st.booleans()), drawn_on=draw(st.integers(0, 7)))
+
+
+reserved = st.builds(ReservedOrder, st.integers(6, 15), st.binary(max_size=9))
+orders = st.one_of(st.just(NoOrder()), velocities, positions(), image_settings(), st.just(Stop()), reserved,
+                   follow_settings())
 polls = st.builds(Poll, st.integers(0, 1), st.integers(0, 3), orders, st.integers(0, 7), st.integers(0, 8191))
 
 
@@ -100,7 +110,8 @@ def test_reply_round_trips(reply):
     lambda: Poll(img=8),
     lambda: Poll(offset=8192),
     lambda: ReservedOrder(4),
-    lambda: ReservedOrder(5, bytes(10)),
+    lambda: ReservedOrder(6, bytes(10)),
+    lambda: ReservedOrder(5),  # FOLLOW (§10)
     lambda: Reply(reason=4),
     lambda: Reply(ack=2),
     lambda: Reply(mode=8),
@@ -124,7 +135,8 @@ def test_illegal_values_raise_protocol_error(make):
     (bytes([0x03, 0, 0]) + bytes(5) + bytes([0x01, 0, 0]), "reserved"),
     (bytes([0x04, 0, 0, 0]), "STOP"),
     (bytes([0x00, 0, 0, 0]), "NONE"),
-    (bytes([0x05, 0, 0]) + bytes(10), "at most 9"),
+    (bytes([0x06, 0, 0]) + bytes(10), "at most 9"),
+    (bytes([0x05, 0, 0]) + bytes(10), "FOLLOW body must be 9"),
 ])
 def test_structural_faults_in_polls_are_protocol_errors(payload, words):
     """§1 (1.1): a body length that does not match its ORDER, a reserved bit, a reserved order's body over 9 B."""

@@ -380,7 +380,7 @@ def test_only_a_poll_that_decodes_completely_clears_the_failsafe():
     assert slave.failsafe
     reply, events = send(slave, bytes([0x01, 0x1F, 0xFF, 0, 0x80, 0, 0, 0]), 5.1)
     assert reply.failsafe and slave.failsafe and not of(events, FailsafeCleared)
-    reply, events = send(slave, Poll(seq=1, order=ReservedOrder(5)), 5.2)
+    reply, events = send(slave, Poll(seq=1, order=ReservedOrder(6)), 5.2)
     assert slave.failsafe  # rejected REASON 0: does not feed the timer either
     _, events = send(slave, Poll(), 5.3)
     assert of(events, FailsafeCleared) and not slave.failsafe

@@ -112,7 +112,7 @@ def test_seabed_asset_matches_its_description_and_generator():
         assert list(image.size) == meta["pixels"]
     assert meta["depth_m"] == SEABED_DEPTH_M
     assert meta["x_max_m"] - meta["x_min_m"] == meta["y_max_m"] - meta["y_min_m"] > 10
-    assert {o["kind"] for o in meta["objects"]} == {"amphora", "timber"}
+    assert {o["kind"] for o in meta["objects"]} == {"amphora", "timber", "ladder", "pipe"}
     seabed = Seabed.load()
     assert np.array_equal(generate().texture, seabed.texture)  # the PNG is the generator's output
 
@@ -161,3 +161,70 @@ def test_opencv_camera_without_opencv_is_one_clear_error():
     else:
         with pytest.raises(CameraError):
             OpenCVCamera("/nonexistent/device/for/rovlink/tests")
+
+
+def _mask_seabed(obj) -> Seabed:
+    """A black seabed with only `obj` on it, painted white: what the camera shows of it is its true extent."""
+    from rovlink.rov.seabed import _paint_object
+
+    seabed = Seabed(texture=np.zeros((1024, 1024, 3), np.uint8), objects=[obj])
+    image = np.zeros((1024, 1024, 3))
+    height = np.zeros((1024, 1024))
+    _paint_object(image, height, seabed, obj, np.random.default_rng(0))
+    seabed.texture = np.where(height[..., None] > 0, 255, 0).astype(np.uint8) * np.ones(3, np.uint8)
+    return seabed
+
+
+@pytest.mark.parametrize("kind", ["ladder", "pipe", "amphora"])
+def test_object_box_bounds_what_the_camera_shows_of_the_object(kind):
+    obj = next(o for o in Seabed.load().objects if o.kind == kind)
+    camera = SimulatedCamera(seabed=_mask_seabed(obj))
+    empty = SimulatedCamera(seabed=Seabed(texture=np.zeros((1024, 1024, 3), np.uint8)))
+    # In front of it at three ranges and headings, one with it half out of the picture.
+    for back_m, side_m, yaw_deg, roll_deg in ((4.5, 0.0, 0.0, 0.0), (6.0, 1.0, 15.0, 4.0), (4.0, -0.5, -38.0, 0.0)):
+        pose = (obj.x_m - back_m, obj.y_m + side_m, SEABED_DEPTH_M - 3.0, math.radians(yaw_deg), math.radians(roll_deg), 0.0)
+        box = camera.object_box(pose, obj)
+        lit = np.abs(camera.capture(pose).astype(int) - empty.capture(pose)).max(axis=2) > 8
+        rows, cols = np.nonzero(lit)
+        assert rows.size > 20 and box.clipped is not None
+        shown = (cols.min(), rows.min(), cols.max() + 1, rows.max() + 1)
+        # The box bounds the footprint's rectangle; an amphora tapers inside its own.
+        slack = 4.0 if kind == "amphora" else 2.0
+        for got, want, outwards in zip(box.clipped, shown, (-1, -1, 1, 1)):
+            assert -1.5 <= outwards * (got - want) <= slack, (kind, pose, box.clipped, shown)
+    # Turned away, it is behind the camera: no box at all.
+    away = camera.object_box((obj.x_m - 4.5, obj.y_m, SEABED_DEPTH_M - 3.0, math.pi), obj)
+    assert away.clipped is None and not away.in_view and away.visible_fraction == 0.0
+
+
+def test_object_box_in_view_means_half_of_it_in_the_picture():
+    obj = next(o for o in Seabed.load().objects if o.kind == "ladder")
+    camera = SimulatedCamera()
+    centred = camera.object_box((obj.x_m - 4.5, obj.y_m, SEABED_DEPTH_M - 3.0, 0.0), obj)
+    assert centred.in_view and centred.visible_fraction == pytest.approx(1.0)
+    fractions = []
+    for yaw_deg in range(0, 90, 3):  # turning right: the ladder slides out on the left
+        fractions.append(camera.object_box((obj.x_m - 4.5, obj.y_m, SEABED_DEPTH_M - 3.0, math.radians(yaw_deg)), obj))
+    visible = [b.visible_fraction for b in fractions]
+    assert visible[0] == pytest.approx(1.0) and visible[-1] == 0.0
+    assert all(a >= b - 1e-9 for a, b in zip(visible, visible[1:]))  # it only ever leaves
+    assert [b.in_view for b in fractions] == [v >= 0.5 for v in visible]
+    assert any(0.0 < v < 0.5 for v in visible)  # a box half out of the picture is clipped, not dropped
+
+
+def test_iou_of_boxes():
+    from rovlink.rov.camera import iou
+
+    assert iou((0, 0, 10, 10), (0, 0, 10, 10)) == 1.0
+    assert iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(50 / 150)
+    assert iou((0, 0, 10, 10), (20, 20, 30, 30)) == 0.0
+    assert iou(None, (0, 0, 1, 1)) == 0.0
+
+
+def test_a_clipped_box_never_reaches_outside_the_picture():
+    obj = next(o for o in Seabed.load().objects if o.kind == "ladder")
+    camera = SimulatedCamera()
+    for yaw_deg in range(0, 80, 2):  # the ladder sliding out on the left, through every rounding of the edge
+        box = camera.object_box((obj.x_m - 4.3, obj.y_m, SEABED_DEPTH_M - 3.0, math.radians(yaw_deg)), obj).clipped
+        if box is not None:
+            assert 0.0 <= box[0] < box[2] <= 320.0 and 0.0 <= box[1] < box[3] <= 240.0, (yaw_deg, box)

@@ -45,3 +45,17 @@ def test_rov_refuses_a_key_file_readable_by_others(tmp_path):
     key.chmod(0o644)
     out = rovlink("rov", "--link", link(), "--key", str(key))
     assert out.returncode == 1 and out.stderr.count("\n") == 1, out.stderr
+
+
+def test_rov_says_it_follows_and_names_the_missing_extra_when_opencv_is_not_installed(tmp_path):
+    following = rovlink("rov", "--link", link(), "--insecure", "--budget", "0", "--duration", "1")
+    assert following.returncode == 0, following.stderr
+    assert "FOLLOW by the klt tracker at 10 frames/s" in following.stderr
+    # A cv2 that cannot be imported, first on the path: as on an install without the extra.
+    (tmp_path / "cv2").mkdir()
+    (tmp_path / "cv2" / "__init__.py").write_text("raise ImportError('No module named cv2')\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path) + os.pathsep + str(ROOT))
+    missing = subprocess.run([sys.executable, "-m", "rovlink", "rov", "--link", link(), "--insecure", "--budget", "0",
+                              "--duration", "1"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=90)
+    assert missing.returncode == 0, missing.stderr
+    assert "FOLLOW refused: FOLLOW needs OpenCV's trackers: install rovlink with the 'tracking' extra" in missing.stderr

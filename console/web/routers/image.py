@@ -19,7 +19,7 @@ from rovlink.console import control
 from rovlink.console.control import Caller
 
 from ..deps import ClientIdDep, DeskDep, OperatorDep
-from ..models import ErrorBody, ImageSettingsOrder, ImageState, OrderQueued
+from ..models import ErrorBody, FollowOrder, ImageSettingsOrder, ImageState, OrderQueued
 
 router = APIRouter(prefix="/api/image", tags=["image"])
 
@@ -111,3 +111,12 @@ def post_settings(order: ImageSettingsOrder, desk: DeskDep, cid: ClientIdDep) ->
 def post_next(desk: DeskDep, cid: ClientIdDep) -> Response:
     desk.submit(control.NextImage(), Caller(cid))
     return Response(status_code=204)
+
+
+@router.post("/follow", response_model=OrderQueued, responses={
+    409: {"model": ErrorBody, "description": "the caller does not hold control"},
+    422: {"model": ErrorBody, "description": "no ROI, or a value out of range"}},
+    summary="The ROI follows its object (FOLLOW, docs/PROTOCOL.md §10); POST /settings ends it")
+def post_follow(order: FollowOrder, desk: DeskDep, cid: ClientIdDep) -> dict:
+    order_id = desk.submit(control.FollowRoi(roi=order.roi, keep=order.keep, drawn_on=order.img), Caller(cid))
+    return {"id": order_id, "kind": "IMAGE"}

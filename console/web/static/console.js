@@ -619,6 +619,7 @@ function renderOrder(o, quiet) {
   const before = page.orderStates[o.id];
   page.orderStates[o.id] = o.state;
   if (page.roiSent && page.roiSent.id === o.id && before !== o.state) renderRoiStatus();
+  if (page.follow && page.follow.id === o.id && before !== o.state) renderTrack(lastImageState);
   const bad = /^(rejected|refused|not carried out)/.test(o.state);
   if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.state}`);
   if (!quiet) {
@@ -771,6 +772,7 @@ function renderImageProgress(im) {
   card.dataset.img = im.img ?? "";
   card.dataset.receivedBytes = im.received_bytes;
   card.dataset.totalBytes = im.total_bytes ?? "";
+  renderTrack(im);
   showImage(im);
   const key = `${im.serial ?? ""}:${im.images_completed ?? ""}`;
   if (key !== page.historyKey) {
@@ -1004,6 +1006,7 @@ function setRoi(roi) {
   page.roi = roi;
   page.roiSent = null;
   $("roi-clear").hidden = !roi;
+  renderFollowControls();
   renderRoiStatus();
   drawRoi();
 }
@@ -1059,6 +1062,68 @@ function wireRoi() {
   $("roi-clear").onclick = () => setRoi(null);
 }
 
+// ---------------------------------------------------------------------------
+// Follow: the ROI follows its object (docs/PROTOCOL.md §10).  The ROV moves it from
+// picture to picture; each picture says the ROI it was coded with (drawn solid, from
+// its settings) and whether the track holds, was lost (since when) or was dropped.
+// ---------------------------------------------------------------------------
+
+// The IMG of the picture a drag starts on: the ROV starts its tracker on that frame.
+function wireFollow() {
+  for (const [imgId] of PICTURES) {
+    $(imgId).addEventListener("mousedown", () => {
+      const e = imgId === "image" ? null : shownEntry();
+      const img = imgId === "image" ? $("image").dataset.img : e && e.img;
+      if (img !== undefined && img !== null && img !== "") page.followDrawnOn = Number(img);
+    });
+  }
+  $("roi-follow").onclick = async () => {
+    const roi = page.roi;
+    if (!roi || page.followDrawnOn === undefined) return;
+    const sent = await api("/api/image/follow", { roi, img: page.followDrawnOn, keep: $("roi-keep").checked });
+    if (!sent) return;
+    page.follow = { id: sent.id };
+    setRoi(null);  // the ROV moves it now: the solid box on each picture is where it went
+    renderTrack(lastImageState);
+  };
+}
+
+function renderFollowControls() {
+  $("roi-follow").hidden = !page.roi;
+  $("roi-keep-label").hidden = !page.roi;
+}
+
+function trackText(track) {
+  if (track.state === "holds") return "track holds: the ROI is on the object";
+  if (track.state === "lost") {
+    return `track LOST for ${fmt(track.lost_for_s, 1)} s: ${track.keep ? "last ROI kept" : "no ROI"}, the ROV still looks`;
+  }
+  if (track.state === "dropped") return `track DROPPED after ${fmt(track.lost_for_s, 0)} s lost: draw a new ROI`;
+  return "track state unknown";
+}
+
+function renderTrack(im) {
+  const el = $("track-text");
+  const follow = page.follow;
+  let text = "", state = "";
+  if (im && im.track) {
+    text = `#${im.serial}: ${trackText(im.track)}`;
+    state = im.track.state;
+  } else if (follow) {
+    const st = page.orderStates[follow.id] || "sent";
+    if (/^(rejected|cancelled|unknown)/.test(st)) {
+      text = `Follow order #${follow.id} ${st}: the ROV does not follow`;
+      state = "refused";
+    } else {
+      text = `Follow sent as order #${follow.id} (${st}), from the next picture`;
+      state = "sent";
+    }
+  }
+  el.hidden = !text;
+  el.textContent = text;
+  el.dataset.state = state;
+}
+
 function setupScene(config) {
   const frame = $("scene");
   if (!config || !config.viser_url) {
@@ -1105,6 +1170,7 @@ function wire() {
       roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked, budget_bytes: parseInt($("budget").value, 10),
     });
     if (sent && roi) { page.roiSent = { id: sent.id, roi }; renderRoiStatus(); }
+    if (sent) { page.follow = null; renderTrack(null); }  // an IMAGE order ends the following
   };
   const gotoTarget = () => ({
     x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
@@ -1150,6 +1216,7 @@ function wire() {
     $("goto-z").value = p.z_m.toFixed(2); $("goto-yaw").value = p.yaw_deg.toFixed(0);
   };
   wireRoi();
+  wireFollow();
   $("next-image").onclick = () => api("/api/image/next");
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
