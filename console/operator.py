@@ -96,7 +96,7 @@ class NotNow(OrderError):
 class Operator:
     """The radio profile's session (console/session/contract.py's VehicleSession)."""
 
-    capabilities = Capabilities(profile="radio", velocity=True, next_image=True, picture="stream",
+    capabilities = Capabilities(profile="radio", velocity=True, next_image=True, follow=True, picture="stream",
                                 image_budget_max=MAX_BUDGET, report_every_s=0.3)
 
     def __init__(

@@ -71,7 +71,7 @@ class AcousticSession:
     sees a session (console/session/contract.py).  `endpoint` None and `key`
     None: a replay.  `record`: a JSON-lines file of the session, or None."""
 
-    capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, picture="thumbnail",
+    capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, follow=False, picture="thumbnail",
                                 image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
 
     def __init__(self, endpoint, key: bytes | None, *, clock: Callable[[], float] = time.monotonic,
@@ -540,6 +540,10 @@ class AcousticSession:
     def next_image(self) -> None:
         raise NotNow("the acoustic link sends a thumbnail on request, one at a time: there is no next picture "
                      "to skip to (ask for a thumbnail)")
+
+    def follow_roi(self, roi, *, keep: bool = True, drawn_on: int = 0, shift: int | None = None) -> int:
+        raise NotNow("the acoustic link's thumbnails come one at a time, on request: there is no stream of "
+                     "pictures for an ROI to follow (docs/PROTOCOL.md §10 is the radio profile's)")
 
     def set_velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
         if (vx, vy, vz, vyaw) != NEUTRAL:

@@ -360,6 +360,7 @@ class ControlPanel:
 
     def _build_image(self) -> None:
         settings = self.operator.requested_settings
+        caps = getattr(self.operator, "capabilities", None)
         with self.gui.add_folder("Image"):
             w, h = self.image_px
             self.picture = self.gui.add_image(np.full((h, w, 3), 30, np.uint8), label="Latest image",
@@ -374,8 +375,8 @@ class ControlPanel:
             self.mono = self.gui.add_checkbox("Mono", initial_value=settings.mono)
             self.apply_button = self.gui.add_button("Apply image settings")
             self.clear_roi_button = self.gui.add_button("Clear ROI")
-            self.follow_button = self.gui.add_button("Follow ROI")
-            self.next_button = self.gui.add_button("Next image")
+            self.follow_button = self.gui.add_button("Follow ROI", visible=caps is None or caps.follow)
+            self.next_button = self.gui.add_button("Next image", visible=caps is None or caps.next_image)
             self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI; "
                                   "Follow ROI: the ROV keeps it on what it framed.")
         self.order_widgets += [self.budget, self.shift_slider, self.mono, self.apply_button, self.clear_roi_button,

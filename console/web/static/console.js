@@ -217,6 +217,7 @@ function applyCapabilities(caps) {
     $("wish").closest("tr").hidden = true;
   }
   if (caps.next_image === false) $("next-image").hidden = true;
+  page.noFollow = caps.follow === false;
   if (caps.picture === "thumbnail") {
     $("mono").closest("label").hidden = true;
     $("apply-image").textContent = "Ask for a thumbnail";
@@ -1089,8 +1090,8 @@ function wireFollow() {
 }
 
 function renderFollowControls() {
-  $("roi-follow").hidden = !page.roi;
-  $("roi-keep-label").hidden = !page.roi;
+  $("roi-follow").hidden = !page.roi || !!page.noFollow;
+  $("roi-keep-label").hidden = !page.roi || !!page.noFollow;
 }
 
 function trackText(track) {
