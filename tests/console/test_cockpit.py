@@ -332,3 +332,69 @@ def test_the_wish_is_shown_in_metres_per_second(open_page, live):
         page.keyboard.up("KeyW")
     assert text == f"≈ forward {steady_speed(gain):.2f} m/s", text
     page.wait_for_function("document.getElementById('wish').textContent === 'neutral'", timeout=5000)
+
+
+def in_sight(page, selector: str) -> list[str]:
+    """What keeps `selector` from being read where it is, the page unscrolled: outside the
+    window, cut by itself or by a box it sits in (the panel's own scrolling included), or
+    covered by something drawn over it. Empty when it reads whole."""
+    return page.evaluate("""(sel) => {
+        const el = document.querySelector(sel), why = [];
+        if (!el) return [`${sel} missing`];
+        const r = el.getBoundingClientRect();
+        if (r.width < 1 || r.height < 1) return [`${sel} not shown`];
+        if (r.left < 0 || r.top < 0 || r.right > innerWidth + 0.5 || r.bottom > innerHeight + 0.5)
+          why.push(`${sel} at ${[r.left, r.top, r.right, r.bottom].map(Math.round)} is outside the window`);
+        if (el.scrollWidth > el.clientWidth + 1 || el.scrollHeight > el.clientHeight + 1)
+          why.push(`${sel} is cut (${el.scrollWidth}x${el.scrollHeight} in ${el.clientWidth}x${el.clientHeight})`);
+        for (let a = el.parentElement; a; a = a.parentElement) {
+          const s = getComputedStyle(a);
+          if (s.overflowX === 'visible' && s.overflowY === 'visible') continue;
+          const b = a.getBoundingClientRect();
+          if (r.top < b.top - 0.5 || r.bottom > b.bottom + 0.5 || r.left < b.left - 0.5 || r.right > b.right + 0.5)
+            why.push(`${sel} is cut by ${a.id || a.tagName}`);
+          if (a.scrollTop) why.push(`${a.id || a.tagName} is scrolled`);
+        }
+        const hit = document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2);
+        if (!hit || !(el === hit || el.contains(hit))) why.push(`${sel} is covered by ${hit && (hit.id || hit.tagName)}`);
+        if (document.scrollingElement.scrollTop) why.push('the page is scrolled');
+        return why;
+    }""", selector)
+
+
+def test_every_orders_fate_is_read_beside_its_control_at_1366x768_without_scrolling(open_page, live):
+    complete_pictures(live, 1)
+    page = open_page(1366, 768)
+    take_control(page)
+    page.wait_for_function("document.getElementById('image-done').naturalWidth > 0", timeout=30000)
+    # Each control clicked where it is (a script's click, which scrolls nothing), then its fate read.
+    orders = [("#arm", "#arm-fate", "followed"), ("#set-mode", "#mode-fate", "followed"),
+              ("#apply-image", "#image-fate", "acknowledged"), ("#goto-go", "#goto-fate", "acknowledged arrived"),
+              ("#stop", "#stop-fate", "acknowledged")]
+    for control, fate, settled in orders:
+        before = int(page.get_attribute(fate, "data-id") or 0)
+        assert not in_sight(page, control), in_sight(page, control)
+        page.evaluate("(sel) => document.querySelector(sel).click()", control)
+        # Said at once, and read where it is until it settles.
+        page.wait_for_function("([sel, before]) => +(document.querySelector(sel).dataset.id || 0) > before",
+                               arg=[fate, before], timeout=15000)
+        assert not in_sight(page, fate), (page.text_content(fate), in_sight(page, fate))
+        page.wait_for_function("([sel, states]) => states.split(' ').includes(document.querySelector(sel).dataset.state)",
+                               arg=[fate, settled], timeout=20000)
+        problems = in_sight(page, fate)
+        assert not problems, (page.text_content(fate), problems)
+    assert page.text_content("#stop-fate").startswith("STOP ✓ holding in "), page.text_content("#stop-fate")
+    # The top bar with its fates, every badge it may show and the longest control text: nothing cut.
+    cut = page.evaluate("""(() => {
+        for (const id of ['failsafe', 'hold', 'stopping', 'attitude', 'replaying', 'cancel-stop'])
+          document.getElementById(id).hidden = false;
+        document.getElementById('control-text').textContent = 'You have control: centre the sticks to drive.';
+        const bar = document.getElementById('topbar').getBoundingClientRect();
+        return [...document.querySelectorAll('#topbar > *, #topbar .group > *')]
+          .filter((e) => !e.hidden && e.offsetParent !== null)
+          .filter((e) => { const r = e.getBoundingClientRect();
+                           return e.scrollWidth > e.clientWidth + 1 || r.right > window.innerWidth + 0.5 || r.left < 0
+                             || r.bottom > bar.bottom + 0.5; })
+          .map((e) => e.id || e.className);
+    })()""")
+    assert not cut, f"cut in the top bar: {cut}"

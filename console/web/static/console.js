@@ -547,7 +547,8 @@ function distanceLeft(o) {
 }
 
 // Each order's fate beside the control that gave it: the newest of its kind.
-const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate" };
+const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate",
+                  STOP: "stop-fate" };
 
 function fateClass(state) {
   if (/^(queued|requested|sent)/.test(state)) return "pending";
@@ -570,6 +571,11 @@ function renderFate(o) {
     text = pending ? `${verb}ing…` : o.state === "followed" ? `${verb}ed ✓ ${orderClock(o)}` : `${verb}: ${o.state}`;
   } else if (o.kind === "MODE") {
     text = pending ? `${o.mode}…` : o.state === "followed" ? `${o.mode} ✓ ${orderClock(o)}` : `${o.mode}: ${o.state}`;
+  } else if (o.kind === "STOP") {
+    // "acknowledged: holding in POS_HOLD" -> "STOP ✓ holding in POS_HOLD 07:00:48"
+    const [head, ...rest] = o.state.split(": ");
+    text = /^(queued|sent)/.test(o.state) ? "STOP sent…" : head === "acknowledged"
+      ? `STOP ✓ ${rest.join(": ") || "confirmed"} ${orderClock(o)}` : `STOP ${o.state} ${orderClock(o)}`;
   }
   el.textContent = text;
   el.title = `#${o.id} ${o.kind}: ${o.state}`;
