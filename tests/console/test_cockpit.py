@@ -29,7 +29,7 @@ from rovlink.rov.vehicle import BlueRovParams
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
-from .pages import take_control
+from .pages import after_ticks, take_control
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -398,3 +398,42 @@ def test_every_orders_fate_is_read_beside_its_control_at_1366x768_without_scroll
           .map((e) => e.id || e.className);
     })()""")
     assert not cut, f"cut in the top bar: {cut}"
+
+
+CENTRE = "document.getElementById('control-text').textContent"
+
+
+def test_a_key_held_through_a_stop_or_a_failsafe_hold_is_told_to_centre(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.wait_for_function(f"{CENTRE} === 'You have control.'")
+    page.keyboard.down("KeyW")
+    try:
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] > 0, 5)
+        # STOP with the key still held: the held key is no drive, and the page says why.
+        page.keyboard.press("Space")
+        page.wait_for_function(f"{CENTRE} === 'You have control: centre the sticks to drive.'", timeout=10000)
+        assert "centre-to-drive" in page.get_attribute("#control-text", "class")
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] == 0, 5)
+        after_ticks(page, 5)  # the key is still held, its wish still sent: still ignored, still said
+        assert page.evaluate(CENTRE) == "You have control: centre the sticks to drive."
+        assert live.operator.state()["velocity_wish"]["vx"] == 0
+    finally:
+        page.keyboard.up("KeyW")
+    page.wait_for_function(f"{CENTRE} === 'You have control.'", timeout=10000)
+    # A failsafe's HOLD: the key held while the link is cut and after it returns.
+    page.keyboard.down("KeyW")
+    try:
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] > 0, 5)
+        try:
+            live.set_link_loss(1.0)
+            page.wait_for_function("document.body.dataset.link === 'lost'", timeout=15000)
+        finally:
+            live.set_link_loss(0.0)
+        page.wait_for_function("!document.getElementById('hold').hidden", timeout=15000)
+        page.wait_for_function(f"{CENTRE} === 'You have control: centre the sticks to drive.'", timeout=10000)
+        assert live.operator.pose_state()["hold"], "the ROV left its HOLD with the key held"
+    finally:
+        page.keyboard.up("KeyW")
+    page.wait_for_function(f"{CENTRE} === 'You have control.'", timeout=10000)
+    assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"

@@ -227,11 +227,12 @@ function renderControl(c) {
       `take control or disarm.${disarm}`;
   }
   let text;
-  if (c.you) text = c.centre_to_drive ? "You have control: centre the sticks to drive." : "You have control.";
+  const centre = c.centre_to_drive || (c.you && heldThroughHold());
+  if (c.you) text = centre ? "You have control: centre the sticks to drive." : "You have control.";
   else if (c.held) text = `Watching: ${c.holder} has control` + (c.centre_to_drive ? " (sticks not centred yet)." : ".");
   else text = "Watching: nobody has control.";
   $("control-text").textContent = text;
-  $("control-text").classList.toggle("centre-to-drive", !!c.centre_to_drive);
+  $("control-text").classList.toggle("centre-to-drive", !!centre);
   // Asked to re-centre (just taken control, after a STOP): our input as it is now.
   // Neutral re-centres at once; held keys or a held stick drive only once centred.
   if (c.you && c.centre_to_drive) sendVelocity(true);
@@ -317,12 +318,27 @@ function pollGamepadButtons() {
 }
 
 function stop() {
-  page.held.clear();
   page.lastSent = NEUTRAL;
   send({ type: "stop" });
-  // After STOP only our input as it is now counts: the keys are let go, a stick held
-  // off centre is not a drive until it has been centred.
+  // After STOP our input as it is now is sent, keys held through it included: the console
+  // takes none of it as a drive until it has been centred, and says so ("centre the sticks
+  // to drive").  Forgetting a held key here would re-centre at once, and its next repeat
+  // would drive again without a word.
   sendVelocity(true);
+}
+
+// The ROV shows HOLD (after a STOP, or after its failsafe) and ignores a wish until it sees
+// a neutral one: while the pilot's own input has stayed off centre since the HOLD came,
+// the page says "centre the sticks to drive".
+function watchHold(hold) {
+  if (hold && !page.holdSeen) page.neutralSinceHold = isNeutral(wish());
+  page.holdSeen = !!hold;
+}
+
+function heldThroughHold() {
+  if (!page.holdSeen || !page.holder) return false;
+  if (isNeutral(wish())) page.neutralSinceHold = true;
+  return !page.neutralSinceHold;
 }
 
 // ---------------------------------------------------------------------------
@@ -344,6 +360,7 @@ function setBadge(el, text, cls) {
 function render(s) {
   // Session seconds to clock time (a replay's own clock).
   if (s.wall && s.pose) page.wallOffset = s.wall - s.pose.t;
+  watchHold(s.pose.hold);
   renderControl(s.control);
   const pose = s.pose;
   page.lastPose = pose.received;
