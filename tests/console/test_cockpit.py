@@ -29,7 +29,7 @@ from rovlink.rov.vehicle import BlueRovParams
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
-from .pages import after_ticks, take_control
+from .pages import after_ticks, after_updates, take_control
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -437,3 +437,25 @@ def test_a_key_held_through_a_stop_or_a_failsafe_hold_is_told_to_centre(open_pag
         page.keyboard.up("KeyW")
     page.wait_for_function(f"{CENTRE} === 'You have control.'", timeout=10000)
     assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"
+
+
+def test_the_top_bars_chips_stay_long_enough_to_read(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.keyboard.down("KeyW")
+    try:
+        page.keyboard.press("Space")  # STOP, the key held: the ROV holds until it is let go
+        page.wait_for_function("!document.getElementById('hold').hidden", timeout=10000)
+        assert page.text_content("#hold") == "HOLD"
+    finally:
+        page.keyboard.up("KeyW")
+    # Let go: the ROV leaves its HOLD at its next poll, but the chip stays, saying it has ended.
+    assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"
+    after_updates(page, 5)
+    assert page.is_visible("#hold") and page.text_content("#hold") == "HOLD released", page.text_content("#hold")
+    # STOP's own fate stays beside it, settled, as long as no newer STOP supersedes it.
+    after_updates(page, 20)
+    assert page.get_attribute("#stop-fate", "data-state") == "acknowledged"
+    assert page.is_visible("#stop-fate") and page.text_content("#stop-fate").startswith("STOP ✓ holding in ")
+    # ...and the ended chip goes in the end.
+    page.wait_for_function("document.getElementById('hold').hidden", timeout=30000)

@@ -378,8 +378,9 @@ function render(s) {
   $("image-done-frame").classList.toggle("stale", lost);
   page.lastState = s;
   renderInstruments(s);
-  $("hold").hidden = !pose.hold;
-  $("stopping").hidden = !pose.stopping;
+  latchChip($("hold"), !!pose.hold, "HOLD", "HOLD released", "warn");
+  latchChip($("stopping"), !!pose.stopping, "STOP in force",
+            $("stop-fate").dataset.state === "acknowledged" ? "STOP confirmed" : "STOP ended", "bad");
   $("attitude").hidden = !pose.received || pose.attitude_valid !== false;
   $("cancel-stop").hidden = !(pose.stopping && s.orders.some((o) => o.kind === "STOP" &&
                                                               o.state.startsWith("not carried out")));
@@ -715,6 +716,20 @@ function alarm() {
 function stopAlarm() {
   clearInterval(page.alarmTimer);
   page.alarmTimer = null;
+}
+
+// A chip of the top bar that came for a reply or two (HOLD released by the next neutral, a
+// STOP confirmed at once on a fast link) would be gone before it is read: once shown it
+// stays CHIP_MIN_MS, in words that say it has ended.
+const CHIP_MIN_MS = 8000;
+
+function latchChip(el, active, activeText, endedText, cls) {
+  if (active) el.dataset.at = Date.now();
+  const recent = !!el.dataset.at && Date.now() - +el.dataset.at < CHIP_MIN_MS;
+  el.hidden = !active && !recent;
+  el.textContent = active ? activeText : endedText;
+  el.className = `badge ${active ? cls : "ended"}`;
+  el.dataset.active = active ? "1" : "";
 }
 
 // FAILSAFE often lasts one reply (the first after a silence): the badge
