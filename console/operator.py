@@ -342,7 +342,7 @@ class Operator:
             elif isinstance(event, InauthenticFrame):
                 self.health.inauthentic(t)
             elif isinstance(event, LateReply):
-                self.health.late_replies += 1
+                self.health.late(t)
             elif isinstance(event, Synced):
                 restarted = event.restarted and not event.first
                 self.note("ROV restarted (new BOOT): link synchronised again" if restarted else "link synchronised",

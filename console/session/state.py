@@ -90,7 +90,10 @@ class ImageState(BaseModel):
 
 class LinkState(BaseModel):
     state: Literal["starting", "up", "degraded", "lost", "replay"] = Field(
-        description="from replies: lost after lost_after_s without one, degraded on recent losses or CRC errors")
+        description="from replies: lost after lost_after_s without one, degraded while a figure of the last 10 s "
+                    "(replies lost, bad frames, late replies) crosses its threshold (console/session/health.py)")
+    degraded_reason: str | None = Field(None, description="while degraded: which figure crossed which threshold")
+    degraded_short: str | None = Field(None, description="the same in a few words, for a badge")
     since_reply_s: float | None = Field(description="seconds since the last reply")
     lost_after_s: float
     rov_failsafe_s: float

@@ -459,3 +459,19 @@ def test_the_top_bars_chips_stay_long_enough_to_read(open_page, live):
     assert page.is_visible("#stop-fate") and page.text_content("#stop-fate").startswith("STOP ✓ holding in ")
     # ...and the ended chip goes in the end.
     page.wait_for_function("document.getElementById('hold').hidden", timeout=30000)
+
+
+def test_a_degraded_link_says_which_figure_crossed_which_threshold(open_page, live):
+    page = open_page()
+    try:
+        live.set_link_loss(0.3)
+        page.wait_for_function("document.getElementById('link-up').textContent.startsWith('link degraded: ')",
+                               timeout=30000)
+        badge, title, why = page.evaluate("['link-up', 'link-why'].map((id) => document.getElementById(id))"
+                                          ".flatMap((e, i) => i ? [e.textContent] : [e.textContent, e.title])")
+    finally:
+        live.set_link_loss(0.0)
+    assert badge.endswith("% lost"), badge
+    assert " replies lost in the last 10 s (" in title and "degraded from 10%" in title, title
+    assert why == title
+    assert any(e["text"].startswith("link degraded: ") and "replies lost" in e["text"] for e in live.operator.log_entries())

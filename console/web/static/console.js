@@ -410,10 +410,15 @@ function render(s) {
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
   renderFailsafe(l.failsafe || page.failsafeActive);
   setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
+  // Degraded says which figure crossed its threshold: in a few words on the badge, whole in
+  // its tooltip and in the link card.
+  const degraded = l.degraded_short ? `link degraded: ${l.degraded_short}` : "link degraded";
   const badge = portDown(l) ? ["MODEM PORT DOWN", "bad"]
-    : { up: ["link up", "good"], degraded: ["link degraded", "warn"], lost: ["LINK LOST", "bad"],
+    : { up: ["link up", "good"], degraded: [degraded, "warn"], lost: ["LINK LOST", "bad"],
         replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
   setBadge($("link-up"), badge[0], badge[1]);
+  $("link-up").title = l.degraded_reason || "";
+  $("link-why").textContent = l.state === "degraded" && l.degraded_reason ? l.degraded_reason : "—";
 
   renderImageProgress(s.image);
   renderPictureWait(s.image.waiting);
