@@ -567,8 +567,13 @@ class Operator:
         return bool(self.master.stopping)
 
     def next_image(self) -> None:
+        """The pilot skips the picture arriving: the ROV's next one is asked for.  What was
+        skipped is said (the log, and the image state's `skipped`) when the master lets it go."""
         with self._lock:
+            arriving = self.protocol_master.image_received
             self.master.abandon_image()
+        if not arriving:
+            self.images.nothing_to_skip(self.now())
 
     # -- a replay shows what was, and sends nothing -----------------------
 

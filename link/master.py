@@ -240,6 +240,9 @@ class ImageAbandoned:
     reason: str
 
 
+PILOT_SKIPPED = "skipped by the pilot"  # ImageAbandoned's reason for Next image (`abandon_image`)
+
+
 @dataclass(frozen=True)
 class ReplyLost:
     poll_sent_at: float
@@ -876,8 +879,8 @@ class Master:
         self._image = ImageAssembly(next_img(image.img))
 
     def abandon_image(self) -> None:
-        """The pilot has seen enough of this picture: ask for the next one."""
-        self._next_image("good enough")
+        """The pilot skips this picture (seen enough of it, or wants a fresher one): ask for the next one."""
+        self._next_image(PILOT_SKIPPED)
 
     @property
     def last_reply(self) -> Reply | None:

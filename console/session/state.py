@@ -73,6 +73,13 @@ class PastImage(BaseModel):
     settings: ImageSettingsState | None
 
 
+class ImageSkipped(BaseModel):
+    n: int | None = Field(description="the picture's number, if any of it was shown")
+    received_bytes: int = Field(description="bytes of it received when it was skipped")
+    total_bytes: int | None = Field(description="its image object's length (2 more than the picture's stream)")
+    wall: float = Field(description="when, Unix time")
+
+
 class ImageState(BaseModel):
     img: int | None = Field(description="image object number on the link")
     received_bytes: int
@@ -85,6 +92,7 @@ class ImageState(BaseModel):
     serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
     capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
     waiting: str | None = Field(None, description="why there is no picture yet (null once there is one)")
+    skipped: ImageSkipped | None = Field(None, description="the pilot's last Next image: what it skipped")
     settings: ImageSettingsState | None
 
 

@@ -475,3 +475,28 @@ def test_a_degraded_link_says_which_figure_crossed_which_threshold(open_page, li
     assert " replies lost in the last 10 s (" in title and "degraded from 10%" in title, title
     assert why == title
     assert any(e["text"].startswith("link degraded: ") and "replies lost" in e["text"] for e in live.operator.log_entries())
+
+
+def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_pilot_skipped_it(open_page, live):
+    import re
+
+    complete_pictures(live, 1)
+    page = open_page(1366, 768)
+    take_control(page)
+    # A picture part-way in (they come every second or two here): skip it.
+    page.wait_for_function("(() => { const c = document.getElementById('image-card').dataset;"
+                           " return +c.receivedBytes > 0 && +c.receivedBytes < +c.totalBytes; })()", timeout=30000)
+    assert not in_sight(page, "#next-image"), in_sight(page, "#next-image")
+    page.evaluate("document.getElementById('next-image').click()")
+    page.wait_for_function("document.getElementById('next-image-fate').dataset.state === 'skipped'", timeout=15000)
+    fate = page.text_content("#next-image-fate")
+    assert not in_sight(page, "#next-image-fate"), (fate, in_sight(page, "#next-image-fate"))
+    said = re.fullmatch(r"skipped (?:picture #(\d+) at (\d+)(?: of \d+)? B|a picture not yet shown at (\d+) B|"
+                        r"before its first bytes came), next one coming \d\d:\d\d:\d\d", fate)
+    assert said, fate
+    lines = [e["text"] for e in live.operator.log_entries()]
+    skipped = [t for t in lines if "skipped by the pilot" in t or t.startswith("the pilot skipped")]
+    assert skipped and skipped[-1].endswith(": the next one is coming"), lines[-5:]
+    if said.group(1):
+        assert skipped[-1].startswith(f"picture #{said.group(1)} skipped by the pilot at {said.group(2)}"), skipped
+    assert not [t for t in lines if "good enough" in t], lines

@@ -141,7 +141,7 @@ async function api(path, body) {
       showError(`${path}: ${(data && data.message) || resp.status}`);
       return null;
     }
-    return data;
+    return data ?? {};  // 204: done, nothing to say
   } catch (err) {
     showError(`${path}: ${err}`);
     return null;
@@ -776,6 +776,7 @@ function renderImageProgress(im) {
   $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
   $("image-id").textContent = im.img === null ? "" : `#${im.serial ?? ""} (IMG ${im.img})${im.complete ? " complete" : ""}` +
     (im.capture ? `, captured ${captureText(im.capture)}` : "");
+  renderSkipped(im.skipped);
   card.dataset.img = im.img ?? "";
   card.dataset.receivedBytes = im.received_bytes;
   card.dataset.totalBytes = im.total_bytes ?? "";
@@ -785,6 +786,21 @@ function renderImageProgress(im) {
     page.historyKey = key;
     loadHistory();
   }
+}
+
+// Next image's fate beside it: what the pilot skipped, and that the next picture is coming.
+function renderSkipped(k) {
+  const el = $("next-image-fate");
+  if (!k || el.dataset.wall === String(k.wall)) return;
+  el.dataset.wall = k.wall;
+  const at = clockTime(k.wall);
+  el.textContent = k.n !== null && k.n !== undefined
+    ? `skipped picture #${k.n} at ${k.received_bytes}${k.total_bytes ? ` of ${k.total_bytes - 2}` : ""} B, ` +
+      `next one coming ${at}`
+    : k.received_bytes ? `skipped a picture not yet shown at ${k.received_bytes} B, next one coming ${at}`
+      : `skipped before its first bytes came, next one coming ${at}`;
+  el.className = "fate done";
+  el.dataset.state = "skipped";
 }
 
 // ---------------------------------------------------------------------------
@@ -1156,7 +1172,17 @@ function wire() {
     $("goto-z").value = p.z_m.toFixed(2); $("goto-yaw").value = p.yaw_deg.toFixed(0);
   };
   wireRoi();
-  $("next-image").onclick = () => api("/api/image/next");
+  $("next-image").onclick = async () => {
+    const el = $("next-image-fate");
+    el.textContent = "skipping…";
+    el.className = "fate pending";
+    el.dataset.state = "asked";
+    if ((await api("/api/image/next")) === null && el.dataset.state === "asked") {
+      el.textContent = "not skipped (see the message)";
+      el.className = "fate bad";
+      el.dataset.state = "refused";
+    }
+  };
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
   $("log-level").onchange = renderLog;
