@@ -693,13 +693,16 @@ class Operator:
         if state == "lost":
             return "no picture: the link is lost"
         if self.images.view.received_bytes:
-            return "decoding the first bytes (the console's codec compiles on first use)"
+            return ("the first picture's first bytes are in: it shows as soon as this console's picture "
+                    "decoder has started (up to a minute on a first run)")
         with self._lock:
             arriving = self.protocol_master.image_received
         if arriving:
-            return (f"a first picture of unknown age is arriving ({arriving} B): it is not shown, "
-                    f"the next one is (docs/PROTOCOL.md §4)")
-        return "the ROV has no picture ready yet (its codec compiles on first use: up to a minute on a first run)"
+            # The ROV may have held it since before this session: its age is unknown, so it is not shown.
+            return (f"the ROV is sending a picture it took before this session ({arriving} B so far): it may be "
+                    f"old, so it is not shown; the first fresh picture comes right after it")
+        return ("the ROV is preparing its first picture (its picture coder starts up: up to a minute on a "
+                "first run); it shows here as it arrives")
 
     def image_history(self) -> list[dict]:
         return self.images.history()

@@ -500,3 +500,17 @@ def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_
     if said.group(1):
         assert skipped[-1].startswith(f"picture #{said.group(1)} skipped by the pilot at {said.group(2)}"), skipped
     assert not [t for t in lines if "good enough" in t], lines
+
+
+def test_before_the_first_picture_the_page_shows_no_byte_count_of_nothing(open_page, live):
+    import httpx
+
+    assert "0 / ? bytes" not in httpx.get(live.url + "/").text
+    page = open_page()
+    # The image state as telemetry gives it before any byte of a picture has come.
+    shown = page.evaluate("""() => {
+        renderImageProgress({img: null, received_bytes: 0, total_bytes: null, complete: false, decoded_bytes: 0,
+                             serial: 0, images_completed: 0, capture: null, settings: null});
+        return document.getElementById('image-bytes').textContent;
+    }""")
+    assert shown == "", shown

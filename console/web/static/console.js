@@ -773,7 +773,9 @@ function renderImageProgress(im) {
   const bar = $("image-progress");
   bar.max = im.total_bytes || 1;
   bar.value = im.received_bytes;
-  $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
+  // Nothing arriving yet: the picture's frame says why; no "0 / ? bytes".
+  $("image-bytes").textContent = im.total_bytes ? `${im.received_bytes} / ${im.total_bytes} bytes`
+    : im.received_bytes ? `${im.received_bytes} bytes so far` : "";
   $("image-id").textContent = im.img === null ? "" : `#${im.serial ?? ""} (IMG ${im.img})${im.complete ? " complete" : ""}` +
     (im.capture ? `, captured ${captureText(im.capture)}` : "");
   renderSkipped(im.skipped);
