@@ -45,6 +45,12 @@ class TransportError(Exception):
     """A transport URL or operation that cannot work; the message says why."""
 
 
+class PortUnavailable(TransportError):
+    """The device or socket itself cannot be opened (absent, no permission, busy): a
+    retry a moment later would say the same, so starting says it at once.  A port
+    that opens but whose modem does not answer yet is retried within the timeout."""
+
+
 @dataclass
 class TransportStats:
     opens: int = 0
@@ -102,8 +108,9 @@ class Endpoint:
 
     async def start(self, *, wait: bool = True, timeout_s: float = 5.0) -> "Endpoint":
         """Open under supervision; with `wait`, until the first opening succeeded, or
-        failed: then at once, with its reason (a port that is not there now is not
-        there a few retries later; the pilot is told while still at the keyboard)."""
+        until the port itself failed to open (PortUnavailable, OSError): then at once,
+        with its reason (a port that is not there now is not there a few retries
+        later; the pilot is told while still at the keyboard)."""
         if wait:
             # The caller says why it failed, once: not also the supervisor's log.
             self._quiet_until_up = True
@@ -155,7 +162,8 @@ class Endpoint:
             except Exception as exc:  # every way a port or socket can fail to open
                 # The drivers say why in words (TransportError); "could not open" is the caller's.
                 self._note_down(str(exc) or type(exc).__name__)
-                self._open_failed.set()
+                if isinstance(exc, (PortUnavailable, OSError)):
+                    self._open_failed.set()
                 await asyncio.sleep(delay)
                 delay = min(delay * 2, self._backoff[1])
                 continue
@@ -341,7 +349,7 @@ class _SerialDriver(_Driver):
         try:
             port.open()
         except serial.SerialException as exc:
-            raise TransportError(serial_open_error(self.path, exc)) from None
+            raise PortUnavailable(serial_open_error(self.path, exc)) from None
         self.port = port
         self._fd = port.fileno()
         asyncio.get_running_loop().add_reader(self._fd, self._readable)
