@@ -451,8 +451,9 @@ def test_the_top_bars_chips_stay_long_enough_to_read(open_page, live):
         page.keyboard.up("KeyW")
     # Let go: the ROV leaves its HOLD at its next poll, but the chip stays, saying it has ended.
     assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"
-    after_updates(page, 5)
-    assert page.is_visible("#hold") and page.text_content("#hold") == "HOLD released", page.text_content("#hold")
+    # (Read in one go: the page shows the HOLD as ended, not gone with it.)
+    page.wait_for_function("(() => { const c = document.getElementById('hold');"
+                           " return !c.hidden && c.textContent === 'HOLD released'; })()", timeout=15000)
     # STOP's own fate stays beside it, settled, as long as no newer STOP supersedes it.
     after_updates(page, 20)
     assert page.get_attribute("#stop-fate", "data-state") == "acknowledged"
