@@ -198,7 +198,7 @@ class ImageReceiver:
         with self._lock:
             shown = self.view.img == event.img and not self.view.complete and self.view.stream
             if shown:
-                self._keep(t, partial=True)
+                self._keep(t, partial=True, skipped=event.reason == PILOT_SKIPPED)
             self._mark_capture_window(t, "request")
             what = f"picture #{self.view.serial}" if shown else f"a picture not yet shown (IMG {event.img})"
             if event.reason == PILOT_SKIPPED:
@@ -254,11 +254,11 @@ class ImageReceiver:
 
     # -- pictures to look back at -----------------------------------------
 
-    def _keep(self, t: float, *, partial: bool) -> None:
+    def _keep(self, t: float, *, partial: bool, skipped: bool = False) -> None:
         v = self.view
         self._history.append({
             "n": v.serial, "img": v.img, "capture": v.capture, "bytes": len(v.stream),
-            "total_bytes": v.total_bytes, "partial": partial,
+            "total_bytes": v.total_bytes, "partial": partial, "skipped": skipped,
             "received_wall": round(self._wall(t), 3),
             "seconds": None if v.started_at is None else round(t - v.started_at, 2),
             "settings": settings_dict(v.settings),

@@ -68,6 +68,7 @@ class PastImage(BaseModel):
     bytes: int = Field(description="bytes of DEBT stream received")
     total_bytes: int | None
     partial: bool = Field(description="abandoned before it was complete")
+    skipped: bool = Field(False, description="partial because the pilot skipped it (Next image)")
     received_wall: float
     seconds: float | None = Field(description="from its first trunk to its last")
     settings: ImageSettingsState | None

@@ -481,6 +481,8 @@ def test_a_degraded_link_says_which_figure_crossed_which_threshold(open_page, li
 def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_pilot_skipped_it(open_page, live):
     import re
 
+    import httpx
+
     complete_pictures(live, 1)
     page = open_page(1366, 768)
     take_control(page)
@@ -499,7 +501,13 @@ def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_
     skipped = [t for t in lines if "skipped by the pilot" in t or t.startswith("the pilot skipped")]
     assert skipped and skipped[-1].endswith(": the next one is coming"), lines[-5:]
     if said.group(1):
-        assert skipped[-1].startswith(f"picture #{said.group(1)} skipped by the pilot at {said.group(2)}"), skipped
+        n = said.group(1)
+        assert skipped[-1].startswith(f"picture #{n} skipped by the pilot at {said.group(2)}"), skipped
+        # Kept as it was when skipped, and said so where it is looked back at.
+        kept = {str(e["n"]): e for e in httpx.get(live.url + "/api/images").json()}
+        assert n in kept and kept[n]["partial"] and kept[n]["skipped"], kept.get(n)
+        page.wait_for_function(f"(document.querySelector('#image-strip button[data-n=\"{n}\"]') || {{}}).title"
+                               " ?.includes('(skipped by the pilot, partial)')", timeout=15000)
     assert not [t for t in lines if "good enough" in t], lines
 
 

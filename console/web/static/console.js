@@ -876,7 +876,7 @@ function renderStrip() {
       thumbs.set(e.n, b);
     }
     b.className = (e.partial ? "partial " : "") + (shown && e.n === shown.n ? "shown" : "");
-    b.title = `#${e.n}${e.partial ? " (abandoned, partial)" : ""}, captured ${captureText(e.capture)}, ${e.bytes} B`;
+    b.title = `#${e.n}${partialWords(e, ", partial")}, captured ${captureText(e.capture)}, ${e.bytes} B`;
     b.onclick = () => {
       const newest = page.history.filter((x) => !x.partial).pop();
       page.shownPast = newest && newest.n === e.n ? null : e.n;
@@ -906,6 +906,9 @@ function renderShownPicture() {
   renderShownMeta();
 }
 
+// A partial picture: the pilot skipped it (Next image), or the link abandoned it.
+const partialWords = (e, more) => (!e.partial ? "" : e.skipped ? ` (skipped by the pilot${more})` : ` (abandoned${more})`);
+
 function renderShownMeta() {
   const e = shownEntry();
   if (!e) return;
@@ -913,7 +916,7 @@ function renderShownMeta() {
   const roi = s && s.roi ? `ROI ${s.roi.join(",")} shift ${s.shift}` : "no ROI";
   const c = e.capture;
   $("image-done-meta").textContent = `captured ${captureText(c)} at ${poseShort(c && c.pose)}; ` +
-    `${e.bytes}${e.total_bytes ? ` / ${e.total_bytes - 2}` : ""} B${e.partial ? " (abandoned)" : ""}` +
+    `${e.bytes}${e.total_bytes ? ` / ${e.total_bytes - 2}` : ""} B${partialWords(e, "")}` +
     `${e.seconds !== null ? ` in ${fmt(e.seconds, 1)} s` : ""}, ${roi}`;
 }
 
