@@ -102,6 +102,8 @@ pytestmark  # unused variable (tests/console/test_truth.py:23)
 pytestmark  # unused variable (tests/test_packaging.py:30)
 cleared_wall  # a field of LogEntry (console/session/state.py): the page reads it
 port_error  # a field of LinkState (console/session/state.py): the page reads it
+degraded_reason  # a field of LinkState (console/session/state.py): the page reads it
+degraded_short  # a field of LinkState (console/session/state.py): the page reads it
 # The acoustic profile's counters, kept for diagnostics (link/acoustic.py Counters) and
 # what its machines and its bench expose to their callers.
 _.stale_syncs  # unused attribute (link/acoustic.py)

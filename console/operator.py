@@ -356,7 +356,7 @@ class Operator:
             elif isinstance(event, InauthenticFrame):
                 self.health.inauthentic(t)
             elif isinstance(event, LateReply):
-                self.health.late_replies += 1
+                self.health.late(t)
             elif isinstance(event, Synced):
                 restarted = event.restarted and not event.first
                 self.note("ROV restarted (new BOOT): link synchronised again" if restarted else "link synchronised",
@@ -606,8 +606,13 @@ class Operator:
         return bool(self.master.stopping)
 
     def next_image(self) -> None:
+        """The pilot skips the picture arriving: the ROV's next one is asked for.  What was
+        skipped is said (the log, and the image state's `skipped`) when the master lets it go."""
         with self._lock:
+            arriving = self.protocol_master.image_received
             self.master.abandon_image()
+        if not arriving:
+            self.images.nothing_to_skip(self.now())
 
     # -- a replay shows what was, and sends nothing -----------------------
 
@@ -739,13 +744,16 @@ class Operator:
         if state == "lost":
             return "no picture: the link is lost"
         if self.images.view.received_bytes:
-            return "decoding the first bytes (the console's codec compiles on first use)"
+            return ("the first picture's first bytes are in: it shows as soon as this console's picture "
+                    "decoder has started (up to a minute on a first run)")
         with self._lock:
             arriving = self.protocol_master.image_received
         if arriving:
-            return (f"a first picture of unknown age is arriving ({arriving} B): it is not shown, "
-                    f"the next one is (docs/PROTOCOL.md §4)")
-        return "the ROV has no picture ready yet (its codec compiles on first use: up to a minute on a first run)"
+            # The ROV may have held it since before this session: its age is unknown, so it is not shown.
+            return (f"the ROV is sending a picture it took before this session ({arriving} B so far): it may be "
+                    f"old, so it is not shown; the first fresh picture comes right after it")
+        return ("the ROV is preparing its first picture (its picture coder starts up: up to a minute on a "
+                "first run); it shows here as it arrives")
 
     def image_history(self) -> list[dict]:
         return self.images.history()

@@ -26,7 +26,9 @@ frame (never blocks); `await recv()` returns the next chunk of bytes.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
+import os
 import socket
 import time
 from dataclasses import dataclass, field
@@ -41,6 +43,12 @@ log = logging.getLogger("rovlink.link.transport")
 
 class TransportError(Exception):
     """A transport URL or operation that cannot work; the message says why."""
+
+
+class PortUnavailable(TransportError):
+    """The device or socket itself cannot be opened (absent, no permission, busy): a
+    retry a moment later would say the same, so starting says it at once.  A port
+    that opens but whose modem does not answer yet is retried within the timeout."""
 
 
 @dataclass
@@ -94,25 +102,34 @@ class Endpoint:
         self._backoff = backoff_s
         self._closing = False
         self._quiet_until_up = False  # start(wait=True) reports a failure to open itself
+        self._open_failed = asyncio.Event()  # an attempt to open failed (start(wait=True) says so at once)
 
     # -- life cycle ------------------------------------------------------
 
     async def start(self, *, wait: bool = True, timeout_s: float = 5.0) -> "Endpoint":
-        """Open under supervision; with `wait`, until the first opening succeeded."""
+        """Open under supervision; with `wait`, until the first opening succeeded, or
+        until the port itself failed to open (PortUnavailable, OSError): then at once,
+        with its reason (a port that is not there now is not there a few retries
+        later; the pilot is told while still at the keyboard)."""
         if wait:
             # The caller says why it failed, once: not also the supervisor's log.
             self._quiet_until_up = True
+            self._open_failed.clear()
         if self._task is None:
             self._task = asyncio.get_running_loop().create_task(self._supervise(), name=f"transport {self.url}")
         if wait:
+            up = asyncio.ensure_future(self._up.wait())
+            failed = asyncio.ensure_future(self._open_failed.wait())
             try:
-                await asyncio.wait_for(self._up.wait(), timeout_s)
-            except asyncio.TimeoutError:
-                why = self.stats.last_error
-                await self.close()  # no supervisor left retrying (or pending when the loop closes)
-                raise TransportError(f"{self.url}: could not open: {why}") from None
+                await asyncio.wait({up, failed}, timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
             finally:
+                up.cancel()
+                failed.cancel()
                 self._quiet_until_up = False
+            if not self._up.is_set():
+                why = self.stats.last_error or f"no answer in {timeout_s:g} s"
+                await self.close()  # no supervisor left retrying (or pending when the loop closes)
+                raise TransportError(f"{self.url}: could not open: {why}")
         return self
 
     async def close(self) -> None:
@@ -143,7 +160,10 @@ class Endpoint:
             try:
                 await driver.open()
             except Exception as exc:  # every way a port or socket can fail to open
-                self._note_down(f"open failed: {exc}")
+                # The drivers say why in words (TransportError); "could not open" is the caller's.
+                self._note_down(str(exc) or type(exc).__name__)
+                if isinstance(exc, (PortUnavailable, OSError)):
+                    self._open_failed.set()
                 await asyncio.sleep(delay)
                 delay = min(delay * 2, self._backoff[1])
                 continue
@@ -326,7 +346,10 @@ class _SerialDriver(_Driver):
         port.baudrate = self.baud
         port.timeout = 0
         port.write_timeout = 2.0
-        port.open()  # raises SerialException if the device is not there
+        try:
+            port.open()
+        except serial.SerialException as exc:
+            raise PortUnavailable(serial_open_error(self.path, exc)) from None
         self.port = port
         self._fd = port.fileno()
         asyncio.get_running_loop().add_reader(self._fd, self._readable)
@@ -459,6 +482,19 @@ def open_transport(url: str) -> Endpoint:
 def _no_extra(query: dict, url: str) -> None:
     if query:
         raise TransportError(f"unknown option(s) {', '.join(sorted(query))} in {url!r}")
+
+
+def serial_open_error(path: str, exc: Exception) -> str:
+    """Why a serial port did not open, in a pilot's words (pyserial's own text
+    repeats "could not open" and the errno twice)."""
+    code = getattr(exc, "errno", None)
+    if code == errno.ENOENT or not os.path.exists(path):
+        return f"no serial port {path} (is the modem's USB serial adapter plugged in?)"
+    if code in (errno.EACCES, errno.EPERM):
+        return f"no permission to open {path} (is this user in the port's group, e.g. dialout?)"
+    if code == errno.EBUSY:
+        return f"{path} is busy (another program has it open)"
+    return f"serial port {path} cannot be opened: {os.strerror(code) if code else exc}"
 
 
 def port_change(endpoint, was: bool | None) -> tuple[bool | None, str | None]:

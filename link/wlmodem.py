@@ -80,7 +80,6 @@ the emulated modems (link/m64serial.py) all of this runs with no hardware.
 from __future__ import annotations
 
 import asyncio
-import errno
 import logging
 import os
 import select
@@ -92,7 +91,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from wlmodem.protocol import WlModemBase, WlProtocolParseError
 
-from .transport import Endpoint, TransportError, _Driver
+from .transport import Endpoint, PortUnavailable, TransportError, _Driver, serial_open_error
 
 log = logging.getLogger("rovlink.link.wlmodem")
 
@@ -197,9 +196,7 @@ class _WlModemDriver(_Driver):
         try:
             port.open()
         except serial.SerialException as exc:
-            if getattr(exc, "errno", None) == errno.ENOENT or not os.path.exists(ep.path):
-                raise TransportError(f"no serial port {ep.path} (is the modem's USB serial adapter plugged in?)") from None
-            raise TransportError(f"serial port {ep.path} cannot be opened: {exc}") from None
+            raise PortUnavailable(serial_open_error(ep.path, exc)) from None
         self.port = port
         self.io = _PortIO(port)
         modem = WlModemBase(self.io)

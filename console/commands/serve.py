@@ -146,7 +146,8 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
     server = asyncio.create_task(serve(app, host=args.host, port=args.port))
     access = (f"\n  bound to {args.host}: every request needs the access token in these URLs (keep it secret)"
               if policy.token else "")
-    print(f"{banner}\n  operator page: {url}\n  3D scene:      {viser_url} (opened alone it only watches; the page embeds it)"
+    # The address to open comes first: it is what a newcomer looks for.
+    print(f"operator page: {url}\n{banner}\n  3D scene alone, watch only (the page embeds it): {viser_url}"
           f"{access}\n  Ctrl-C stops.", flush=True)
     gateway = None
     if getattr(args, "gcs", None):

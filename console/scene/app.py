@@ -49,6 +49,8 @@ Plan
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import logging
 import threading
@@ -208,8 +210,15 @@ class ConsoleScene:
         port = self.server.get_port() if self.server is not None else self.port
         return f"http://{self.host}:{port}"
 
+    def _quiet(self):
+        """viser prints a box of its own address (and "Server stopped") whatever `verbose`
+        says, before the console names the operator page: unless verbose, it goes nowhere;
+        the console's own lines give the scene's watch-only address."""
+        return contextlib.nullcontext() if self.verbose else contextlib.redirect_stdout(io.StringIO())
+
     def start(self) -> "ConsoleScene":
-        self.server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
+        with self._quiet():
+            self.server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
         self.server.gui.configure_theme(control_width="large", dark_mode=True, show_logo=False)
         self._build_environment()
         self._build_seabed()
@@ -244,7 +253,8 @@ class ConsoleScene:
             self._thread.join(timeout=5.0)
             self._thread = None
         if self.server is not None:
-            self.server.stop()
+            with self._quiet():
+                self.server.stop()
 
     def use_desk(self, desk: ControlDesk) -> None:
         """Order through `desk` (the web app's), so that the page holding

@@ -97,7 +97,7 @@ def link_summary(s: dict) -> str:
             text += f" · **ROV in FAILSAFE (inferred) since {s['failsafe_inferred_since']}**"
         return text
     if state == "degraded":
-        return "link degraded (replies lost or CRC errors)"
+        return f"link degraded: {s['degraded_reason']}" if s.get("degraded_reason") else "link degraded"
     return "link up" if state == "up" else "link starting"
 
 

@@ -36,7 +36,7 @@ from typing import Any, Callable
 import numpy as np
 
 from rovlink import debt
-from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
+from rovlink.link.radio.events import PILOT_SKIPPED, ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.radio.messages import ImageSettings
 
 from .follow import coded_settings, read_picture
@@ -149,6 +149,7 @@ class ImageReceiver:
         self._pending: tuple[int, bytes] | None = None
         self._busy = False
         self._undecodable_serial: int | None = None   # the picture last said undecodable
+        self.skipped: dict | None = None   # the pilot's last Next image: what it skipped (the page's fate)
 
     # -- what went out and came in ----------------------------------------
 
@@ -201,10 +202,29 @@ class ImageReceiver:
         with self._lock:
             shown = self.view.img == event.img and not self.view.complete and self.view.stream
             if shown:
-                self._keep(t, partial=True)
+                self._keep(t, partial=True, skipped=event.reason == PILOT_SKIPPED)
             self._mark_capture_window(t, "request")
             what = f"picture #{self.view.serial}" if shown else f"a picture not yet shown (IMG {event.img})"
-        self._note(f"{what} abandoned after {event.received_bytes} bytes: {event.reason}")
+            if event.reason == PILOT_SKIPPED:
+                self._skipped(t, self.view.serial if shown else None, event.received_bytes,
+                              self.view.total_bytes if shown else None)
+        if event.reason != PILOT_SKIPPED:
+            self._note(f"{what} abandoned after {event.received_bytes} bytes: {event.reason}")
+        elif event.received_bytes:
+            of = f" of {self.view.total_bytes - 2}" if shown and self.view.total_bytes else ""
+            self._note(f"{what} skipped by the pilot at {event.received_bytes}{of} B: the next one is coming")
+        else:
+            self._note("the pilot skipped a picture before its first bytes came: the next one is coming")
+
+    def _skipped(self, t: float, serial: int | None, received_bytes: int, total_bytes: int | None) -> None:
+        self.skipped = {"n": serial, "received_bytes": received_bytes, "total_bytes": total_bytes,
+                        "wall": round(self._wall(t), 3)}
+
+    def nothing_to_skip(self, t: float) -> None:
+        """Next image with no byte of a picture in yet: the next one is asked for all the same."""
+        with self._lock:
+            self._skipped(t, None, 0, None)
+        self._publish("image_progress", self.state())
 
     # -- the capture window (see the module's docstring) ------------------
 
@@ -244,11 +264,11 @@ class ImageReceiver:
 
     # -- pictures to look back at -----------------------------------------
 
-    def _keep(self, t: float, *, partial: bool) -> None:
+    def _keep(self, t: float, *, partial: bool, skipped: bool = False) -> None:
         v = self.view
         self._history.append({
             "n": v.serial, "img": v.img, "capture": v.capture, "bytes": len(v.stream),
-            "total_bytes": v.total_bytes, "partial": partial,
+            "total_bytes": v.total_bytes, "partial": partial, "skipped": skipped,
             "received_wall": round(self._wall(t), 3),
             "seconds": None if v.started_at is None else round(t - v.started_at, 2),
             "settings": coded_settings(settings_dict(v.settings), v.track, v.coded_roi),
@@ -318,5 +338,5 @@ class ImageReceiver:
                 "complete": v.complete, "decoded_bytes": v.decoded_bytes, "started_at": v.started_at,
                 "decoded_at": v.decoded_at, "images_completed": v.images_completed, "serial": v.serial,
                 "capture": v.capture, "settings": coded_settings(settings_dict(v.settings), v.track, v.coded_roi),
-                "track": v.track,
+                "track": v.track, "skipped": self.skipped,
             }

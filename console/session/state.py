@@ -82,10 +82,18 @@ class PastImage(BaseModel):
     bytes: int = Field(description="bytes of DEBT stream received")
     total_bytes: int | None
     partial: bool = Field(description="abandoned before it was complete")
+    skipped: bool = Field(False, description="partial because the pilot skipped it (Next image)")
     received_wall: float
     seconds: float | None = Field(description="from its first trunk to its last")
     settings: ImageSettingsState | None
     track: FollowTrack | None = Field(None, description="a followed picture's track (its settings' ROI: the one it was coded with)")
+
+
+class ImageSkipped(BaseModel):
+    n: int | None = Field(description="the picture's number, if any of it was shown")
+    received_bytes: int = Field(description="bytes of it received when it was skipped")
+    total_bytes: int | None = Field(description="its image object's length (2 more than the picture's stream)")
+    wall: float = Field(description="when, Unix time")
 
 
 class ImageState(BaseModel):
@@ -103,13 +111,17 @@ class ImageState(BaseModel):
     verified: bool | None = Field(None, description="the acoustic thumbnail's MAC held (false: unverified "
                                                     "until it does); null on the radio link, where every trunk "
                                                     "is authenticated as it comes")
+    skipped: ImageSkipped | None = Field(None, description="the pilot's last Next image: what it skipped")
     settings: ImageSettingsState | None
     track: FollowTrack | None = Field(None, description="a followed picture's track (its settings' ROI: the one it was coded with)")
 
 
 class LinkState(BaseModel):
     state: Literal["starting", "up", "degraded", "lost", "replay"] = Field(
-        description="from replies: lost after lost_after_s without one, degraded on recent losses or CRC errors")
+        description="from replies: lost after lost_after_s without one, degraded while a figure of the last 10 s "
+                    "(replies lost, bad frames, late replies) crosses its threshold (console/session/health.py)")
+    degraded_reason: str | None = Field(None, description="while degraded: which figure crossed which threshold")
+    degraded_short: str | None = Field(None, description="the same in a few words, for a badge")
     since_reply_s: float | None = Field(description="seconds since the last reply")
     lost_after_s: float
     rov_failsafe_s: float

@@ -129,6 +129,9 @@ class ImageAbandoned(RadioEvent):
     reason: str
 
 
+PILOT_SKIPPED = "skipped by the pilot"  # ImageAbandoned's reason for Next image (`Master.abandon_image`)
+
+
 @dataclass(frozen=True)
 class ReplyLost(RadioEvent):
     poll_sent_at: float

@@ -74,6 +74,7 @@ from typing import Deque
 from ..report import VehicleReport, report_from_reply
 from .assembly import ImageAssembly
 from .events import (
+    PILOT_SKIPPED,
     ImageAbandoned,
     ImageComplete,
     ImageProgress,
@@ -803,8 +804,8 @@ class Master:
         return self._take_trunk(reply, now) + self.take_events()
 
     def abandon_image(self) -> None:
-        """The pilot has seen enough of this picture: ask for the next one."""
-        self._next_image("good enough")
+        """The pilot skips this picture (seen enough of it, or wants a fresher one): ask for the next one."""
+        self._next_image(PILOT_SKIPPED)
 
     @property
     def last_reply(self) -> Reply | None:

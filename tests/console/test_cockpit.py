@@ -29,7 +29,7 @@ from rovlink.rov.vehicle import BlueRovParams
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
-from .pages import take_control
+from .pages import after_ticks, after_updates, take_control
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -332,3 +332,194 @@ def test_the_wish_is_shown_in_metres_per_second(open_page, live):
         page.keyboard.up("KeyW")
     assert text == f"≈ forward {steady_speed(gain):.2f} m/s", text
     page.wait_for_function("document.getElementById('wish').textContent === 'neutral'", timeout=5000)
+
+
+def in_sight(page, selector: str) -> list[str]:
+    """What keeps `selector` from being read where it is, the page unscrolled: outside the
+    window, cut by itself or by a box it sits in (the panel's own scrolling included), or
+    covered by something drawn over it. Empty when it reads whole."""
+    return page.evaluate("""(sel) => {
+        const el = document.querySelector(sel), why = [];
+        if (!el) return [`${sel} missing`];
+        const r = el.getBoundingClientRect();
+        if (r.width < 1 || r.height < 1) return [`${sel} not shown`];
+        if (r.left < 0 || r.top < 0 || r.right > innerWidth + 0.5 || r.bottom > innerHeight + 0.5)
+          why.push(`${sel} at ${[r.left, r.top, r.right, r.bottom].map(Math.round)} is outside the window`);
+        if (el.scrollWidth > el.clientWidth + 1 || el.scrollHeight > el.clientHeight + 1)
+          why.push(`${sel} is cut (${el.scrollWidth}x${el.scrollHeight} in ${el.clientWidth}x${el.clientHeight})`);
+        for (let a = el.parentElement; a; a = a.parentElement) {
+          const s = getComputedStyle(a);
+          if (s.overflowX === 'visible' && s.overflowY === 'visible') continue;
+          const b = a.getBoundingClientRect();
+          if (r.top < b.top - 0.5 || r.bottom > b.bottom + 0.5 || r.left < b.left - 0.5 || r.right > b.right + 0.5)
+            why.push(`${sel} is cut by ${a.id || a.tagName}`);
+          if (a.scrollTop) why.push(`${a.id || a.tagName} is scrolled`);
+        }
+        const hit = document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2);
+        if (!hit || !(el === hit || el.contains(hit))) why.push(`${sel} is covered by ${hit && (hit.id || hit.tagName)}`);
+        if (document.scrollingElement.scrollTop) why.push('the page is scrolled');
+        return why;
+    }""", selector)
+
+
+def test_every_orders_fate_is_read_beside_its_control_at_1366x768_without_scrolling(open_page, live):
+    complete_pictures(live, 1)
+    page = open_page(1366, 768)
+    take_control(page)
+    page.wait_for_function("document.getElementById('image-done').naturalWidth > 0", timeout=30000)
+    # Each control clicked where it is (a script's click, which scrolls nothing), then its fate read.
+    orders = [("#arm", "#arm-fate", "followed"), ("#set-mode", "#mode-fate", "followed"),
+              ("#apply-image", "#image-fate", "acknowledged"), ("#goto-go", "#goto-fate", "acknowledged arrived"),
+              ("#stop", "#stop-fate", "acknowledged")]
+    for control, fate, settled in orders:
+        before = int(page.get_attribute(fate, "data-id") or 0)
+        assert not in_sight(page, control), in_sight(page, control)
+        page.evaluate("(sel) => document.querySelector(sel).click()", control)
+        # Said at once, and read where it is until it settles.
+        page.wait_for_function("([sel, before]) => +(document.querySelector(sel).dataset.id || 0) > before",
+                               arg=[fate, before], timeout=15000)
+        assert not in_sight(page, fate), (page.text_content(fate), in_sight(page, fate))
+        page.wait_for_function("([sel, states]) => states.split(' ').includes(document.querySelector(sel).dataset.state)",
+                               arg=[fate, settled], timeout=20000)
+        problems = in_sight(page, fate)
+        assert not problems, (page.text_content(fate), problems)
+    assert page.text_content("#stop-fate").startswith("STOP ✓ holding in "), page.text_content("#stop-fate")
+    # The top bar with its fates, every badge it may show and the longest control text: nothing cut.
+    cut = page.evaluate("""(() => {
+        for (const id of ['failsafe', 'hold', 'stopping', 'attitude', 'replaying', 'cancel-stop'])
+          document.getElementById(id).hidden = false;
+        document.getElementById('control-text').textContent = 'You have control: centre the sticks to drive.';
+        const bar = document.getElementById('topbar').getBoundingClientRect();
+        return [...document.querySelectorAll('#topbar > *, #topbar .group > *')]
+          .filter((e) => !e.hidden && e.offsetParent !== null)
+          .filter((e) => { const r = e.getBoundingClientRect();
+                           return e.scrollWidth > e.clientWidth + 1 || r.right > window.innerWidth + 0.5 || r.left < 0
+                             || r.bottom > bar.bottom + 0.5; })
+          .map((e) => e.id || e.className);
+    })()""")
+    assert not cut, f"cut in the top bar: {cut}"
+
+
+CENTRE = "document.getElementById('control-text').textContent"
+
+
+def test_a_key_held_through_a_stop_or_a_failsafe_hold_is_told_to_centre(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.wait_for_function(f"{CENTRE} === 'You have control.'")
+    page.keyboard.down("KeyW")
+    try:
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] > 0, 5)
+        # STOP with the key still held: the held key is no drive, and the page says why.
+        page.keyboard.press("Space")
+        page.wait_for_function(f"{CENTRE} === 'You have control: centre the sticks to drive.'", timeout=10000)
+        assert "centre-to-drive" in page.get_attribute("#control-text", "class")
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] == 0, 5)
+        after_ticks(page, 5)  # the key is still held, its wish still sent: still ignored, still said
+        assert page.evaluate(CENTRE) == "You have control: centre the sticks to drive."
+        assert live.operator.state()["velocity_wish"]["vx"] == 0
+    finally:
+        page.keyboard.up("KeyW")
+    page.wait_for_function(f"{CENTRE} === 'You have control.'", timeout=10000)
+    # A failsafe's HOLD: the key held while the link is cut and after it returns.
+    page.keyboard.down("KeyW")
+    try:
+        assert wait_for(lambda: live.operator.state()["velocity_wish"]["vx"] > 0, 5)
+        try:
+            live.set_link_loss(1.0)
+            page.wait_for_function("document.body.dataset.link === 'lost'", timeout=15000)
+        finally:
+            live.set_link_loss(0.0)
+        page.wait_for_function("!document.getElementById('hold').hidden", timeout=15000)
+        page.wait_for_function(f"{CENTRE} === 'You have control: centre the sticks to drive.'", timeout=10000)
+        assert live.operator.pose_state()["hold"], "the ROV left its HOLD with the key held"
+    finally:
+        page.keyboard.up("KeyW")
+    page.wait_for_function(f"{CENTRE} === 'You have control.'", timeout=10000)
+    assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"
+
+
+def test_the_top_bars_chips_stay_long_enough_to_read(open_page, live):
+    page = open_page()
+    take_control(page)
+    page.keyboard.down("KeyW")
+    try:
+        page.keyboard.press("Space")  # STOP, the key held: the ROV holds until it is let go
+        page.wait_for_function("!document.getElementById('hold').hidden", timeout=10000)
+        assert page.text_content("#hold") == "HOLD"
+    finally:
+        page.keyboard.up("KeyW")
+    # Let go: the ROV leaves its HOLD at its next poll, but the chip stays, saying it has ended.
+    assert wait_for(lambda: not live.operator.pose_state()["hold"], 10), "centring did not release the HOLD"
+    # (Read in one go: the page shows the HOLD as ended, not gone with it.)
+    page.wait_for_function("(() => { const c = document.getElementById('hold');"
+                           " return !c.hidden && c.textContent === 'HOLD released'; })()", timeout=15000)
+    # STOP's own fate stays beside it, settled, as long as no newer STOP supersedes it.
+    after_updates(page, 20)
+    assert page.get_attribute("#stop-fate", "data-state") == "acknowledged"
+    assert page.is_visible("#stop-fate") and page.text_content("#stop-fate").startswith("STOP ✓ holding in ")
+    # ...and the ended chip goes in the end.
+    page.wait_for_function("document.getElementById('hold').hidden", timeout=30000)
+
+
+def test_a_degraded_link_says_which_figure_crossed_which_threshold(open_page, live):
+    page = open_page()
+    try:
+        live.set_link_loss(0.3)
+        page.wait_for_function("document.getElementById('link-up').textContent.startsWith('link degraded: ')",
+                               timeout=30000)
+        badge, title, why = page.evaluate("['link-up', 'link-why'].map((id) => document.getElementById(id))"
+                                          ".flatMap((e, i) => i ? [e.textContent] : [e.textContent, e.title])")
+    finally:
+        live.set_link_loss(0.0)
+    assert badge.endswith("% lost"), badge
+    assert " replies lost in the last 10 s (" in title and "degraded from 10%" in title, title
+    assert why == title
+    assert any(e["text"].startswith("link degraded: ") and "replies lost" in e["text"] for e in live.operator.log_entries())
+
+
+def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_pilot_skipped_it(open_page, live):
+    import re
+
+    import httpx
+
+    complete_pictures(live, 1)
+    page = open_page(1366, 768)
+    take_control(page)
+    # A picture part-way in (they come every second or two here): skip it.
+    page.wait_for_function("(() => { const c = document.getElementById('image-card').dataset;"
+                           " return +c.receivedBytes > 0 && +c.receivedBytes < +c.totalBytes; })()", timeout=30000)
+    assert not in_sight(page, "#next-image"), in_sight(page, "#next-image")
+    page.evaluate("document.getElementById('next-image').click()")
+    page.wait_for_function("document.getElementById('next-image-fate').dataset.state === 'skipped'", timeout=15000)
+    fate = page.text_content("#next-image-fate")
+    assert not in_sight(page, "#next-image-fate"), (fate, in_sight(page, "#next-image-fate"))
+    said = re.fullmatch(r"skipped (?:picture #(\d+) at (\d+)(?: of \d+)? B|a picture not yet shown at (\d+) B|"
+                        r"before its first bytes came), next one coming \d\d:\d\d:\d\d", fate)
+    assert said, fate
+    lines = [e["text"] for e in live.operator.log_entries()]
+    skipped = [t for t in lines if "skipped by the pilot" in t or t.startswith("the pilot skipped")]
+    assert skipped and skipped[-1].endswith(": the next one is coming"), lines[-5:]
+    if said.group(1):
+        n = said.group(1)
+        assert skipped[-1].startswith(f"picture #{n} skipped by the pilot at {said.group(2)}"), skipped
+        # Kept as it was when skipped, and said so where it is looked back at.
+        kept = {str(e["n"]): e for e in httpx.get(live.url + "/api/images").json()}
+        assert n in kept and kept[n]["partial"] and kept[n]["skipped"], kept.get(n)
+        page.wait_for_function(f"(document.querySelector('#image-strip button[data-n=\"{n}\"]') || {{}}).title"
+                               " ?.includes('(skipped by the pilot, partial)')", timeout=15000)
+    assert not [t for t in lines if "good enough" in t], lines
+
+
+def test_before_the_first_picture_the_page_shows_no_byte_count_of_nothing(open_page, live):
+    import httpx
+
+    assert "0 / ? bytes" not in httpx.get(live.url + "/").text
+    page = open_page()
+    # The image state as telemetry gives it before any byte of a picture has come.
+    shown = page.evaluate("""() => {
+        renderImageProgress({img: null, received_bytes: 0, total_bytes: null, complete: false, decoded_bytes: 0,
+                             serial: 0, images_completed: 0, capture: null, settings: null});
+        return document.getElementById('image-bytes').textContent;
+    }""")
+    assert shown == "", shown

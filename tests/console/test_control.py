@@ -165,10 +165,12 @@ def test_link_state_comes_from_replies(operator, clock):
         reply_at(operator, clock)
         link = http.get("/api/link").json()
         assert link["state"] == "up" and link["since_reply_s"] == pytest.approx(0.0)
-        operator.handle_events([ReplyLost(operator.now(), operator.now())], operator.now())
+        # Three polls of the four in the window unanswered: degraded, and said why.
+        operator.handle_events([ReplyLost(operator.now(), operator.now())] * 3, operator.now())
         clock.t += 1.0
         link = http.get("/api/link").json()
         assert link["state"] == "degraded" and link["since_reply_s"] == pytest.approx(1.0)
+        assert link["degraded_short"] == "75% lost" and link["degraded_reason"].startswith("3 of 4 replies lost")
         clock.t += 2.0
         link = http.get("/api/link").json()
         assert link["state"] == "lost" and not link["failsafe_inferred"] and not link["link_up"]
@@ -178,7 +180,7 @@ def test_link_state_comes_from_replies(operator, clock):
         pose = http.get("/api/pose").json()
         assert pose["stale"] and pose["uncertainty_m"] == pytest.approx(3.5, abs=0.3)
         assert link["failsafe_inferred_at"] == pytest.approx(time.time() - 0.1, abs=2.0)
-        clock.t += 6.0
+        clock.t += 8.0  # the losses out of the degraded window (console/session/health.py)
         reply_at(operator, clock)  # the link is back
         link = http.get("/api/link").json()
         assert link["state"] == "up" and link["since_reply_s"] == pytest.approx(0.0) and link["link_up"]

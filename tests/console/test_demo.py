@@ -237,3 +237,20 @@ def test_the_demos_vehicle_side_runs_in_a_process_of_its_own_and_ends_with_the_c
     assert wait_for(lambda: not os.path.exists(f"/proc/{vehicle[0]}") or
                     open(f"/proc/{vehicle[0]}/stat").read().rsplit(")", 1)[1].split()[0] == "Z", 20), \
         "the vehicle side outlived the console"
+
+
+def test_the_demo_names_the_operator_page_first_and_viser_prints_no_box_of_its_own(demo):
+    """A newcomer reads the first line for the address to open: the operator page's, not
+    viser's watch-only scene in a box of its own."""
+    base, proc, _record = demo
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    lines = out.splitlines()
+    assert lines and lines[0] == f"operator page: {base}/", out
+    assert lines[1].startswith("rovlink demo: simulated ROV"), out
+    scene = [line for line in lines if "3D scene" in line]
+    assert len(scene) == 1 and "watch only" in scene[0] and "http://127.0.0.1:" in scene[0], out
+    assert scene[0].split()[-1] != f"{base}/"  # the scene's own address, not the page's again
+    # viser's own banner (a box) and its "Server stopped" went nowhere.
+    assert not [line for line in lines if "╭" in line or "│" in line or "(viser)" in line], out

@@ -103,10 +103,18 @@ def test_without_a_picture_the_pilot_is_told_why():
     clock.t += 9.0
     assert op.image_state()["waiting"] == "no picture: the link is lost"
     _reply(op, clock)
-    assert op.image_state()["waiting"].startswith("the ROV has no picture ready yet (its codec compiles")
+    said = [op.image_state()["waiting"]]
+    assert said[-1].startswith("the ROV is preparing its first picture"), said
     op.protocol_master._image.data[:] = bytes(40)  # the master receives a first picture it will not show
-    assert op.image_state()["waiting"].startswith("a first picture of unknown age is arriving (40 B)")
+    said.append(op.image_state()["waiting"])
+    assert said[-1] == ("the ROV is sending a picture it took before this session (40 B so far): it may be old, "
+                        "so it is not shown; the first fresh picture comes right after it")
     op.handle_events([ImageProgress(1, 60, 300, bytes(58))], op.now())
-    assert op.image_state()["waiting"].startswith("decoding the first bytes")
+    said.append(op.image_state()["waiting"])
+    assert said[-1].startswith("the first picture's first bytes are in: it shows as soon as"), said
+    # Words for a pilot: what is happening and what comes next, no reference to a document.
+    for text in said:
+        assert "docs/" not in text and "§" not in text and "PROTOCOL" not in text and "unknown age" not in text, text
+        assert "first" in text and ("comes" in text or "shows" in text), text
     op.set_image_settings(budget_bytes=0)
     assert op.image_state()["waiting"].startswith("pictures are off")

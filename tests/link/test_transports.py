@@ -215,6 +215,22 @@ def test_serial_port_absent_at_start_is_reported():
     run(main())
 
 
+def test_a_port_that_fails_to_open_is_said_at_once_in_one_clear_line():
+    """The first failed opening is the answer (not the last of a few seconds of retries),
+    and its reason is said once, in words: not pyserial's "could not open port ...
+    [Errno 2] ..." inside our own "could not open"."""
+    async def main():
+        ep = open_transport("serial:///nonexistent/ttyUSB9")
+        with pytest.raises(TransportError) as err:
+            await ep.start()  # its usual timeout: several retries' worth
+        assert [h for h in ep.stats.history if h[1].startswith("down")] == [ep.stats.history[0]], ep.stats.history
+        return str(err.value)
+
+    said = run(main())
+    assert said == ("serial:///nonexistent/ttyUSB9: could not open: no serial port /nonexistent/ttyUSB9 "
+                    "(is the modem's USB serial adapter plugged in?)"), said
+
+
 @pytest.mark.parametrize("url,words", [
     ("tcp://1.2.3.4:5", "unknown transport"),
     ("udp://127.0.0.1", "HOST:PORT"),

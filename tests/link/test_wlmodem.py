@@ -315,7 +315,7 @@ def test_a_missing_port_is_said_once(caplog, tmp_path):
         ep = open_wlmodem(f"wlmodem://{path}?role=a")
         with pytest.raises(TransportError) as err:
             await ep.start(timeout_s=0.3)
-        assert str(err.value) == (f"wlmodem://{path}?role=a: could not open: open failed: no serial port {path} "
+        assert str(err.value) == (f"wlmodem://{path}?role=a: could not open: no serial port {path} "
                                   "(is the modem's USB serial adapter plugged in?)")
         # Under the supervisor it is retried with backoff, and said once.
         ep = open_wlmodem(f"wlmodem://{path}?role=a")

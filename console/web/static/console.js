@@ -141,7 +141,7 @@ async function api(path, body) {
       showError(`${path}: ${(data && data.message) || resp.status}`);
       return null;
     }
-    return data;
+    return data ?? {};  // 204: done, nothing to say
   } catch (err) {
     showError(`${path}: ${err}`);
     return null;
@@ -250,11 +250,12 @@ function renderControl(c) {
       `take control or disarm.${disarm}`;
   }
   let text;
-  if (c.you) text = c.centre_to_drive ? "You have control: centre the sticks to drive." : "You have control.";
+  const centre = c.centre_to_drive || (c.you && heldThroughHold());
+  if (c.you) text = centre ? "You have control: centre the sticks to drive." : "You have control.";
   else if (c.held) text = `Watching: ${c.holder} has control` + (c.centre_to_drive ? " (sticks not centred yet)." : ".");
   else text = "Watching: nobody has control.";
   $("control-text").textContent = text;
-  $("control-text").classList.toggle("centre-to-drive", !!c.centre_to_drive);
+  $("control-text").classList.toggle("centre-to-drive", !!centre);
   // Asked to re-centre (just taken control, after a STOP): our input as it is now.
   // Neutral re-centres at once; held keys or a held stick drive only once centred.
   if (c.you && c.centre_to_drive) sendVelocity(true);
@@ -340,12 +341,27 @@ function pollGamepadButtons() {
 }
 
 function stop() {
-  page.held.clear();
   page.lastSent = NEUTRAL;
   send({ type: "stop" });
-  // After STOP only our input as it is now counts: the keys are let go, a stick held
-  // off centre is not a drive until it has been centred.
+  // After STOP our input as it is now is sent, keys held through it included: the console
+  // takes none of it as a drive until it has been centred, and says so ("centre the sticks
+  // to drive").  Forgetting a held key here would re-centre at once, and its next repeat
+  // would drive again without a word.
   sendVelocity(true);
+}
+
+// The ROV shows HOLD (after a STOP, or after its failsafe) and ignores a wish until it sees
+// a neutral one: while the pilot's own input has stayed off centre since the HOLD came,
+// the page says "centre the sticks to drive".
+function watchHold(hold) {
+  if (hold && !page.holdSeen) page.neutralSinceHold = isNeutral(wish());
+  page.holdSeen = !!hold;
+}
+
+function heldThroughHold() {
+  if (!page.holdSeen || !page.holder) return false;
+  if (isNeutral(wish())) page.neutralSinceHold = true;
+  return !page.neutralSinceHold;
 }
 
 // ---------------------------------------------------------------------------
@@ -367,6 +383,7 @@ function setBadge(el, text, cls) {
 function render(s) {
   // Session seconds to clock time (a replay's own clock).
   if (s.wall && s.pose) page.wallOffset = s.wall - s.pose.t;
+  watchHold(s.pose.hold);
   renderControl(s.control);
   const pose = s.pose;
   page.lastPose = pose.received;
@@ -385,8 +402,9 @@ function render(s) {
   $("image-done-frame").classList.toggle("stale", lost);
   page.lastState = s;
   renderInstruments(s);
-  $("hold").hidden = !pose.hold;
-  $("stopping").hidden = !pose.stopping;
+  latchChip($("hold"), !!pose.hold, "HOLD", "HOLD released", "warn");
+  latchChip($("stopping"), !!pose.stopping, "STOP in force",
+            $("stop-fate").dataset.state === "acknowledged" ? "STOP confirmed" : "STOP ended", "bad");
   $("attitude").hidden = !pose.received || pose.attitude_valid !== false;
   $("cancel-stop").hidden = !(pose.stopping && s.orders.some((o) => o.kind === "STOP" &&
                                                               o.state.startsWith("not carried out")));
@@ -417,10 +435,15 @@ function render(s) {
   $("link-bytes").textContent = `${l.bytes_sent} / ${l.bytes_received}`;
   renderFailsafe(l.failsafe || page.failsafeActive);
   setBadge($("autopilot"), l.autopilot ? "AUTOPILOT" : "NO AUTOPILOT", l.autopilot ? "good" : "bad");
+  // Degraded says which figure crossed its threshold: in a few words on the badge, whole in
+  // its tooltip and in the link card.
+  const degraded = l.degraded_short ? `link degraded: ${l.degraded_short}` : "link degraded";
   const badge = portDown(l) ? ["MODEM PORT DOWN", "bad"]
-    : { up: ["link up", "good"], degraded: ["link degraded", "warn"], lost: ["LINK LOST", "bad"],
+    : { up: ["link up", "good"], degraded: [degraded, "warn"], lost: ["LINK LOST", "bad"],
         replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
   setBadge($("link-up"), badge[0], badge[1]);
+  $("link-up").title = l.degraded_reason || "";
+  $("link-why").textContent = l.state === "degraded" && l.degraded_reason ? l.degraded_reason : "—";
 
   renderImageProgress(s.image);
   renderPictureWait(s.image.waiting);
@@ -577,7 +600,8 @@ function distanceLeft(o) {
 }
 
 // Each order's fate beside the control that gave it: the newest of its kind.
-const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate" };
+const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate",
+                  STOP: "stop-fate" };
 
 function fateClass(state) {
   if (/^(queued|requested|sent)/.test(state)) return "pending";
@@ -606,6 +630,11 @@ function renderFate(o) {
     text = pending ? `${verb}ing…` : o.state === "followed" ? `${verb}ed ✓ ${orderClock(o)}` : `${verb}: ${o.state}`;
   } else if (o.kind === "MODE") {
     text = pending ? `${o.mode}…` : o.state === "followed" ? `${o.mode} ✓ ${orderClock(o)}` : `${o.mode}: ${o.state}`;
+  } else if (o.kind === "STOP") {
+    // "acknowledged: holding in POS_HOLD" -> "STOP ✓ holding in POS_HOLD 07:00:48"
+    const [head, ...rest] = o.state.split(": ");
+    text = /^(queued|sent)/.test(o.state) ? "STOP sent…" : head === "acknowledged"
+      ? `STOP ✓ ${rest.join(": ") || "confirmed"} ${orderClock(o)}` : `STOP ${o.state} ${orderClock(o)}`;
   }
   el.textContent = text;
   el.title = `#${o.id} ${o.kind}: ${o.state}`;
@@ -731,6 +760,20 @@ function stopAlarm() {
   page.alarmTimer = null;
 }
 
+// A chip of the top bar that came for a reply or two (HOLD released by the next neutral, a
+// STOP confirmed at once on a fast link) would be gone before it is read: once shown it
+// stays CHIP_MIN_MS, in words that say it has ended.
+const CHIP_MIN_MS = 8000;
+
+function latchChip(el, active, activeText, endedText, cls) {
+  if (active) el.dataset.at = Date.now();
+  const recent = !!el.dataset.at && Date.now() - +el.dataset.at < CHIP_MIN_MS;
+  el.hidden = !active && !recent;
+  el.textContent = active ? activeText : endedText;
+  el.className = `badge ${active ? cls : "ended"}`;
+  el.dataset.active = active ? "1" : "";
+}
+
 // FAILSAFE often lasts one reply (the first after a silence): the badge
 // stays up a while after it clears, so that the pilot sees it happened.
 const FAILSAFE_LATCH_MS = 10000;
@@ -767,9 +810,12 @@ function renderImageProgress(im) {
   const bar = $("image-progress");
   bar.max = im.total_bytes || 1;
   bar.value = im.received_bytes;
-  $("image-bytes").textContent = `${im.received_bytes} / ${im.total_bytes ?? "?"} bytes`;
+  // Nothing arriving yet: the picture's frame says why; no "0 / ? bytes".
+  $("image-bytes").textContent = im.total_bytes ? `${im.received_bytes} / ${im.total_bytes} bytes`
+    : im.received_bytes ? `${im.received_bytes} bytes so far` : "";
   $("image-id").textContent = im.img === null ? "" : `#${im.serial ?? ""} (IMG ${im.img})${im.complete ? " complete" : ""}` +
     (im.capture ? `, captured ${captureText(im.capture)}` : "");
+  renderSkipped(im.skipped);
   card.dataset.img = im.img ?? "";
   card.dataset.receivedBytes = im.received_bytes;
   card.dataset.totalBytes = im.total_bytes ?? "";
@@ -780,6 +826,21 @@ function renderImageProgress(im) {
     page.historyKey = key;
     loadHistory();
   }
+}
+
+// Next image's fate beside it: what the pilot skipped, and that the next picture is coming.
+function renderSkipped(k) {
+  const el = $("next-image-fate");
+  if (!k || el.dataset.wall === String(k.wall)) return;
+  el.dataset.wall = k.wall;
+  const at = clockTime(k.wall);
+  el.textContent = k.n !== null && k.n !== undefined
+    ? `skipped picture #${k.n} at ${k.received_bytes}${k.total_bytes ? ` of ${k.total_bytes - 2}` : ""} B, ` +
+      `next one coming ${at}`
+    : k.received_bytes ? `skipped a picture not yet shown at ${k.received_bytes} B, next one coming ${at}`
+      : `skipped before its first bytes came, next one coming ${at}`;
+  el.className = "fate done";
+  el.dataset.state = "skipped";
 }
 
 // ---------------------------------------------------------------------------
@@ -853,7 +914,7 @@ function renderStrip() {
       thumbs.set(e.n, b);
     }
     b.className = (e.partial ? "partial " : "") + (shown && e.n === shown.n ? "shown" : "");
-    b.title = `#${e.n}${e.partial ? " (abandoned, partial)" : ""}, captured ${captureText(e.capture)}, ${e.bytes} B`;
+    b.title = `#${e.n}${partialWords(e, ", partial")}, captured ${captureText(e.capture)}, ${e.bytes} B`;
     b.onclick = () => {
       const newest = page.history.filter((x) => !x.partial).pop();
       page.shownPast = newest && newest.n === e.n ? null : e.n;
@@ -883,6 +944,9 @@ function renderShownPicture() {
   renderShownMeta();
 }
 
+// A partial picture: the pilot skipped it (Next image), or the link abandoned it.
+const partialWords = (e, more) => (!e.partial ? "" : e.skipped ? ` (skipped by the pilot${more})` : ` (abandoned${more})`);
+
 function renderShownMeta() {
   const e = shownEntry();
   if (!e) return;
@@ -890,7 +954,7 @@ function renderShownMeta() {
   const roi = s && s.roi ? `ROI ${s.roi.join(",")} shift ${s.shift}` : "no ROI";
   const c = e.capture;
   $("image-done-meta").textContent = `captured ${captureText(c)} at ${poseShort(c && c.pose)}; ` +
-    `${e.bytes}${e.total_bytes ? ` / ${e.total_bytes - 2}` : ""} B${e.partial ? " (abandoned)" : ""}` +
+    `${e.bytes}${e.total_bytes ? ` / ${e.total_bytes - 2}` : ""} B${partialWords(e, "")}` +
     `${e.seconds !== null ? ` in ${fmt(e.seconds, 1)} s` : ""}, ${roi}`;
 }
 
@@ -1218,7 +1282,17 @@ function wire() {
   };
   wireRoi();
   wireFollow();
-  $("next-image").onclick = () => api("/api/image/next");
+  $("next-image").onclick = async () => {
+    const el = $("next-image-fate");
+    el.textContent = "skipping…";
+    el.className = "fate pending";
+    el.dataset.state = "asked";
+    if ((await api("/api/image/next")) === null && el.dataset.state === "asked") {
+      el.textContent = "not skipped (see the message)";
+      el.className = "fate bad";
+      el.dataset.state = "refused";
+    }
+  };
   $("image-save").onclick = savePicture;
   $("image-latest").onclick = () => { page.shownPast = null; renderStrip(); renderShownPicture(); };
   $("log-level").onchange = renderLog;
