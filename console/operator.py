@@ -65,7 +65,7 @@ from rovlink.link.radio.messages import (
 )
 from rovlink.link.radio.secure import InauthenticFrame, LateReply, SecureMaster, Synced
 from rovlink.link.report import VehicleReport, report_from_reply
-from rovlink.link.transport import Endpoint, port_change, port_down_reason
+from rovlink.link.transports.transport import Endpoint, port_change, port_down_reason
 from rovlink.link.units import position_order, velocity_ints, wish_of, wrap_deg
 
 from .session.contract import Capabilities

@@ -22,7 +22,7 @@ from pathlib import Path
 from rovlink.link.aio import run_channel
 from rovlink.link.emulators.channel import Channel, LinkParams
 from rovlink.link.radio.messages import FAILSAFE_S, ImageSettings
-from rovlink.link.transport import Endpoint, inproc_pair
+from rovlink.link.transports.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera
 from rovlink.rov.node import RovNode

@@ -25,7 +25,8 @@ import signal
 import sys
 import threading
 
-from rovlink.link.transport import TransportError, open_transport
+from rovlink.link.transports.transport import TransportError
+from rovlink.link.transports.urls import open_transport
 
 from .stack import StackConfig, VehicleSide
 

@@ -19,7 +19,7 @@ from typing import Callable
 from .emulators.channel import Channel
 from .radio.master import Master
 from .radio.slave import Slave
-from .transport import Endpoint
+from .transports.transport import Endpoint
 
 log = logging.getLogger("rovlink.link")
 

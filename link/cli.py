@@ -1,6 +1,6 @@
 """`rovlink channel`: the channel emulator as a process between two endpoints
 (`--model m64`: two emulated Water Linked Modem-M64s on pseudo-terminals,
-link/m64serial.py, for the wlmodem:// transport).
+link/emulators/m64serial.py, for the wlmodem:// transport).
 `rovlink keygen`: a new key for the authenticated link (docs/PROTOCOL.md §8)."""
 
 from __future__ import annotations
@@ -126,7 +126,8 @@ def run(args) -> int:
 
     from rovlink.link.aio import run_channel
     from rovlink.link.emulators.channel import Channel, LinkParams
-    from rovlink.link.transport import TransportError, open_transport
+    from rovlink.link.transports.transport import TransportError
+    from rovlink.link.transports.urls import open_transport
 
     if args.queue < 1:
         raise CommandError("--queue must be at least 1 byte")
@@ -209,7 +210,7 @@ def _pty_path(option: str, url: str) -> str:
 
 
 def run_m64(args) -> int:
-    """`rovlink channel --model m64`: two emulated Modem-M64s (link/m64serial.py)."""
+    """`rovlink channel --model m64`: two emulated Modem-M64s (link/emulators/m64serial.py)."""
     import logging
     import os
     import signal

@@ -39,7 +39,7 @@ import numpy as np
 from rovlink.link import acoustic as ac
 from rovlink.link.aio import recv_within
 from rovlink.link.radio.messages import Mode
-from rovlink.link.transport import Endpoint
+from rovlink.link.transports.transport import Endpoint
 
 log = logging.getLogger("rovlink.rov.acoustic")
 

@@ -94,7 +94,8 @@ def run_rov(args) -> int:
     import sys
 
     from rovlink.link.radio.messages import ImageSettings, ProtocolError
-    from rovlink.link.transport import TransportError, open_transport
+    from rovlink.link.transports.transport import TransportError
+    from rovlink.link.transports.urls import open_transport
     from rovlink.rov.autopilot import AutopilotBridge
     from rovlink.rov.camera import CameraError, open_camera
     from rovlink.rov.node import RovNode

@@ -78,7 +78,7 @@ from rovlink.link.radio.slave import (
     WishInvalid,
     status_from_pose,
 )
-from rovlink.link.transport import Endpoint
+from rovlink.link.transports.transport import Endpoint
 
 log = logging.getLogger("rovlink.rov.node")
 

@@ -5,7 +5,7 @@ The simulated vehicle is driven past an object on the seabed (the ladder by defa
 then round it, turning to and fro, then away until it leaves the picture; its camera
 runs at `camera_hz` and the ROV's follower (rov/follow.py) tracks the object in every
 frame.  The pictures cross the published link (1900 bit/s, 85 ms, BER 7e-6) with the
-real master, slave and channel in simulated time (link/sim.py), version 2 by default:
+real master, slave and channel in simulated time (link/radio/sim.py), version 2 by default:
 the pilot drew the ROI round the object in the first picture and set it to follow.
 
 Per picture the operator received: the IoU of the ROI it was coded with (its DEBT

@@ -52,7 +52,7 @@ from rovlink.link.aio import recv_within
 from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.radio.messages import ImageSettings, Mode
 from rovlink.link.report import VehicleReport, report_from_status
-from rovlink.link.transport import port_change, port_down_reason
+from rovlink.link.transports.transport import port_change, port_down_reason
 from rovlink.link.units import acoustic_goto, wrap_deg
 
 log = logging.getLogger("rovlink.console.acoustic")

@@ -41,7 +41,8 @@ def run(args) -> int:
     from rovlink.command import CommandError, check_frame_size, link_key
     from rovlink.console.linkthread import LinkThread
     from rovlink.console.operator import Operator
-    from rovlink.link.transport import TransportError, open_transport
+    from rovlink.link.transports.transport import TransportError
+    from rovlink.link.transports.urls import open_transport
 
     from .serve import check_ports, default_record_path, serve_operator
 
@@ -91,7 +92,7 @@ def _run_acoustic(args, endpoint, key) -> int:
     from rovlink.command import CommandError
     from rovlink.console.acoustic.session import AcousticSession
     from rovlink.console.linkthread import LinkThread
-    from rovlink.link.transport import TransportError
+    from rovlink.link.transports.transport import TransportError
 
     from .serve import default_record_path, serve_operator
 

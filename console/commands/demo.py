@@ -46,7 +46,8 @@ def run(args) -> int:
     from rovlink.console.operator import Operator
     from rovlink.console.stack import StackConfig
     from rovlink.console.vehicleside import PORT_TAKEN
-    from rovlink.link.transport import TransportError, free_udp_port, open_transport
+    from rovlink.link.transports.transport import TransportError, free_udp_port
+    from rovlink.link.transports.urls import open_transport
 
     from .serve import check_ports, default_record_path, serve_operator
 

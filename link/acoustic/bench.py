@@ -225,7 +225,7 @@ def run(args) -> int:
                   {"max_s": r["status_age_s_max"], "share_over_10s": r["status_age_share_over_10s"]}
                   for r in results if r["loss"] > 0}
     doc = {
-        "link": {"model": "Modem-M64 (link/m64.py defaults)", "object_bytes": THUMB_BUDGET + 2,
+        "link": {"model": "Modem-M64 (link/emulators/m64.py defaults)", "object_bytes": THUMB_BUDGET + 2,
                  "session_s": args.duration, "sessions_per_row": REPEATS, "seed": args.seed},
         "results": results,
         "targets": targets,

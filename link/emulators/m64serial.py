@@ -1,10 +1,10 @@
 """Two emulated Water Linked Modem-M64s on pseudo-terminals, in real time.
 
-Goals: the real `wlmodem://` transport (link/wlmodem.py) working with no
+Goals: the real `wlmodem://` transport (link/transports/wlmodem.py) working with no
 hardware.  Each emulated modem is a pseudo-terminal (pty) whose slave end is
 reachable at a path the user names (a symlink, removed on exit), and it
 speaks the Modem-M64 serial protocol there as the modem does; the packets
-queued at one modem reach the other through an `M64Channel` (link/m64.py),
+queued at one modem reach the other through an `M64Channel` (link/emulators/m64.py),
 the emulator's model of a modem pair, driven in real time: the model decides
 the turns, the latency, the loss and its bursts, and the transmit queue.
 
@@ -19,7 +19,7 @@ or, in a program (tests use short rounds):
 
 The protocol (the Modem-M64 serial protocol page, waterlinked.github.io
 docs/modem/modem-m64-protocol.md, version 1.0.x; the facts are listed in
-link/wlmodem.py's docstring): sentences `w`, `c` (host to modem) or `r`, a
+link/transports/wlmodem.py's docstring): sentences `w`, `c` (host to modem) or `r`, a
 command letter, `,`-separated options, an optional `*xx` CRC-8 checksum
 (polynomial 0x07) and LF or CR LF.  The host's checksum is checked when it
 sends one (wlmodem sends none); every sentence of the modem carries one, as
@@ -216,7 +216,7 @@ class EmulatedModem:
 class M64SerialPair:
     """Two emulated Modem-M64s at `path_a` and `path_b`, linked through an M64Channel.
 
-    `params`, `a_to_b`, `b_to_a`, `seed`: the model's (link/m64.py); the model's
+    `params`, `a_to_b`, `b_to_a`, `seed`: the model's (link/emulators/m64.py); the model's
     side "a" is the modem configured with role a, whichever path it is on.
     `log`: every model event as a JSON line to a file, or a callable taking
     the record.  `start()` creates the ptys and their symlinks and starts the

@@ -784,7 +784,7 @@ class Master:
             self._events.append(ImageAbandoned(image.img, len(image.data), reason))
         self._image = ImageAssembly(next_img(image.img))
 
-    # -- a recording's replay (link/replay.py) takes its trunks by these same rules --
+    # -- a recording's replay (link/radio/replay.py) takes its trunks by these same rules --
 
     def follow_request(self, poll: Poll, now: float) -> list[object]:
         """A recorded poll, as the live master made it: when it asks for image data

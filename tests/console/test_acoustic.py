@@ -1,7 +1,7 @@
 """The acoustic profile as a user runs it (issues 24 and 32): `rovlink rov` and
 `rovlink console` as two processes, each on the real `wlmodem://` transport,
 talking through two emulated Modem-M64s on real pseudo-terminals
-(link/m64serial.py, four times the real modem's pace so the test takes a
+(link/emulators/m64serial.py, four times the real modem's pace so the test takes a
 minute, not four).  The pilot meets the same cockpit as on the radio link, in
 headless Chromium at 1366x768: the 3-D scene embedded, the instruments, the
 status with its age and when the next is due; no sticks (absent, not broken);
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from rovlink.link.emulators.m64 import M64Params
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from .acoustic_rig import HostileRadio, end_processes, get, post, wait_for

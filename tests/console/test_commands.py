@@ -11,7 +11,7 @@ import urllib.request
 
 import pytest
 
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import free_tcp_port
 from ..helpers import get_json as get

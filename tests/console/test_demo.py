@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from rovlink import debt
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from ..helpers import wait_until_up as wait_for

@@ -16,7 +16,7 @@ import pytest
 from pymavlink import mavutil
 
 from rovlink.console.gcs import DeskCommands, GcsGateway
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import free_tcp_port
 from .conftest import running_console, wait_for

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, get_json, needs_chromium, wait_until_up
 from .pages import after_ticks

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from rovlink.link.radio.frame import FrameDecoder, encode_frame
-from rovlink.link.transport import free_udp_port
+from rovlink.link.transports.transport import free_udp_port
 
 ROVLINK = [sys.executable, "-m", "rovlink"]
 

@@ -13,7 +13,7 @@ import pytest
 from rovlink.link.aio import run_channel
 from rovlink.link.emulators.m64 import M64Channel, M64Loss, M64Params
 from rovlink.link.radio.sim import SimLink
-from rovlink.link.transport import inproc_pair
+from rovlink.link.transports.transport import inproc_pair
 
 
 def packet(i: int) -> bytes:

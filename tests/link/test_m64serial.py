@@ -1,9 +1,9 @@
-"""The real wlmodem:// transport against emulated Modem-M64s (link/m64serial.py).
+"""The real wlmodem:// transport against emulated Modem-M64s (link/emulators/m64serial.py).
 
 Two emulated modems on real pseudo-terminals, reached through the symlinks
 the emulator makes, speak the Modem-M64 serial protocol to the transport
-(link/wlmodem.py, through the `wlmodem` library) and carry its packets through
-the emulator's model (link/m64.py) in real time.  In-process tests use short
+(link/transports/wlmodem.py, through the `wlmodem` library) and carry its packets through
+the emulator's model (link/emulators/m64.py) in real time.  In-process tests use short
 rounds; `rovlink channel --model m64` runs as the process a user starts, with
 the model's real timing.  Tests wait on conditions with generous timeouts and
 check behaviour, never how fast a loaded machine was.
@@ -26,14 +26,14 @@ import pytest
 
 from rovlink.link.emulators.m64 import M64Loss, M64Params
 from rovlink.link.emulators.m64serial import M64SerialError, M64SerialPair, take_sentence
-from rovlink.link.wlmodem import open_wlmodem
+from rovlink.link.transports.wlmodem import open_wlmodem
 
 from ..helpers import run_async
 from ..helpers import until as wait_until
 
 ROVLINK = [sys.executable, "-m", "rovlink"]
 LOGGER = "rovlink.link.emulators.m64serial"
-WLMODEM_LOGGER = "rovlink.link.wlmodem"
+WLMODEM_LOGGER = "rovlink.link.transports.wlmodem"
 FAST = M64Params(round_s=0.1, b_offset_s=0.05, latency_s=0.15, sync_s=0.3)
 
 

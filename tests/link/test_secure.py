@@ -1,4 +1,4 @@
-"""Version 2 around the master and the slave (link/secure.py): a session
+"""Version 2 around the master and the slave (link/radio/secure.py): a session
 runs; what an attacker records, forges or replays never reaches either
 machine; a ROV restart is seen by its BOOT.  Simulated time, real channel."""
 

@@ -14,7 +14,8 @@ from rovlink.link.radio.frame import FrameDecoder, encode_frame
 from rovlink.link.radio.master import ImageComplete, Master, PoseReceived, StopConfirmed
 from rovlink.link.radio.messages import ImageSettings, Mode, Poll, Stop
 from rovlink.link.radio.slave import BrakeRequested, OrderExecuted, Slave, Status
-from rovlink.link.transport import TransportError, free_udp_port, inproc_pair, open_transport
+from rovlink.link.transports.transport import TransportError, free_udp_port, inproc_pair
+from rovlink.link.transports.urls import open_transport
 
 from ..helpers import Pty
 
@@ -108,7 +109,7 @@ def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a
             await s.close()
         return got, dropped
 
-    caplog.set_level("WARNING", logger="rovlink.link.transport")
+    caplog.set_level("WARNING", logger="rovlink.link.transports.transport")
     (got, master, slave), dropped = run(main())
     assert dropped > 50  # counted and dropped
     logged = [r for r in caplog.records if "not the peer" in r.getMessage()]

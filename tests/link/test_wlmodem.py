@@ -27,14 +27,14 @@ from collections import deque
 
 import pytest
 
-from rovlink.link.transport import TransportError
-from rovlink.link.wlmodem import PACKET_BYTES, WlModemEndpoint, open_wlmodem
+from rovlink.link.transports.transport import TransportError
+from rovlink.link.transports.wlmodem import PACKET_BYTES, WlModemEndpoint, open_wlmodem
 
 from ..helpers import Pty, run_async
 from ..helpers import until as wait_until
 
-LOGGER = "rovlink.link.wlmodem"
-TRANSPORT_LOGGER = "rovlink.link.transport"
+LOGGER = "rovlink.link.transports.wlmodem"
+TRANSPORT_LOGGER = "rovlink.link.transports.transport"
 
 
 def run(coro, timeout=25):

@@ -15,7 +15,8 @@ from rovlink import debt
 from rovlink.link.aio import run_master
 from rovlink.link.radio.master import ImageComplete, Master, OrderAcknowledged, OrderRejected
 from rovlink.link.radio.messages import FollowSettings, ImageSettings, Poll, Reason, TrackState, split_track
-from rovlink.link.transport import free_udp_port, open_transport
+from rovlink.link.transports.transport import free_udp_port
+from rovlink.link.transports.urls import open_transport
 from rovlink.rov.camera import SimulatedCamera, iou
 from rovlink.rov.follow import TRACKERS, RoiFollower, TrackerMissing, make_tracker
 from rovlink.rov.node import RovNode

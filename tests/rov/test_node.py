@@ -39,7 +39,8 @@ from rovlink.link.radio.messages import (
     Stop,
     Velocity,
 )
-from rovlink.link.transport import free_udp_port, open_transport
+from rovlink.link.transports.transport import free_udp_port
+from rovlink.link.transports.urls import open_transport
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import SimulatedCamera
 from rovlink.rov.node import RovNode

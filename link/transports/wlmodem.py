@@ -1,6 +1,6 @@
 """Transport over a Water Linked Modem-M64 acoustic modem, through `wlmodem`.
 
-Goals: the acoustic link as one more `Endpoint` (link/transport.py): opened
+Goals: the acoustic link as one more `Endpoint` (link/transports/transport.py): opened
 and reopened under the same supervisor, 8-byte packets in and out, the
 modem's own state (link up or down, packets received and lost, bit error
 rate) in the log once per change, and every way it can go wrong said in one
@@ -47,7 +47,7 @@ docs/modem/modem-m64-protocol.md, protocol version 1.0.x):
 - The host does not decide when a queued packet leaves; the modems take
   turns, one packet a second each way, 1.5-2.5 s from queue to the other
   host, a few seconds to (re)establish the link (figures and sources in
-  link/m64.py, the emulator's model of the modem).
+  link/emulators/m64.py, the emulator's model of the modem).
 
 wlmodem's simulator (`WlModemSimulator`) is no serial device: it subclasses
 WlModemBase and answers `request()` in the same process (after a 50 ms
@@ -74,7 +74,7 @@ the answer is the modem's last count plus every packet handed over since
 worker), and after `flush()` only the packets sent after it.  So it never
 counts less than the modem holds, and counts more only until the next
 refresh after the modem transmitted (at most QUEUE_REFRESH_S late).  With
-the emulated modems (link/m64serial.py) all of this runs with no hardware.
+the emulated modems (link/emulators/m64serial.py) all of this runs with no hardware.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ from wlmodem.protocol import WlModemBase, WlProtocolParseError
 
 from .transport import Endpoint, PortUnavailable, TransportError, _Driver, serial_open_error
 
-log = logging.getLogger("rovlink.link.wlmodem")
+log = logging.getLogger("rovlink.link.transports.wlmodem")
 
 PACKET_BYTES = 8  # the Modem-M64's payload size
 BAUD = 115200
