@@ -120,14 +120,15 @@ def run(args) -> int:
     return 0
 
 
-def compile_codec(say_after_s: float = 1.5) -> None:
+def compile_codec(say_after_s: float = 5.0) -> None:
     """DEBT's kernels compiled (and cached on disk) before the link starts.
 
     On a fresh install numba compiles them on first use: half a minute to a minute
     on a 2-core machine, in both the vehicle side and the console at once, which
     starved the link (LINK LOST, then the ROV's FAILSAFE) and kept the first
     picture waiting.  Done here once, with progress said; later runs load the cache
-    in half a second and say nothing."""
+    in half a second and say nothing.  (Said after 5 s: a compile takes tens of
+    seconds, while loading the cache took 2 s on a loaded machine and read as one.)"""
     import sys
     import threading
     import time

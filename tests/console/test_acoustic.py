@@ -191,6 +191,10 @@ def test_a_ground_station_sees_the_acoustic_vehicle_and_its_go_to_and_stops_it(a
         assert local is not None
         assert abs(local.x - pose["received"]["x_m"]) < 0.3 and abs(local.z - pose["received"]["z_m"]) < 0.3
 
+        if not pose["armed"]:  # (a pilot before may have left it disarmed) armed from the ground station
+            gcs.mav.command_long_send(1, 1, m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            assert wait_for(lambda: get(base + "/api/pose")["armed"], 60), get(base + "/api/orders")
+            pose = get(base + "/api/pose")
         # A go-to from the ground station: its outcome comes back as STATUSTEXT.
         target_x = pose["received"]["x_m"] + 1.5
         gcs.mav.set_position_target_local_ned_send(0, 1, 1, m.MAV_FRAME_LOCAL_NED, 0b0000111111111000, target_x,

@@ -177,6 +177,9 @@ def test_a_followed_roi_moves_with_its_object_as_the_vehicle_turns_and_the_page_
         key, left, state, text = page.evaluate(SHOWN)
         return int(key.split(":")[0] or 0), left, state, text
 
+    # (The track's state comes with the telemetry, the picture it was coded for a moment
+    # later, once loaded: its ROI is drawn then.)
+    assert wait_for(lambda: shown()[1] is not None, 30), shown()
     lefts, last = [shown()[1]], shown()
     for _ in range(20):
         page.keyboard.down("KeyE")

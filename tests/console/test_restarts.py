@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[2]
 class Processes:
     """The ROV and a console joined by UDP; the console can be killed and started again."""
 
-    def __init__(self, tmp_path: Path, *, mavlink: str | None = None) -> None:
+    def __init__(self, tmp_path: Path, *, mavlink: str | None = None, rov_args: tuple = ()) -> None:
         self.tmp = tmp_path
         self.key = tmp_path / "link.key"
         subprocess.run([sys.executable, "-m", "rovlink", "keygen", str(self.key)], check=True,
@@ -52,6 +52,7 @@ class Processes:
                f"udp://127.0.0.1:{self.rov_udp}?peer=127.0.0.1:{self.console_udp}"]
         if mavlink:
             rov += ["--mavlink", mavlink]
+        rov += list(rov_args)
         self._spawn("rov", rov)
         self.http = None
         self.start_console()
@@ -239,10 +240,22 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         procs.close()
 
 
+def _hold_control(page) -> None:
+    """The page holds control: taken again if its WebSocket dropped meanwhile (on this
+    2-core machine, beside software WebGL and a picture every 0.15 s, Chromium 156's
+    socket was seen to close abnormally, 1006: control goes with it, by design)."""
+    if page.is_visible("#take"):
+        page.wait_for_function("document.getElementById('connection').textContent === 'online'", timeout=30000)
+        page.click("#take")
+        page.wait_for_function("document.getElementById('control-text').textContent.startsWith('You have control')")
+
+
 def _centre_then_forward(page, procs: Processes) -> bool:
     """The page's held pad centred (the page told "You have control."), then forward again:
     True once the vehicle has moved a metre, False if the console's dead man neutralised the
-    stick first (the page's repeats stalled: it asks for the sticks to be centred again)."""
+    stick first (the page's repeats stalled: it asks for the sticks to be centred again), or
+    the page lost control with its socket."""
+    _hold_control(page)
     page.evaluate("() => { window.testPad.axes[1] = 0; }")  # centred
     # (After a dead man the console asks for centring first, then logs it: this is our centring.)
     assert wait_until_up(lambda: not get_json(procs.base + "/api/control")["centre_to_drive"], 30), _why(procs)
@@ -268,9 +281,13 @@ HELD_PAD = """() => {
 @pytest.mark.browser
 @needs_chromium
 def test_a_page_taking_control_with_its_stick_held_drives_only_once_it_is_centred(tmp_path):
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
     from playwright.sync_api import sync_playwright
 
-    procs = Processes(tmp_path)
+    # Pictures off: on this fast link (no modem emulated) they came every 0.15 s, and a
+    # page busy with them and the software-rendered scene on two cores lost its socket
+    # (and control) within seconds; the held stick is what this test is about.
+    procs = Processes(tmp_path, rov_args=("--budget", "0"))
     try:
         assert wait_until_up(lambda: get_json(procs.base + "/api/link")["state"] == "up"
                              and procs.pose()["autopilot"], 120), procs.logs_text()
@@ -288,10 +305,18 @@ def test_a_page_taking_control_with_its_stick_held_drives_only_once_it_is_centre
                 page.click("#take")
                 page.wait_for_function("document.getElementById('control-text').textContent"
                                        ".includes('centre the sticks to drive')")
-                page.click("#arm")
+                for _attempt in range(3):
+                    _hold_control(page)  # (taken again, the stick still held, if the socket dropped)
+                    assert "centre the sticks to drive" in page.text_content("#control-text")
+                    try:
+                        page.click("#arm", timeout=10000)
+                        break
+                    except PlaywrightTimeout:
+                        continue  # control went with the socket before the click
                 assert wait_until_up(lambda: procs.pose()["armed"], 30), procs.pose()
                 held = _fresh_pose(procs)
                 time.sleep(5.0)
+                # Not one metre, whoever holds control now: the stick was never centred.
                 assert _moved_m(held, _fresh_pose(procs)) < 0.5
                 assert get_json(procs.base + "/api/state")["velocity_wish"] == {
                     "vx": 0.0, "vy": 0.0, "vz": 0.0, "vyaw": 0.0}

@@ -222,7 +222,8 @@ function applyCapabilities(caps) {
     $("mono").closest("label").hidden = true;
     $("apply-image").textContent = "Ask for a thumbnail";
     $("apply-image").title = "the ROV sends one 80x60 grey thumbnail, coded at this budget (and ROI, if you dragged one)";
-    $("image-settings").querySelector("h2").textContent = "Thumbnail";
+    const heading = $("image-settings").querySelector("h2");
+    if (heading) heading.textContent = "Thumbnail";
     $("budget").value = Math.min(+$("budget").value, caps.image_budget_max || 198, 198);
     $("budget").step = 10;
   }
