@@ -175,6 +175,7 @@ def test_the_scene_websocket_refuses_other_origins_and_hosts(served):
     assert no_token.value.response.status_code == 401
 
 
+@pytest.mark.browser  # one Chromium at a time (tests/conftest.py's browser group)
 @needs_chromium
 def test_dns_rebinding_in_a_browser_meets_403_on_both_ports(served):
     """A name resolved to this machine (Chromium's host-resolver rule plays the
