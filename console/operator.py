@@ -33,6 +33,7 @@ import numpy as np
 
 from rovlink import debt
 from rovlink.link.aio import run_master
+from rovlink.link.process import LinkProcessDown, MasterProcess
 from rovlink.link.radio.frame import MAX_FRAME
 from rovlink.link.radio.master import (
     ImageAbandoned,
@@ -110,6 +111,8 @@ class Operator:
         master: Master | None = None,
         clock: Callable[[], float] | None = None,
     ) -> None:
+        if isinstance(master, MasterProcess) and endpoint is None:
+            endpoint = master.port  # the link process's transport, as it says it is
         self.endpoint = endpoint
         self._clock = clock or time.monotonic
         self._t0 = self._clock()
@@ -133,6 +136,10 @@ class Operator:
         self._warm_up = debt.warm_up_in_background("debt-warm-up (console)")
         self._port_up: bool | None = None  # the endpoint's port as last seen (`_watch_port`)
         self._decoder = DaemonWorker("debt-decode")
+        self._stops_to_resend: list[int] = []  # STOPs a link process took with it, for the next one
+        self._link_starts = 0
+        if isinstance(self.master, MasterProcess):
+            self.master.t0 = self._t0  # one session clock in both processes
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                           "wall0": round(self.wall0, 3)})
@@ -230,7 +237,7 @@ class Operator:
     def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
         """A log line. `level`: "alert" (the pilot must see it: link lost, failsafe,
         forged frames, an order refused), "warn", or "info" (routine: an image complete).
-        `cause`: the condition an alert is about ("link", "failsafe", "port"), so that
+        `cause`: the condition an alert is about ("link", "failsafe", "port", "process": the link process), so that
         `clear_alerts` can mark it cleared when the condition ends."""
         line = LogLine(self.now(), text, level, cause)
         self.history.log.append(line)
@@ -260,6 +267,14 @@ class Operator:
 
     async def run(self) -> None:
         """Drive the link until cancelled."""
+        if isinstance(self.master, MasterProcess):
+            try:
+                await self.master.run(self.handle_events, clock=self.now, on_bytes=self.bytes_received,
+                                      on_turn=self._turn, on_up=self._link_process_up,
+                                      on_down=self._link_process_down)
+            finally:
+                self._decoder.shutdown()
+            return
         if self.endpoint is None:
             raise RuntimeError("no link endpoint: this operator only replays")
         try:
@@ -267,6 +282,48 @@ class Operator:
                              on_bytes=self.bytes_received, on_turn=self._turn)
         finally:
             self._decoder.shutdown()
+
+    # -- the link in a process of its own (link/process.py) -------------------
+
+    def _link_process_down(self, why: str, t: float) -> None:
+        """The link process ended: said at once, and nothing it held is shown done.
+        Orders it had not settled are unknown (the ROV may have taken them: they
+        are not sent again), but a STOP, which goes again with the next process;
+        a picture half in is abandoned."""
+        self.note(f"LINK PROCESS DOWN: {why}; starting it again (no poll leaves meanwhile)", "alert",
+                  cause="process")
+        with self._lock:
+            stops = self.orders.link_ended(t, "unknown: the link process ended before the ROV answered; "
+                                              "not sent again")
+            self._stops_to_resend = sorted(set(self._stops_to_resend) | set(stops))
+            v = self.images.view
+            partial = v.img is not None and not v.complete and v.received_bytes > 0
+            abandoned = ImageAbandoned(v.img, v.received_bytes, "the link process ended") if partial else None
+        if abandoned is not None:
+            self.handle_events([abandoned], t)
+        self._publish("link", self.link_state())
+
+    def _link_process_up(self, pid: int, t: float) -> None:
+        self._link_starts += 1
+        if self._link_starts > 1:
+            self.note(f"link process started again (pid {pid})")
+            self.clear_alerts("process")
+        with self._lock:
+            stops, self._stops_to_resend = self._stops_to_resend, []
+            for order_id in stops:  # a STOP the pilot pressed is never lost with a process
+                try:
+                    self.orders.queued(order_id, self.master.send_order(Stop()))
+                except (LinkProcessDown, ValueError) as exc:
+                    self.orders.set_state(order_id, f"unknown: not sent again ({exc})", t)
+        self._publish("link", self.link_state())
+
+    @contextlib.contextmanager
+    def _link_call(self) -> Iterator[None]:
+        """A call into the link process: its absence is the pilot's 409, with why."""
+        try:
+            yield
+        except LinkProcessDown as exc:
+            raise NotNow(str(exc)) from None
 
     def _turn(self, t: float) -> None:
         """Once per turn of the link loop: the timers of the session."""
@@ -301,7 +358,10 @@ class Operator:
             self.recorder.write({"k": "reply", "t": round(now, 4), "hex": payload.hex(), "sync": sync})
 
         with self._lock:
-            self.master = SecureMaster(self.master, key)
+            if isinstance(self.master, MasterProcess):
+                self.master.authenticate(key)  # the link process makes its SecureMaster
+            else:
+                self.master = SecureMaster(self.master, key)
             self.master.on_reply = record_reply
             self.link_version = "2"
         self.recorder.write({"k": "link", "t": round(self.now(), 4), "version": 2})
@@ -495,7 +555,7 @@ class Operator:
         """Request arming (or disarming); the returned order id is followed
         until the vehicle reports it armed (disarmed), or refused."""
         t = self.now()
-        with self._lock:
+        with self._lock, self._link_call():
             self.master.request_arm(bool(armed), t)
         order_id = self.orders.request("arm", "ARM" if armed else "DISARM", {"armed": bool(armed)}, t)
         self.note("arm requested" if armed else "disarm requested")
@@ -513,7 +573,7 @@ class Operator:
                 raise OrderError(f"mode must be 1..6, got {mode!r}")
             value = Mode(mode)
         t = self.now()
-        with self._lock:
+        with self._lock, self._link_call():
             self.master.request_mode(value, t)
         order_id = self.orders.request("mode", "MODE", {"mode": value.name}, t)
         self.note(f"mode {value.name} requested")
@@ -522,7 +582,15 @@ class Operator:
     def _queue(self, order, kind: str, detail: dict) -> int:
         order_id = self.orders.new(kind, "queued", detail, self.now())
         with self._lock:
-            self.orders.queued(order_id, self.master.send_order(order))
+            try:
+                self.orders.queued(order_id, self.master.send_order(order))
+            except LinkProcessDown as exc:
+                if kind == "STOP":  # never refused: it goes with the next link process
+                    self._stops_to_resend.append(order_id)
+                    self.note("STOP waits for the link process, which is being started again", "warn")
+                    return order_id
+                self.orders.set_state(order_id, f"refused: {exc}", self.now())
+                raise NotNow(str(exc)) from None
         return order_id
 
     def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
@@ -595,7 +663,7 @@ class Operator:
     def cancel_stop(self) -> bool:
         """Give up a STOP the ROV shows it cannot carry out (no autopilot), so that
         a DISARM or a SURFACE can go out (protocol 1.1); False if there is none."""
-        with self._lock:
+        with self._lock, self._link_call():
             done = bool(self.master.cancel_stop())
         if done:
             self.note("STOP cancelled by the pilot")
@@ -610,7 +678,8 @@ class Operator:
         skipped is said (the log, and the image state's `skipped`) when the master lets it go."""
         with self._lock:
             arriving = self.protocol_master.image_received
-            self.master.abandon_image()
+            with self._link_call():
+                self.master.abandon_image()
         if not arriving:
             self.images.nothing_to_skip(self.now())
 
@@ -788,8 +857,18 @@ class Operator:
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             # Why this console's own modem port is down (None while it is up, or for a replay).
             "port_error": port_down_reason(self.endpoint),
+            **self._link_process_state(),
             "profile": "radio",
         }
+
+    def _link_process_state(self) -> dict:
+        if not isinstance(self.master, MasterProcess):
+            return {"link_process": None, "link_process_reason": None, "link_process_pid": None}
+        up = self.master.up
+        if not up and not self.master.ever_up and self.master.down_reason is None:
+            return {"link_process": "starting", "link_process_reason": None, "link_process_pid": None}
+        return {"link_process": "up" if up else "down", "link_process_reason": None if up else self.master.down_reason,
+                "link_process_pid": self.master.pid if up else None}
 
     def orders_state(self) -> list[dict]:
         return self.orders.state()

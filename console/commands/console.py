@@ -37,10 +37,13 @@ def run(args) -> int:
 
     require_console_extra()
     import asyncio
+    import sys
+    import time
 
     from rovlink.command import CommandError, check_frame_size, link_key
     from rovlink.console.linkthread import LinkThread
     from rovlink.console.operator import Operator
+    from rovlink.link.process import STOP_AFTER_PARENT_S, MasterProcess
     from rovlink.link.transports.transport import TransportError
     from rovlink.link.transports.urls import open_transport
 
@@ -57,15 +60,35 @@ def run(args) -> int:
     check_frame_size(endpoint, key)
     record = None if args.no_record else (args.record or default_record_path())
 
+    PORT_WAIT_S = STOP_AFTER_PARENT_S + 3.0
+
     async def main() -> None:
-        # The link runs in its own thread and loop: web traffic never delays a poll.
+        # The link (transport, master, its clock and deadlines) runs in a process of its own
+        # (link/process.py), watched from a thread and loop of this one: neither web traffic
+        # nor the page, the scene or picture decoding here delays a poll.
         link = LinkThread().start()
-        try:
-            await link.call(endpoint.start())
-        except TransportError as exc:
-            await link.stop()
-            raise CommandError(str(exc)) from None
-        operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        # Opened here once, so that a wrong port is one line now, not a restart loop.  A
+        # console that ended a moment ago may leave its link process on the port while it
+        # sends its STOP (link/process.py): that is waited for, a few seconds.
+        waited = None
+        while True:
+            try:
+                await link.call(endpoint.start())
+                await link.call(endpoint.close())
+                break
+            except TransportError as exc:
+                if "Address already in use" in str(exc) and (waited is None or time.monotonic() - waited < PORT_WAIT_S):
+                    if waited is None:
+                        waited = time.monotonic()
+                        print(f"rovlink console: {args.link} is in use (a console that ended may still be sending "
+                              f"its STOP); waiting up to {PORT_WAIT_S:g} s", file=sys.stderr, flush=True)
+                    await asyncio.sleep(0.25)
+                    continue
+                await link.stop()
+                raise CommandError(str(exc)) from None
+        master = MasterProcess(args.link, bitrate_bps=args.bitrate, delay_s=args.delay,
+                               max_frame=endpoint.max_frame, t0=0.0)
+        operator = Operator(None, master=master, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
         if key is not None:
             operator.authenticate(key)
         version = ("link version 2, every frame authenticated" if key is not None else
@@ -74,7 +97,7 @@ def run(args) -> int:
         try:
             await serve_operator(operator, args, banner=f"rovlink console on {args.link}; {version}", link=link)
         finally:
-            await link.stop(endpoint.close())
+            await link.stop()
             operator.close()
 
     try:

@@ -46,6 +46,7 @@ def run(args) -> int:
     from rovlink.console.operator import Operator
     from rovlink.console.stack import StackConfig
     from rovlink.console.vehicleside import PORT_TAKEN
+    from rovlink.link.process import MasterProcess
     from rovlink.link.transports.transport import TransportError, free_udp_port
     from rovlink.link.transports.urls import open_transport
 
@@ -92,9 +93,16 @@ def run(args) -> int:
             link.stop_sync()
             raise
 
+    # The link (transport, master, its clock) in a process of its own (link/process.py), on the
+    # port found free above: this process's page, scene and decoding never delay a poll.
+    max_frame = endpoint.max_frame
+    link.call_sync(endpoint.close())
+    master = MasterProcess(f"udp://127.0.0.1:{console_port}?peer=127.0.0.1:{vehicle_port}",
+                           bitrate_bps=config.bitrate_bps, delay_s=config.delay_s, max_frame=max_frame, t0=0.0)
+
     async def main() -> None:
-        operator = Operator(endpoint, bitrate_bps=config.bitrate_bps, delay_s=config.delay_s, record=record,
-                            image_settings=config.image_settings)
+        operator = Operator(None, master=master, bitrate_bps=config.bitrate_bps, delay_s=config.delay_s,
+                            record=record, image_settings=config.image_settings)
         if key is not None:
             operator.authenticate(key)
         link.spawn(operator.run(), name="operator")
@@ -108,7 +116,7 @@ def run(args) -> int:
                         + (f"; recording to {record}" if record else "")),
             )
         finally:
-            await link.stop(endpoint.close())
+            await link.stop()
             operator.close()
 
     try:

@@ -143,6 +143,7 @@ class ImageReceiver:
         # What the ROV is known to use (applies from the next picture on).
         self.confirmed_settings = settings
         self._history: collections.deque = collections.deque(maxlen=IMAGE_HISTORY)
+        self._kept = 0  # pictures ever kept (the page refetches its strip when it moves)
         # The image requests as they went out: (sent at, IMG, OFFSET, largest trunk its SIZE allows).
         self._requests: collections.deque = collections.deque(maxlen=256)
         self._next_capture: tuple[float, Pose | None, str] | None = None
@@ -266,6 +267,7 @@ class ImageReceiver:
 
     def _keep(self, t: float, *, partial: bool, skipped: bool = False) -> None:
         v = self.view
+        self._kept += 1
         self._history.append({
             "n": v.serial, "img": v.img, "capture": v.capture, "bytes": len(v.stream),
             "total_bytes": v.total_bytes, "partial": partial, "skipped": skipped,
@@ -337,6 +339,7 @@ class ImageReceiver:
                 "img": v.img, "received_bytes": v.received_bytes, "total_bytes": v.total_bytes,
                 "complete": v.complete, "decoded_bytes": v.decoded_bytes, "started_at": v.started_at,
                 "decoded_at": v.decoded_at, "images_completed": v.images_completed, "serial": v.serial,
+                "kept": self._kept,
                 "capture": v.capture, "settings": coded_settings(settings_dict(v.settings), v.track, v.coded_roi),
                 "track": v.track, "skipped": self.skipped,
             }

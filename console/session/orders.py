@@ -166,6 +166,22 @@ class OrderBook:
             return
         self.set_state(order_id, f"refused: {why}", t)
 
+    def link_ended(self, t: float, state: str) -> list[int]:
+        """The master that held the one-shot orders and the requests is gone (the
+        link process ended): those it had not settled get `state`, but STOPs,
+        whose ids are returned to be sent again.  Its ids mean nothing to the
+        next master."""
+        with self._lock:
+            open_ids = {mine for mine in self._by_master_id.values()
+                        if self._orders.get(mine, {}).get("state") in ("queued", "sent")}
+            self._by_master_id.clear()
+            stops = sorted(i for i in open_ids if self._orders[i]["kind"] == "STOP")
+            requests = list(self._requests.values())
+            self._requests.clear()
+        for order_id in sorted(open_ids - set(stops)) + requests:
+            self.set_state(order_id, state, t)
+        return stops
+
     # -- a replay ---------------------------------------------------------
 
     def replayed(self, record: dict, t: float) -> None:

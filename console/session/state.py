@@ -105,6 +105,8 @@ class ImageState(BaseModel):
     started_at: float | None
     decoded_at: float | None
     images_completed: int
+    kept: int = Field(0, description="pictures kept so far to look back at (GET /api/images keeps the last "
+                                     "24), partial ones included")
     serial: int = Field(0, description="counts images, never wraps (img wraps at 8)")
     capture: Capture | None = Field(None, description="when and where the ROV captured it (stamped from replies)")
     waiting: str | None = Field(None, description="why there is no picture yet (null once there is one)")
@@ -156,6 +158,11 @@ class LinkState(BaseModel):
     transport_up: bool
     port_error: str | None = Field(None, description="why this console's own modem port is down (the transport's reason); "
                                                      "null while it is up, or for a replay")
+    link_process: Literal["starting", "up", "down"] | None = Field(
+        None, description="the console's link process (link/process.py): down from its end until it runs again; "
+                          "null where the link runs in the console's own process (a replay, a test's stack)")
+    link_process_reason: str | None = Field(None, description="while down: why it ended")
+    link_process_pid: int | None = Field(None, description="the link process's pid while it runs")
     profile: Literal["radio", "acoustic"] = Field("radio", description="the link's profile (docs/PROTOCOL.md §9: acoustic)")
     synced: bool | None = Field(None, description="the acoustic link's session is synchronised")
     next_report_in_s: float | None = Field(None, description="the acoustic link: when the next status is due at the latest")
@@ -188,7 +195,7 @@ class LogEntry(BaseModel):
     text: str
     level: Literal["alert", "warn", "info"] = Field(
         description="alert: the pilot must see it (link lost, failsafe, an order refused); info: routine")
-    cause: Literal["link", "failsafe", "port"] | None = Field(
+    cause: Literal["link", "failsafe", "port", "process"] | None = Field(
         None, description="a condition the alert is about; it is cleared when the condition ends")
     cleared_wall: float | None = Field(None, description="when its cause ended (clock time); null: still on, "
                                                          "or an event that has no end")

@@ -40,7 +40,7 @@ const page = {
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
   logKeys: new Map(),    // "t|text" -> its entry (a line comes again when its alert is cleared)
   history: [],           // kept pictures' metadata (GET /api/images)
-  historyKey: "",        // serial and count the history was fetched for
+  historyKey: "",        // serial and counts the history was fetched for
   shownPast: null,       // n of the kept picture shown large, or null: the latest complete one
   lastState: null,       // the last telemetry snapshot (for the clock-driven refresh)
 };
@@ -439,7 +439,7 @@ function render(s) {
   // Degraded says which figure crossed its threshold: in a few words on the badge, whole in
   // its tooltip and in the link card.
   const degraded = l.degraded_short ? `link degraded: ${l.degraded_short}` : "link degraded";
-  const badge = portDown(l) ? ["MODEM PORT DOWN", "bad"]
+  const badge = processDown(l) ? ["LINK PROCESS DOWN", "bad"] : portDown(l) ? ["MODEM PORT DOWN", "bad"]
     : { up: ["link up", "good"], degraded: [degraded, "warn"], lost: ["LINK LOST", "bad"],
         replay: ["REPLAY", "warn"], starting: ["link starting", ""] }[l.state] || [l.state, ""];
   setBadge($("link-up"), badge[0], badge[1]);
@@ -691,19 +691,45 @@ function portDown(l) {
   return l.port_error !== null && l.port_error !== undefined;
 }
 
+// The console's link process (link/process.py) ended: no poll leaves until it is started
+// again.  Said at once, apart from the ROV's silence (LINK LOST) and the modem's port.
+function processDown(l) {
+  return l.link_process === "down";
+}
+const PROCESS_BACK_SHOWN_MS = 6000;
+
 function renderLink(l) {
   const was = page.linkState;
   const down = portDown(l);
-  page.linkState = down ? "port down" : l.state;
+  const loud = ["lost", "port down", "process down"];
+  page.linkState = processDown(l) ? "process down" : down ? "port down" : l.state;
   document.body.dataset.link = page.linkState;
   const banner = $("link-banner");
-  if (down) {
+  if (was === "process down" && !processDown(l)) page.processBackUntil = Date.now() + PROCESS_BACK_SHOWN_MS;
+  if (processDown(l)) {
+    page.processDownWhy = l.link_process_reason;
+    banner.hidden = false;
+    banner.className = "";
+    $("link-banner-title").textContent = "LINK PROCESS DOWN";
+    $("link-banner-text").textContent = `${l.link_process_reason || "it ended"}; starting it again. ` +
+      "No poll leaves meanwhile: the ROV stops on its failsafe; orders in flight are shown unknown";
+    $("failsafe-inferred").hidden = true;
+    if (!loud.includes(was)) alarm();
+  } else if (page.processBackUntil && Date.now() < page.processBackUntil && l.state !== "lost" && !down) {
+    // Back within a second or two: said long enough to be read, then the banner goes.
+    banner.hidden = false;
+    banner.className = "replay";
+    $("link-banner-title").textContent = "LINK PROCESS STARTED AGAIN";
+    $("link-banner-text").textContent = `after ${page.processDownWhy || "its end"}: polls leave again; ` +
+      "orders it held are shown unknown";
+    $("failsafe-inferred").hidden = true;
+  } else if (down) {
     banner.hidden = false;
     banner.className = "";
     $("link-banner-title").textContent = "MODEM PORT DOWN";
     $("link-banner-text").textContent = `${l.port_error}; opening it again. No poll reaches the ROV: it stops on its failsafe`;
     $("failsafe-inferred").hidden = true;
-    if (was !== "port down" && was !== "lost") alarm();
+    if (!loud.includes(was)) alarm();
   } else if (l.state === "lost") {
     banner.hidden = false;
     banner.className = "";
@@ -713,7 +739,7 @@ function renderLink(l) {
     const fs = $("failsafe-inferred");
     fs.hidden = !l.failsafe_inferred;
     if (l.failsafe_inferred) fs.textContent = `ROV in FAILSAFE (inferred) since ${l.failsafe_inferred_since}`;
-    if (was !== "lost" && was !== "port down") alarm();
+    if (!loud.includes(was)) alarm();
   } else if (l.state === "replay") {
     banner.hidden = false;
     banner.className = "replay";
@@ -722,7 +748,7 @@ function renderLink(l) {
     $("failsafe-inferred").hidden = true;
   } else {
     banner.hidden = true;
-    if (was === "lost" || was === "port down") stopAlarm();
+    if (loud.includes(was)) stopAlarm();
   }
 }
 
@@ -822,7 +848,8 @@ function renderImageProgress(im) {
   card.dataset.totalBytes = im.total_bytes ?? "";
   renderTrack(im);
   showImage(im);
-  const key = `${im.serial ?? ""}:${im.images_completed ?? ""}`;
+  // A picture kept (a partial one the pilot skipped included) is in the strip at once.
+  const key = `${im.serial ?? ""}:${im.images_completed ?? ""}:${im.kept ?? ""}`;
   if (key !== page.historyKey) {
     page.historyKey = key;
     loadHistory();

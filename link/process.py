@@ -1,0 +1,468 @@
+"""The radio link in a process of its own: the transport, the master and its
+clock and deadlines, apart from the console's page, scene, gateway and
+picture decoding (issue 33).
+
+Goal: a poll leaves on time whatever the console's process is doing.  The
+console's threads share one interpreter lock; a busy page, a software-rendered
+scene or a decode there made replies go late (§8.1 counts a reply late 50 ms
+past its deadline).  Here the link's loop has a process, an interpreter and
+a scheduler's share of its own.
+
+Plan: `MasterProcess` stands in the console for the master (the methods and
+read-outs the session uses) and runs the real one in a child process started
+with `multiprocessing`'s spawn.  Two pipes join them:
+- commands, console to link: ("call", method, args) answered at once with
+  ("ok", result, status) or ("error", text, status); ("quit",) to end;
+- what happened, link to console: ("up", pid), ("events", [master events],
+  t, status), ("rx", bytes, t), ("reply", payload, sync, t) (version 2: the
+  reply the master was given, for the recording), ("port", up, news, reason),
+  ("fatal", text).
+Messages are the link's own typed events (link/radio/events.py), pickled;
+`status` is the master's read-outs (stats, STOP state, estimated BER, bad
+CRCs...), a small dict sent with every batch and every answer.
+
+Both processes keep session time on one clock: the child gets the console's
+CLOCK_MONOTONIC origin, so times in its events are the console's.
+
+Faults, safe and loud:
+- The console's process ends or is killed: the child sees its command pipe
+  close, sends STOP (neutral velocity, every poll until a reply confirms it,
+  at most `STOP_AFTER_PARENT_S`), then stops polling and exits, so the ROV
+  holds in its failsafe.  A console started again never releases that HOLD on
+  its own (§5, decided: nobody's neutral releases none).
+- The child ends or is killed: `run` tells the session (`on_down`, at once:
+  its event pipe closes), starts it again after `RESTART_AFTER_S` and tells
+  it (`on_up`).  What the dead master held (orders in flight, a picture half
+  in) is the session's to settle: nothing it had is shown done.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from typing import Any, Callable
+
+from .radio.frame import MAX_FRAME
+from .radio.master import Master, MasterStats, StopConfirmed
+from .radio.messages import Stop
+from .radio.secure import SecureMaster
+
+log = logging.getLogger("rovlink.link.process")
+
+STOP_AFTER_PARENT_S = 5.0   # the console gone: STOP is sent this long at most, then polling stops
+RESTART_AFTER_S = 0.5       # a link process that ended is started again after this
+CALL_TIMEOUT_S = 2.0        # a command the link process has not answered in this time failed
+TURN_S = 0.05               # the session's own timers (`on_turn`) while the link process runs
+
+# What the master's methods the session calls may be (the rest are refused).
+CALLS = ("set_velocity", "set_pilot_in_force", "set_attended", "recentred", "request_arm", "request_mode",
+         "send_order", "cancel_stop", "abandon_image")
+
+
+class LinkProcessDown(RuntimeError):
+    """The link process is not running (it ended and is being started again)."""
+
+
+def _status(master) -> dict:
+    return {
+        "stats": dataclasses.asdict(master.stats),
+        "stopping": bool(master.stopping),
+        "ber": master.estimated_ber(),
+        "crc_errors": master.decoder.crc_errors,
+        "image_received": _protocol(master).image_received,
+        "pilot_in_force": _protocol(master).pilot_in_force,
+    }
+
+
+def _protocol(master):
+    return master.master if isinstance(master, SecureMaster) else master
+
+
+# ---------------------------------------------------------------------------
+# The child
+# ---------------------------------------------------------------------------
+
+def child_main(commands, events, spec: dict) -> None:
+    """The link process's entry (multiprocessing's target)."""
+    logging.basicConfig(level=logging.WARNING, format="rovlink link process: %(message)s")
+    # Ctrl-C in the console's terminal reaches this process too: the console's end (its
+    # pipe closing) is what ends it, with a STOP first.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        code = asyncio.run(_child(commands, events, spec))
+    except KeyboardInterrupt:  # the console's Ctrl-C reaches its whole group; the pipe's end says the rest
+        code = 0
+    os._exit(code)
+
+
+async def _child(commands, events, spec: dict) -> int:
+    from .aio import run_master
+    from .transports.transport import TransportError, port_change, port_down_reason
+    from .transports.urls import open_transport
+
+    loop = asyncio.get_running_loop()
+    send_lock = threading.Lock()
+    parent_gone = asyncio.Event()
+
+    def send(message: tuple) -> None:
+        try:
+            with send_lock:
+                events.send(message)
+        except (OSError, EOFError, ValueError):  # the console is gone: its pipe says so to the command thread
+            pass
+
+    try:
+        endpoint = open_transport(spec["url"])
+        await endpoint.start()
+    except (TransportError, OSError, ValueError) as exc:
+        send(("fatal", f"could not open {spec['url']}: {exc}"))
+        return 2
+    t0 = spec["t0"]
+
+    def clock() -> float:
+        return time.monotonic() - t0
+
+    master: Any = Master(bitrate_bps=spec["bitrate_bps"], delay_s=spec["delay_s"],
+                         max_frame=(endpoint.max_frame or MAX_FRAME))
+    master.set_pilot_in_force(False)
+    if spec.get("key") is not None:
+        master = SecureMaster(master, spec["key"])
+        master.on_reply = lambda payload, sync, now: send(("reply", payload, sync, now))
+    lock = threading.Lock()
+    confirmed = threading.Event()  # a STOP confirmed (after the console went: the child may end)
+
+    def on_events(batch: list, t: float) -> None:
+        if any(isinstance(e, StopConfirmed) for e in batch):
+            confirmed.set()
+        with lock:
+            status = _status(master)
+        send(("events", batch, t, status))
+
+    port_seen: list = [None]
+
+    def on_turn(t: float) -> None:
+        port_seen[0], news = port_change(endpoint, port_seen[0])
+        if news is not None:
+            send(("port", port_seen[0], news, port_down_reason(endpoint)))
+
+    def serve_commands() -> None:
+        while True:
+            try:
+                message = commands.recv()
+            except (EOFError, OSError):
+                break
+            if message[0] == "quit":
+                break
+            _, name, args = message
+            try:
+                if name not in CALLS:
+                    raise ValueError(f"{name} is not a call of the link process")
+                with lock:
+                    result = getattr(master, name)(*args)
+                    status = _status(master)
+                answer = ("ok", result, status)
+            except Exception as exc:  # said to the caller, whose order it was
+                with lock:
+                    status = _status(master)
+                answer = ("error", f"{type(exc).__name__}: {exc}", status)
+            try:
+                commands.send(answer)
+            except (OSError, EOFError):
+                break
+        loop.call_soon_threadsafe(parent_gone.set)
+
+    threading.Thread(target=serve_commands, name="link commands", daemon=True).start()
+    send(("up", os.getpid()))
+    runner = loop.create_task(run_master(master, endpoint, on_events, clock=clock, lock=lock,
+                                         on_bytes=lambda data, t: send(("rx", data, t)), on_turn=on_turn))
+    gone = loop.create_task(parent_gone.wait())
+    await asyncio.wait({runner, gone}, return_when=asyncio.FIRST_COMPLETED)
+    if runner.done():  # the loop itself failed: said, and the console starts a new one
+        exc = runner.exception()
+        send(("fatal", f"the link loop stopped: {exc!r}"))
+        gone.cancel()
+        await endpoint.close()
+        return 3
+    # The console is gone: STOP, then silence (the ROV's failsafe holds it).
+    with lock:
+        confirmed.clear()
+        now = clock()
+        master.set_velocity(0, 0, 0, 0, now)
+        master.set_pilot_in_force(False)
+        if not master.stopping:
+            master.send_order(Stop())
+    print("rovlink link process: the console is gone; sending STOP, then no more polls", flush=True)
+    deadline = time.monotonic() + STOP_AFTER_PARENT_S
+    while not confirmed.is_set() and time.monotonic() < deadline:
+        await asyncio.sleep(0.02)
+    runner.cancel()
+    await asyncio.gather(runner, return_exceptions=True)
+    await endpoint.close()
+    print("rovlink link process: STOP " + ("confirmed" if confirmed.is_set() else "not confirmed") +
+          "; polling stopped", flush=True)
+    return 0
+
+
+# ---------------------------------------------------------------------------
+# The console's side
+# ---------------------------------------------------------------------------
+
+class _Decoder:
+    def __init__(self) -> None:
+        self.crc_errors = 0
+
+
+class PortMirror:
+    """The link process's transport as the console sees it: up or down, and why."""
+
+    def __init__(self, max_frame: int | None) -> None:
+        self.max_frame = max_frame
+        self.is_up = True
+        self.stats = type("PortStats", (), {"last_error": None})()
+
+
+class MasterProcess:
+    """The master, run in a process of its own; the session calls it as it would
+    the master (the calls of `CALLS`, `stopping`, `stats`, `estimated_ber()`,
+    `decoder.crc_errors`, `image_received`, `trunk_bytes`)."""
+
+    def __init__(self, url: str, *, bitrate_bps: float, delay_s: float, max_frame: int | None,
+                 t0: float) -> None:
+        self.url = url
+        self.bitrate_bps, self.delay_s, self.t0 = bitrate_bps, delay_s, t0
+        self.key: bytes | None = None
+        # Frame arithmetic only (trunk sizes): never polls.
+        self._frames: Any = Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame or MAX_FRAME)
+        self.port = PortMirror(max_frame)
+        self.on_reply: Callable[[bytes, bool, float], None] | None = None
+        self.decoder = _Decoder()
+        self._status: dict = {"stats": dataclasses.asdict(MasterStats()), "stopping": False, "ber": 0.0,
+                              "crc_errors": 0, "image_received": 0, "pilot_in_force": False}
+        self._stats_before: dict = {}  # counts of the link processes that ended
+        self._call_lock = threading.Lock()
+        self._process = None
+        self._commands = None
+        self._events = None
+        self.pid: int | None = None
+        self.up = False
+        self.ever_up = False
+        self.down_reason: str | None = None  # why it ended, until it runs again
+        self.starts = 0
+        self.last_exit: str | None = None
+        # What the session last set, given again to a link process started anew.
+        self._kept: dict[str, tuple] = {}
+
+    def authenticate(self, key: bytes) -> None:
+        self.key = key
+        self._frames = SecureMaster(self._frames, key)
+
+    # -- what the session reads ---------------------------------------------
+
+    @property
+    def stats(self) -> MasterStats:
+        """The session's counts: the link processes' before this one, and this one's."""
+        now, base = self._status["stats"], self._stats_before
+        return MasterStats(**{k: (v + base[k] if isinstance(v, int) and k in base else v) for k, v in now.items()})
+
+    @property
+    def stopping(self) -> bool:
+        return bool(self._status["stopping"])
+
+    @property
+    def image_received(self) -> int:
+        return int(self._status["image_received"])
+
+    @property
+    def pilot_in_force(self) -> bool:
+        return bool(self._status["pilot_in_force"])
+
+    def estimated_ber(self) -> float:
+        return float(self._status["ber"])
+
+    def trunk_bytes(self, size: int) -> int:
+        return self._frames.trunk_bytes(size)
+
+    def _take_status(self, status: dict) -> None:
+        self._status = status
+        self.decoder.crc_errors = status["crc_errors"]
+
+    # -- what the session orders ----------------------------------------------
+
+    def _call(self, name: str, *args):
+        with self._call_lock:
+            if not self.up or self._commands is None:
+                raise LinkProcessDown("the link process is not running (it is being started again)")
+            try:
+                self._commands.send(("call", name, args))
+                if not self._commands.poll(CALL_TIMEOUT_S):
+                    raise LinkProcessDown(f"the link process did not answer {name} within {CALL_TIMEOUT_S:g} s")
+                kind, result, status = self._commands.recv()
+            except (OSError, EOFError) as exc:
+                raise LinkProcessDown(f"the link process is gone ({exc or type(exc).__name__})") from None
+        self._take_status(status)
+        if kind == "error":
+            raise ValueError(result)
+        return result
+
+    def _keep_and_call(self, name: str, *args) -> None:
+        """A setting that holds until changed: kept for a new link process, and not
+        refused while there is none (it goes with the next one)."""
+        self._kept[name] = args
+        try:
+            self._call(name, *args)
+        except LinkProcessDown:
+            pass
+
+    def set_velocity(self, vx: int, vy: int, vz: int, vyaw: int, now: float) -> None:
+        self._keep_and_call("set_velocity", vx, vy, vz, vyaw, now)
+
+    def set_pilot_in_force(self, in_force: bool) -> None:
+        self._keep_and_call("set_pilot_in_force", bool(in_force))
+
+    def set_attended(self, attended: bool) -> None:
+        self._keep_and_call("set_attended", bool(attended))
+
+    def recentred(self) -> None:
+        try:
+            self._call("recentred")
+        except LinkProcessDown:
+            pass
+
+    def request_arm(self, arm: bool, now: float) -> None:
+        self._call("request_arm", bool(arm), now)
+
+    def request_mode(self, mode, now: float) -> None:
+        self._call("request_mode", int(mode), now)
+
+    def send_order(self, order) -> int:
+        return self._call("send_order", order)
+
+    def cancel_stop(self) -> bool:
+        return bool(self._call("cancel_stop"))
+
+    def abandon_image(self) -> None:
+        self._call("abandon_image")
+
+    # -- running it -----------------------------------------------------------
+
+    def _spawn(self) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        commands, child_commands = ctx.Pipe(duplex=True)
+        child_events, events = ctx.Pipe(duplex=False)
+        spec = {"url": self.url, "bitrate_bps": self.bitrate_bps, "delay_s": self.delay_s, "t0": self.t0,
+                "key": self.key}
+        process = ctx.Process(target=child_main, args=(child_commands, events, spec), name="rovlink-link",
+                              daemon=False)
+        process.start()
+        child_commands.close()
+        events.close()
+        self._process, self._commands, self._events = process, commands, child_events
+        self.starts += 1
+
+    async def run(self, on_events: Callable[[list, float], None], *, clock: Callable[[], float],
+                  on_bytes: Callable[[bytes, float], None] | None = None,
+                  on_turn: Callable[[float], None] | None = None,
+                  on_up: Callable[[int, float], None] | None = None,
+                  on_down: Callable[[str, float], None] | None = None) -> None:
+        """Run the link process, start it again whenever it ends, until cancelled."""
+        loop = asyncio.get_running_loop()
+        try:
+            while True:
+                self._spawn()
+                ended = loop.create_future()
+
+                def readable(ended=ended) -> None:
+                    try:
+                        while self._events.poll():
+                            self._dispatch(self._events.recv(), on_events, on_bytes, on_up, clock)
+                    except (EOFError, OSError):
+                        if not ended.done():
+                            ended.set_result(None)
+
+                loop.add_reader(self._events.fileno(), readable)
+                try:
+                    while not ended.done():
+                        if on_turn is not None and self.up:
+                            on_turn(clock())
+                        await asyncio.wait({ended}, timeout=TURN_S)
+                finally:
+                    loop.remove_reader(self._events.fileno())
+                was_up = self.up
+                self.up = False
+                self._stats_before = {k: v for k, v in self.stats.__dict__.items() if isinstance(v, int)}
+                self._status = {**self._status, "stats": dataclasses.asdict(MasterStats()), "stopping": False}
+                await loop.run_in_executor(None, self._process.join, 5.0)
+                code = self._process.exitcode
+                why = self.last_exit or (f"it ended with exit code {code}" if code is not None and code >= 0
+                                         else f"it was killed (signal {-code})" if code is not None
+                                         else "its pipe closed")
+                self.last_exit = None
+                self.down_reason = why if was_up or self.ever_up else f"it could not start: {why}"
+                self._close_pipes()
+                if on_down is not None:
+                    on_down(self.down_reason, clock())
+                await asyncio.sleep(RESTART_AFTER_S if was_up else max(RESTART_AFTER_S, 1.0))
+        finally:
+            self.stop()
+
+    def _dispatch(self, message: tuple, on_events, on_bytes, on_up, clock) -> None:
+        kind = message[0]
+        if kind == "events":
+            _, batch, t, status = message
+            self._take_status(status)
+            on_events(batch, t)
+        elif kind == "rx":
+            if on_bytes is not None:
+                on_bytes(message[1], message[2])
+        elif kind == "reply":
+            if self.on_reply is not None:
+                self.on_reply(message[1], message[2], message[3])
+        elif kind == "port":
+            _, up, _news, reason = message
+            self.port.is_up = bool(up)
+            self.port.stats.last_error = reason
+        elif kind == "up":
+            self.pid = message[1]
+            self.up = self.ever_up = True
+            self.down_reason = None
+            # What the session had set holds in the new master too (the pilot's wish, whether
+            # it is in force, whether a pilot attends).
+            for name, args in list(self._kept.items()):
+                try:
+                    self._call(name, *args)
+                except (LinkProcessDown, ValueError):
+                    pass
+            if on_up is not None:
+                on_up(self.pid, clock())
+        elif kind == "fatal":
+            self.last_exit = message[1]
+
+    def _close_pipes(self) -> None:
+        for conn in (self._commands, self._events):
+            if conn is not None:
+                conn.close()
+        self._commands = self._events = None
+
+    def stop(self, timeout_s: float = STOP_AFTER_PARENT_S + 2.0) -> None:
+        """End the link process as the console ends: it sends STOP, then stops polling."""
+        process = self._process
+        self.up = False
+        with self._call_lock:
+            if self._commands is not None:
+                try:
+                    self._commands.send(("quit",))
+                except (OSError, EOFError):
+                    pass
+        if process is not None and process.is_alive():
+            process.join(timeout_s)
+            if process.is_alive():
+                process.kill()
+                process.join(2)
+        self._close_pipes()
+        self._process = None
