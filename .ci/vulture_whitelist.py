@@ -118,3 +118,6 @@ _.last_status  # unused attribute (link/acoustic.py: AcousticOperator's last STA
 _.up_s  # unused attribute (link/acoustic/bench.py)
 _.report_every_s  # a Capabilities field, served in GET /api/config (console/session/contract.py)
 _.next_report_in_s  # response model fields (console/session/state.py), read by the page
+link_process_pid  # a field of LinkState (console/session/state.py): which process owns the link port, for a script or a test
+link_process  # a field of LinkState (console/session/state.py): the page reads it
+link_process_reason  # a field of LinkState (console/session/state.py): the page reads it

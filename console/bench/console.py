@@ -199,6 +199,15 @@ def run(args) -> int:
         doc["pilot"] = pilot
         doc["targets"]["no_link_lost_or_failsafe_with_a_pilot_on_the_page"] = pilot_target(pilot)
         lines += ["", *pilot_lines(pilot)]
+    if not args.no_loaded and os.path.exists(CHROMIUM):
+        from .loaded import loaded_lines, loaded_target, measure_loaded
+
+        rows = [measure_loaded(args.loaded_minutes)]
+        if args.loaded_compare:
+            rows.append(measure_loaded(args.loaded_minutes, link_thread=True))
+        doc["loaded"] = rows
+        doc["targets"]["link_in_time_on_a_busy_machine"] = loaded_target(rows[0])
+        lines += ["", *loaded_lines(rows)]
     if not args.no_load:
         from .load import measure_load
 
@@ -261,6 +270,12 @@ def add_parser(subparsers) -> None:
                    help="skip the pilot on the demo's page (rovlink demo and headless Chromium, --pilot-minutes)")
     p.add_argument("--pilot-minutes", type=float, default=10.0, metavar="MIN",
                    help="minutes of the pilot on the demo's page; the target is judged from 10 (10)")
+    p.add_argument("--no-loaded", action="store_true",
+                   help="skip the busy machine's row (two CPU-bound processes and Chromium beside the console)")
+    p.add_argument("--loaded-minutes", type=float, default=10.0, metavar="MIN",
+                   help="minutes of the busy machine's row (10)")
+    p.add_argument("--loaded-compare", action="store_true",
+                   help="the busy machine's row also with the link in a thread of the console (as before issue 33)")
     p.add_argument("--no-load", action="store_true",
                    help="skip the web load measurement (rovlink demo under WebSocket readers and large uploads)")
     p.add_argument("--load-seconds", type=float, default=30.0, metavar="S", help="seconds per load phase (30)")

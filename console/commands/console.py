@@ -29,6 +29,9 @@ def add_parser(subparsers) -> None:
     add_key_arguments(p)
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.add_argument("--link-thread", action="store_true",
+                   help="run the radio link in a thread of this process rather than a process of its own (as "
+                        "before; for comparison: `rovlink bench console --loaded-compare`)")
     p.set_defaults(func=run)
 
 
@@ -86,9 +89,13 @@ def run(args) -> int:
                     continue
                 await link.stop()
                 raise CommandError(str(exc)) from None
-        master = MasterProcess(args.link, bitrate_bps=args.bitrate, delay_s=args.delay,
-                               max_frame=endpoint.max_frame, t0=0.0)
-        operator = Operator(None, master=master, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        if args.link_thread:  # the link's loop in the link thread, its transport opened there
+            await link.call(endpoint.start())
+            operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
+        else:
+            master = MasterProcess(args.link, bitrate_bps=args.bitrate, delay_s=args.delay,
+                                   max_frame=endpoint.max_frame, t0=0.0)
+            operator = Operator(None, master=master, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
         if key is not None:
             operator.authenticate(key)
         version = ("link version 2, every frame authenticated" if key is not None else
@@ -97,7 +104,7 @@ def run(args) -> int:
         try:
             await serve_operator(operator, args, banner=f"rovlink console on {args.link}; {version}", link=link)
         finally:
-            await link.stop()
+            await link.stop(endpoint.close() if args.link_thread else None)
             operator.close()
 
     try:

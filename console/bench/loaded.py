@@ -1,0 +1,203 @@
+"""The console on a busy machine (`rovlink bench console`'s loaded row, issue 33).
+
+The vehicle side alone on one core: `rovlink rov` and `rovlink channel` (1900 bit/s,
+85 ms, BER 0: a channel that loses nothing).  On the other core: `rovlink console`
+(version 2, every frame authenticated), two CPU-bound processes, a client reading
+/api/state and /api/pose 40 times a second, and headless Chromium showing the
+page with its 3-D scene.  For `minutes`, after a warm-up: the polls whose reply
+did not come in time (on this channel every one of them is a reply late, starved of
+CPU), the link's LINK LOST and the ROV's FAILSAFE alerts.  The target: at most
+0.5 % of polls, none, none.
+
+`link_thread=True` runs the console with `--link-thread`: the link in a thread of
+the console's own process, as before issue 33, for the before-and-after figures.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+
+from .child import die_with_parent, end_child
+from .page import CHROMIUM, CHROMIUM_ARGS
+
+WARM_UP_S = 20.0
+READS_PER_S = 40.0
+
+
+def _get(url: str):
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def _free_port(kind=None) -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, kind or socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _pinned(cores: set[int]):
+    def pin() -> None:
+        die_with_parent()
+        os.sched_setaffinity(0, cores)
+
+    return pin
+
+
+def _cores() -> tuple[set[int], set[int]]:
+    """The vehicle side's core and the console's (both all cores on a 1-core machine)."""
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        return set(cores), set(cores)
+    return {cores[0]}, set(cores[1:])
+
+
+def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False) -> dict:
+    import socket
+
+    from playwright.sync_api import sync_playwright
+
+    vehicle_core, console_core = _cores()
+    workdir = tempfile.mkdtemp(prefix="rovlink-bench-loaded-")
+    key = os.path.join(workdir, "link.key")
+    subprocess.run([sys.executable, "-m", "rovlink", "keygen", key], check=True, capture_output=True)
+    udp = socket.SOCK_DGRAM
+    console_udp, chan_a, chan_b, rov_udp = (_free_port(udp) for _ in range(4))
+    http, viser = _free_port(), _free_port()
+    base = f"http://127.0.0.1:{http}"
+    procs: list[subprocess.Popen] = []
+    logs = []
+
+    def start(name: str, argv: list[str], cores: set[int]) -> subprocess.Popen:
+        log = open(os.path.join(workdir, f"{name}.log"), "w")
+        logs.append(log)
+        p = subprocess.Popen(argv, cwd=workdir, stdout=log, stderr=subprocess.STDOUT, preexec_fn=_pinned(cores))
+        procs.append(p)
+        return p
+
+    py = [sys.executable, "-m", "rovlink"]
+    own_affinity = os.sched_getaffinity(0)
+    stop = threading.Event()
+    reads = [0, 0]  # made, failed
+    samples: list[str] = []
+    try:
+        start("rov", py + ["rov", "--key", key, "--link", f"udp://127.0.0.1:{rov_udp}?peer=127.0.0.1:{chan_b}"],
+              vehicle_core)
+        start("channel", py + ["channel", "--a", f"udp://127.0.0.1:{chan_a}?peer=127.0.0.1:{console_udp}",
+                               "--b", f"udp://127.0.0.1:{chan_b}?peer=127.0.0.1:{rov_udp}", "--bitrate", "1900",
+                               "--delay", "0.085", "--ber", "0", "--quiet"], vehicle_core)
+        console = start("console", py + ["console", "--key", key, "--no-record", "--port", str(http), "--viser-port",
+                                         str(viser), "--link", f"udp://127.0.0.1:{console_udp}?peer=127.0.0.1:{chan_a}"]
+                        + (["--link-thread"] if link_thread else []), console_core)
+        for i in range(2):
+            start(f"burner{i}", [sys.executable, "-c", "while True: pass"], console_core)
+        deadline = time.monotonic() + 300
+        while True:
+            try:
+                if _get(base + "/api/link")["state"] == "up":
+                    break
+            except OSError:
+                pass
+            if console.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError("the console did not come up: "
+                                   + open(os.path.join(workdir, "console.log")).read()[-2000:])
+            time.sleep(0.5)
+
+        def read() -> None:
+            period = 1.0 / READS_PER_S
+            n = 0
+            next_at = time.monotonic()
+            while not stop.is_set():
+                try:
+                    _get(base + ("/api/state" if n % 2 == 0 else "/api/pose"))
+                except OSError:
+                    reads[1] += 1
+                reads[0] += 1
+                n += 1
+                next_at += period
+                time.sleep(max(0.0, next_at - time.monotonic()))
+
+        def sample() -> None:
+            while not stop.wait(0.5):
+                try:
+                    samples.append(_get(base + "/api/link")["state"])
+                except OSError:
+                    samples.append("unreachable")
+
+        # This process (the reader, and Chromium it starts) on the console's core too.
+        os.sched_setaffinity(0, console_core)
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+            try:
+                page = browser.new_page(viewport={"width": 1366, "height": 768})
+                page.goto(base)
+                page.wait_for_function("document.body.dataset.configured === '1'", timeout=120000)
+                threads = [threading.Thread(target=read, daemon=True), threading.Thread(target=sample, daemon=True)]
+                for t in threads:
+                    t.start()
+                time.sleep(WARM_UP_S)
+                before = _get(base + "/api/link")
+                started_wall = time.time()
+                time.sleep(minutes * 60)
+                after = _get(base + "/api/link")
+                log = _get(base + "/api/log")
+            finally:
+                stop.set()
+                browser.close()
+        link_pid = after.get("link_process_pid")
+    finally:
+        stop.set()
+        os.sched_setaffinity(0, own_affinity)
+        for p in reversed(procs):
+            end_child(p)
+        for f in logs:
+            f.close()
+    polls = after["polls_sent"] - before["polls_sent"]
+    lost = after["replies_lost"] - before["replies_lost"]
+    alerts = [e for e in log if e["level"] == "alert" and e["wall"] >= started_wall]
+    return {
+        "minutes": minutes,
+        "link": "thread of the console's process" if link_thread else "process of its own",
+        "link_process_pid": link_pid,
+        "console_pid": console.pid,
+        "polls": polls,
+        "replies_not_in_time": lost,
+        "late_percent": round(100.0 * lost / max(1, polls), 3),
+        "late_replies_v2": after.get("late_replies", 0) - before.get("late_replies", 0),
+        "link_lost_alerts": sum(1 for e in alerts if e["text"].startswith("LINK LOST")),
+        "failsafe_alerts": sum(1 for e in alerts if "FAILSAFE" in e["text"]),
+        "state_percent": {s: round(100.0 * samples.count(s) / max(1, len(samples)), 2)
+                          for s in ("up", "degraded", "lost")},
+        "api_reads": reads[0], "api_reads_failed": reads[1],
+        "cores": {"vehicle": sorted(vehicle_core), "console": sorted(console_core)},
+    }
+
+
+def loaded_lines(rows: list[dict]) -> list[str]:
+    from rovlink.bench import format_table
+
+    return [f"the console on a busy machine: rovlink rov and rovlink channel (1900 bit/s, 85 ms, BER 0) on core "
+            f"{rows[0]['cores']['vehicle']}; on {rows[0]['cores']['console']} rovlink console, two CPU-bound "
+            f"processes, {READS_PER_S:g} API reads a second and headless Chromium showing the page; "
+            f"{rows[0]['minutes']:g} min after {WARM_UP_S:g} s of warm-up",
+            format_table(["the link runs in", "polls", "not answered in time", "%", "LINK LOST", "FAILSAFE",
+                          "up / degraded / lost %"], [
+                [r["link"], r["polls"], r["replies_not_in_time"], r["late_percent"], r["link_lost_alerts"],
+                 r["failsafe_alerts"],
+                 f"{r['state_percent']['up']} / {r['state_percent']['degraded']} / {r['state_percent']['lost']}"]
+                for r in rows])]
+
+
+def loaded_target(r: dict) -> dict:
+    ok = r["late_percent"] <= 0.5 and r["link_lost_alerts"] == 0 and r["failsafe_alerts"] == 0
+    return {"late_percent": r["late_percent"], "limit_percent": 0.5, "link_lost_alerts": r["link_lost_alerts"],
+            "failsafe_alerts": r["failsafe_alerts"], "minutes": r["minutes"],
+            "met": ok if r["minutes"] >= 10 else None}
