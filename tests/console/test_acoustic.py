@@ -44,13 +44,16 @@ def acoustic(tmp_path_factory):
     radio = HostileRadio(pair.channel)
     pair.start()
     port, gcs_port = free_tcp_port(), free_udp_port()
+    # Their output to files: `rov -v` says every packet, and a pipe nobody reads until the
+    # end fills (64 kB) and stops the ROV at its next line, minutes into the module.
+    rov_log, console_log = open(tmp / "rov.log", "w"), open(tmp / "console.log", "w")
     rov = subprocess.Popen(ROVLINK + ["rov", "--link", f"wlmodem://{tmp}/rov-modem?role=b&channel=4",
                                       "--key", str(key), "-v"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                           stdout=rov_log, stderr=subprocess.STDOUT, text=True)
     console = subprocess.Popen(ROVLINK + ["console", "--link", f"wlmodem://{tmp}/op-modem?role=a&channel=4",
                                           "--key", str(key), "--port", str(port), "--viser-port", str(free_tcp_port()),
                                           "--no-record", "--gcs", f"udpout:127.0.0.1:{gcs_port}"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp)
+                               stdout=console_log, stderr=subprocess.STDOUT, text=True, cwd=tmp)
     base = f"http://127.0.0.1:{port}"
     try:
         assert wait_for(lambda: get(base + "/api/pose")["received"], 120), "no status from the ROV over the modems"
@@ -58,6 +61,8 @@ def acoustic(tmp_path_factory):
     finally:
         end_processes(console, rov)
         pair.close()
+        rov_log.close()
+        console_log.close()
 
 
 def order(base: str, kind: str) -> dict | None:
@@ -125,7 +130,8 @@ def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
         assert status == 409
         second.click("#stop")
         assert wait_for(lambda: (order(base, "STOP") or {}).get("state", "").startswith("acknowledged"), 60), \
-            get(base + "/api/orders")
+            (get(base + "/api/orders"), second.evaluate("[page.ws && page.ws.readyState, page.clientId,"
+                                                        " document.getElementById('error').textContent]"))
         held = get(base + "/api/pose")
         assert held["hold"] and held["armed"]  # the arm was not undone by the second page
         # Both pages show the STOP's fate.

@@ -169,7 +169,7 @@ def _handle(text: str, client_id: str, operator, desk, post) -> None:
     elif kind == "stop":
         try:
             desk.submit(control.Stop(), Caller(client_id, via="ws"))
-        except NotHolder as exc:
+        except (NotHolder, OrderError) as exc:  # said to the page; the socket stays
             post({"type": "error", "message": f"stop refused: {exc}"})
     else:
         post({"type": "error", "message": f"unknown message type {kind!r}; expected 'velocity' or 'stop'"})

@@ -343,7 +343,10 @@ function pollGamepadButtons() {
 
 function stop() {
   page.lastSent = NEUTRAL;
-  send({ type: "stop" });
+  // Over the socket when it is open; else over REST at once (a socket reconnecting after a
+  // drop must not swallow a STOP).
+  if (page.ws && page.ws.readyState === WebSocket.OPEN) send({ type: "stop" });
+  else api("/api/orders/stop");
   // After STOP our input as it is now is sent, keys held through it included: the console
   // takes none of it as a drive until it has been centred, and says so ("centre the sticks
   // to drive").  Forgetting a held key here would re-centre at once, and its next repeat
@@ -1007,7 +1010,11 @@ function showImage(im) {
   lastImageState = im;
   // Keyed on the serial (IMG wraps at 8, and a replay's jump may bring an IMG back).
   const key = `${im.serial ?? im.img}:${im.decoded_bytes}`;
-  if (key === page.shownImage) return;
+  if (key === page.shownImage) {
+    // The same picture, its MAC held since (the acoustic thumbnail): said at once.
+    renderVerified(im, key);
+    return;
+  }
   // A telemetry snapshot taken before the newest decode may arrive after
   // it: never swap in an older picture of the same image.
   const [wantedImg, wantedBytes] = (page.wantedImage || ":").split(":");
@@ -1029,13 +1036,10 @@ function showImage(im) {
     img.dataset.key = key;
     page.shownImage = key;
     $("no-image").hidden = true;
-    const [serial, bytes] = key.split(":");
+    const bytes = key.split(":")[1];
     img.dataset.img = imgNo;
     img.dataset.decodedBytes = bytes;
-    // Which picture it is: the next one's first bytes may not be decoded yet.
-    $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes` +
-      (im.verified === false ? " (UNVERIFIED: its MAC has not held yet)" : im.verified ? ", verified" : "");
-    $("image-frame").classList.toggle("unverified", im.verified === false);
+    renderVerified(im, key);
     drawRoi();
     renderRoiStatus();
     done();
@@ -1044,6 +1048,15 @@ function showImage(im) {
   next.src = `/api/image/latest.png?img=${encodeURIComponent(im.img)}&bytes=${im.decoded_bytes}`;
 }
 let lastImageState = null;
+
+// Which picture is shown (the next one's first bytes may not be decoded yet), and whether
+// its MAC has held (the acoustic thumbnail; null on the radio link, checked per trunk).
+function renderVerified(im, key) {
+  const [serial, bytes] = key.split(":");
+  $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes` +
+    (im.verified === false ? " (UNVERIFIED: its MAC has not held yet)" : im.verified ? ", verified" : "");
+  $("image-frame").classList.toggle("unverified", im.verified === false);
+}
 
 // ---------------------------------------------------------------------------
 // Region of interest: dragged on the picture, in the picture's own pixels
