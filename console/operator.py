@@ -138,6 +138,7 @@ class Operator:
         self._decoder = DaemonWorker("debt-decode")
         self._stops_to_resend: list[int] = []  # STOPs a link process took with it, for the next one
         self._link_starts = 0
+        self._link_down_said: str | None = None  # the link process's end last said, until it runs again
         if isinstance(self.master, MasterProcess):
             self.master.t0 = self._t0  # one session clock in both processes
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
@@ -290,8 +291,11 @@ class Operator:
         Orders it had not settled are unknown (the ROV may have taken them: they
         are not sent again), but a STOP, which goes again with the next process;
         a picture half in is abandoned."""
-        self.note(f"LINK PROCESS DOWN: {why}; starting it again (no poll leaves meanwhile)", "alert",
-                  cause="process")
+        # Said once per spell: one that cannot start is tried again every second.
+        if why != self._link_down_said:
+            self._link_down_said = why
+            self.note(f"LINK PROCESS DOWN: {why}; starting it again (no poll leaves meanwhile)", "alert",
+                      cause="process")
         with self._lock:
             stops = self.orders.link_ended(t, "unknown: the link process ended before the ROV answered; "
                                               "not sent again")
@@ -305,6 +309,7 @@ class Operator:
 
     def _link_process_up(self, pid: int, t: float) -> None:
         self._link_starts += 1
+        self._link_down_said = None
         if self._link_starts > 1:
             self.note(f"link process started again (pid {pid})")
             self.clear_alerts("process")

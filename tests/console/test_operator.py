@@ -191,7 +191,8 @@ def test_bench_console_reports_the_heap_over_a_session():
     import sys
 
     out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "240",
-                          "--sample-every", "60", "--no-page", "--no-load", "--no-pilot", "--json"], capture_output=True, text=True,
+                          "--sample-every", "60", "--no-page", "--no-load", "--no-pilot", "--no-loaded", "--json"],
+                         capture_output=True, text=True,
                          timeout=300)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
