@@ -253,7 +253,6 @@ class MasterProcess:
         self.up = False
         self.ever_up = False
         self.down_reason: str | None = None  # why it ended, until it runs again
-        self.starts = 0
         self.last_exit: str | None = None
         # What the session last set, given again to a link process started anew.
         self._kept: dict[str, tuple] = {}
@@ -363,7 +362,6 @@ class MasterProcess:
         child_commands.close()
         events.close()
         self._process, self._commands, self._events = process, commands, child_events
-        self.starts += 1
 
     async def run(self, on_events: Callable[[list, float], None], *, clock: Callable[[], float],
                   on_bytes: Callable[[bytes, float], None] | None = None,
