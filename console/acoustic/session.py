@@ -19,7 +19,12 @@ by link/report.py, to the odometry (and the go-to watch, the trail, the
 health: the link is lost after 20 s without an authentic frame); order fates
 to the order book, in the radio session's words (queued, sent, acknowledged,
 arrived, rejected: reason...); thumbnails to the image receiver, as the radio
-session's pictures.  A replay (`rovlink replay` of an acoustic recording)
+session's pictures.  Under `rovlink console` the machine, the modem and the
+pacing run in a process of their own (`link=`: link/acoustic/process.py
+AcousticLinkProcess, which stands in for the machine): `run()` then only takes
+what it tells; its end is said at once (`link_process` in the link state, an
+alert), what it held and the ROV had not answered is shown unknown, a STOP is
+pressed again in the next one.  A replay (`rovlink replay` of an acoustic recording)
 feeds the recorded statuses, thumbnails, orders and log lines back through
 `replayed`, with no link and no key.
 """
