@@ -1002,12 +1002,26 @@ function savePicture() {
   }
 }
 
+// Which picture it is (the next one's first bytes may not be decoded yet), and whether
+// its MAC held (a thumbnail of the acoustic link).
+function labelImage(key, verified) {
+  const [serial, bytes] = key.split(":");
+  $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes` +
+    (verified === false ? " (UNVERIFIED: its MAC has not held yet)" : verified ? ", verified" : "");
+  $("image-frame").classList.toggle("unverified", verified === false);
+}
+
 function showImage(im) {
   if (!im || !im.decoded_bytes) return;
   lastImageState = im;
   // Keyed on the serial (IMG wraps at 8, and a replay's jump may bring an IMG back).
   const key = `${im.serial ?? im.img}:${im.decoded_bytes}`;
-  if (key === page.shownImage) return;
+  if (key === page.shownImage) {
+    // The same bytes on screen, but a thumbnail's MAC may have held since (the acoustic
+    // link's THUMB_END comes after its last data packet): the label follows it.
+    labelImage(key, im.verified);
+    return;
+  }
   // A telemetry snapshot taken before the newest decode may arrive after
   // it: never swap in an older picture of the same image.
   const [wantedImg, wantedBytes] = (page.wantedImage || ":").split(":");
@@ -1029,13 +1043,9 @@ function showImage(im) {
     img.dataset.key = key;
     page.shownImage = key;
     $("no-image").hidden = true;
-    const [serial, bytes] = key.split(":");
     img.dataset.img = imgNo;
-    img.dataset.decodedBytes = bytes;
-    // Which picture it is: the next one's first bytes may not be decoded yet.
-    $("image-decoded").textContent = `showing #${serial} from ${bytes} bytes` +
-      (im.verified === false ? " (UNVERIFIED: its MAC has not held yet)" : im.verified ? ", verified" : "");
-    $("image-frame").classList.toggle("unverified", im.verified === false);
+    img.dataset.decodedBytes = key.split(":")[1];
+    labelImage(key, im.verified);
     drawRoi();
     renderRoiStatus();
     done();
