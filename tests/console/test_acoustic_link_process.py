@@ -6,7 +6,7 @@ modem's pace):
 - the link process killed outright: /api/link says so at once (link_process
   "down", with why), the console starts it again (a new pid), the log says both;
   an order it held is shown unknown, never done; a STOP pressed meanwhile is kept
-  and confirmed through the next one;
+  and confirmed through the next one; the console ended, the new one sends STOP;
 - the console killed outright: its link process sends STOP, the ROV takes it (its
   log says so), then the link process sends nothing more and ends; the ROV's
   failsafe follows.
@@ -84,7 +84,9 @@ class AcousticRig:
         return "\n".join(f"--- {name}\n" + (self.tmp / name).read_text()[-3000:] for name in ("console.log", "rov.log"))
 
     def close(self) -> None:
-        end_processes(self.console, self.rov)
+        # The console first: its link process sends STOP as it ends, which the ROV still takes.
+        end_processes(self.console)
+        end_processes(self.rov)
         self.pair.close()
 
 
@@ -143,6 +145,12 @@ def test_the_acoustic_link_process_killed_is_said_at_once_started_again_and_noth
     assert down_lines[0]["cleared_wall"] is not None  # the alert cleared once it runs again
     assert any(re.fullmatch(rf"link process started again \(pid {second}\)", e["text"]) for e in log), log
     assert rig.link()["state"] == "up" and rig.link()["polls_sent"] > 0
+
+    # The console ended as a pilot ends it (SIGTERM): its link process, the second, sends STOP first.
+    rig.console.terminate()
+    rig.console.wait(40)
+    assert not _alive(second)
+    assert "STOP taken by the ROV; sending stopped" in (rig.tmp / "console.log").read_text(), rig.logs()
 
 
 @pytest.mark.slow
