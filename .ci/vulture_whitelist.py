@@ -104,6 +104,7 @@ cleared_wall  # a field of LogEntry (console/session/state.py): the page reads i
 port_error  # a field of LinkState (console/session/state.py): the page reads it
 degraded_reason  # a field of LinkState (console/session/state.py): the page reads it
 degraded_short  # a field of LinkState (console/session/state.py): the page reads it
+link_process_pid
 # The acoustic profile's counters, kept for diagnostics (link/acoustic.py Counters) and
 # what its machines and its bench expose to their callers.
 _.stale_syncs  # unused attribute (link/acoustic.py)

@@ -19,7 +19,12 @@ by link/report.py, to the odometry (and the go-to watch, the trail, the
 health: the link is lost after 20 s without an authentic frame); order fates
 to the order book, in the radio session's words (queued, sent, acknowledged,
 arrived, rejected: reason...); thumbnails to the image receiver, as the radio
-session's pictures.  A replay (`rovlink replay` of an acoustic recording)
+session's pictures.  Under `rovlink console` the machine, the modem and the
+pacing run in a process of their own (`link=`: link/acoustic/process.py
+AcousticLinkProcess, which stands in for the machine): `run()` then only takes
+what it tells; its end is said at once (`link_process` in the link state, an
+alert), what it held and the ROV had not answered is shown unknown, a STOP is
+pressed again in the next one.  A replay (`rovlink replay` of an acoustic recording)
 feeds the recorded statuses, thumbnails, orders and log lines back through
 `replayed`, with no link and no key.
 """
@@ -48,7 +53,9 @@ from rovlink.console.session.orders import MODE_NAMES, REPORTED_MODE_NAMES, Orde
 from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
+from rovlink.link.acoustic.process import AcousticLinkProcess
 from rovlink.link.aio import recv_within
+from rovlink.link.process import LinkProcessDown
 from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.radio.messages import ImageSettings, Mode
 from rovlink.link.report import VehicleReport, report_from_status
@@ -75,13 +82,19 @@ class AcousticSession:
                                 image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
 
     def __init__(self, endpoint, key: bytes | None, *, clock: Callable[[], float] = time.monotonic,
-                 pace_s: float = 1.0, record=None) -> None:
+                 pace_s: float = 1.0, record=None, link: AcousticLinkProcess | None = None) -> None:
+        if link is not None:
+            # The machine, the modem and the pacing run in the link process (link/acoustic/process.py),
+            # on CLOCK_MONOTONIC: the session reads the same clock, so the machine's times are its own.
+            endpoint, clock = endpoint or link.port, time.monotonic
         self.endpoint = endpoint
         self._clock = clock
         self._t0 = clock()
         self.wall0 = time.time()
         self.pace_s = pace_s
-        self.op = ac.AcousticOperator(key) if key is not None else None
+        self.op: Any = link if link is not None else ac.AcousticOperator(key) if key is not None else None
+        self._stop_pending = False  # a STOP pressed while no link process ran: pressed again in the next
+        self._link_starts = 0
         self._lock = threading.RLock()
         self._subscribers: list[Callable[[str, Any], None]] = []
         self._quiet = False
@@ -203,6 +216,13 @@ class AcousticSession:
     # ------------------------------------------------------------------
 
     async def run(self) -> None:
+        if isinstance(self.op, AcousticLinkProcess):
+            try:
+                await self.op.run(on_packet=self._packet_in, on_sent=self._packet_out, on_events=self._events_in,
+                                  on_turn=self._turn, on_up=self._link_process_up, on_down=self._link_process_down)
+            finally:
+                self._decoder.shutdown()
+            return
         if self.op is None or self.endpoint is None:
             raise RuntimeError("no link: this session only replays")
         pump = asyncio.create_task(self._pump())
@@ -250,6 +270,89 @@ class AcousticSession:
                 self.health.event(t, "tx", PACKET)
             await asyncio.sleep(0.1)
 
+    # -- the link in a process of its own (link/acoustic/process.py) -----------
+    # Times handed here are the machine's clock (CLOCK_MONOTONIC), the session's too.
+
+    def _packet_in(self, packet: bytes, events: list, now: float) -> None:
+        t = now - self._t0
+        with self._lock:
+            self.packets_in += 1
+            self.recorder.write({"k": "rx", "t": round(t, 4), "hex": packet.hex()})
+            self.health.event(t, "rx", PACKET)
+            self._heard(t)
+            self._handle(events, t)
+
+    def _packet_out(self, packet: bytes, now: float) -> None:
+        t = now - self._t0
+        with self._lock:
+            self._mark_sending()
+            self.packets_out += 1
+            self.recorder.write({"k": "tx", "t": round(t, 4), "hex": packet.hex()})
+            self.health.event(t, "tx", PACKET)
+
+    def _events_in(self, events: list, now: float) -> None:
+        with self._lock:
+            self._handle(events, now - self._t0)
+
+    def _turn(self) -> None:
+        with self._lock:
+            self._watch_port()
+            self.health.watch(self.now())
+
+    def _link_process_down(self, why: str) -> None:
+        """The link process ended: said at once, and nothing its machine held is shown
+        done.  Orders the ROV had not taken are unknown (it may have: they are not
+        sent again), and those it took whose outcome only that machine would have
+        told (a go-to is still followed from the statuses); a STOP not confirmed is
+        pressed again in the next one; a thumbnail half in is abandoned."""
+        t = self.now()
+        self.note(f"LINK PROCESS DOWN: {why}; starting it again (nothing is sent to the ROV meanwhile)", "alert",
+                  cause="process")
+        with self._lock:
+            for order_id, kind, _ in list(self._by_oid.values()):
+                info = self.orders.get(order_id)
+                if info is None or info["state"].startswith(SETTLED):
+                    continue
+                if not info["state"].startswith("acknowledged"):
+                    self.orders.set_state(order_id, "unknown: the link process ended before the ROV answered; "
+                                                    "not sent again", t)
+                elif kind != "POSITION":
+                    self.orders.set_state(order_id, "unknown: the link process ended before the ROV told "
+                                                    "its outcome", t)
+            self._by_oid.clear()  # the next machine's OIDs are its own
+            stop = None if self._stop_order is None else self.orders.get(self._stop_order)
+            if stop is not None and not stop["state"].startswith(SETTLED + ("acknowledged",)):
+                self._stop_pending = True
+                self.orders.set_state(self._stop_order, "queued", t)  # waits for the next link process
+            self._heard_at = None
+            v = self.images.view
+            partial = v.img is not None and not v.complete and v.received_bytes > 0
+            if partial:
+                self.images.on_event(ImageAbandoned(v.img, v.received_bytes, "the link process ended"), t)
+        self._publish("link", self.link_state())
+
+    def _link_process_up(self, pid: int) -> None:
+        t = self.now()
+        self._link_starts += 1
+        if self._link_starts > 1:
+            self.note(f"link process started again (pid {pid})")
+            self.clear_alerts("process")
+        pressed = None
+        with self._lock:
+            if self._stop_pending:  # a STOP the pilot pressed is never lost with a process
+                self._stop_pending = False
+                try:
+                    self._stop_no = self.op.stop(self._clock())
+                    pressed = self._stop_no
+                    self.orders.update(self._stop_order, stop_no=pressed)
+                    self.orders.set_state(self._stop_order, "sent", t)
+                except (LinkProcessDown, ValueError) as exc:
+                    self.orders.set_state(self._stop_order, f"unknown: not sent again ({exc})", t)
+        if pressed is not None:
+            self.note(f"STOP pressed again in the new link process (STOP {pressed}): sent first, in every slot "
+                      "until confirmed")
+        self._publish("link", self.link_state())
+
     def _heard(self, t: float) -> None:
         """An authentic frame came (the machine's clock moved): the link is up."""
         heard = self.op.last_authentic_at
@@ -293,15 +396,17 @@ class AcousticSession:
                     self.note(f"link synchronised (the ROV {'surfaces' if self.failsafe_action == 'surface' else 'holds'}"
                               f" after {e.failsafe_s} s without us)")
             elif isinstance(e, ac.StatusReceived):
-                # The machine dates it on its own clock: the same offset to session time.
-                made = t - (self._clock() - e.at) if self.op is not None else e.at
+                # The machine dates it on its own clock: the same offset to session time (a link
+                # process's clock is the session's, read when the packet came, not when told of it).
+                made = (e.at - self._t0 if isinstance(self.op, AcousticLinkProcess)
+                        else t - (self._clock() - e.at) if self.op is not None else e.at)
                 report = report_from_status(e.status, sampled_at=made, arrived_at=t)
                 self._status(report, e.status.uplink, t)
             elif isinstance(e, ac.OrderFate):
                 self._fate(e.oid, e.state, e.reason, t)
             elif isinstance(e, ac.StopTaken):
-                # (pressed_at is the machine's clock, as now is)
-                self._stop_fate(f"acknowledged: holding, {self._clock() - e.pressed_at:.1f} s after it was pressed", t)
+                # (pressed_at is the machine's clock; t + t0 is when the packet that told it came)
+                self._stop_fate(f"acknowledged: holding, {t + self._t0 - e.pressed_at:.1f} s after it was pressed", t)
             elif isinstance(e, ac.StopImpossible):
                 self._stop_fate("not carried out: no autopilot holds the vehicle", t)
             elif isinstance(e, ac.ThumbnailProgress):
@@ -435,6 +540,8 @@ class AcousticSession:
                 oid = self.op.send_order(body, self._clock())
             except ac.OrderRefused as exc:
                 raise NotNow(f"the acoustic link cannot take it now: {exc}") from None
+            except LinkProcessDown as exc:
+                raise NotNow(str(exc)) from None
             order_id = self.orders.new(kind, "queued", {**detail, "oid": oid}, t)
             self._by_oid[oid] = (order_id, kind, settings)
         return order_id
@@ -480,14 +587,28 @@ class AcousticSession:
             raise NotNow("a replay: there is no ROV to order")
         t = self.now()
         with self._lock:
-            no = self.op.stop(self._clock())
-            joined = self._stop_no == no and self._stop_order is not None
+            try:
+                no = self.op.stop(self._clock())
+            except LinkProcessDown:  # never refused: pressed again in the next link process
+                joined = self._stop_pending and self._stop_order is not None
+                if not joined:
+                    self._stop_pending = True
+                    self._stop_no = None
+                    self._stop_order = self.orders.new("STOP", "queued", {"stop_no": None}, t)
+                self.goto.abort("STOP", t)
+                order_id = self._stop_order
+                no = None
+            else:
+                joined = self._stop_no == no and self._stop_order is not None
+                if not joined:
+                    self._stop_no = no
+                    self._stop_order = self.orders.new("STOP", "sent", {"stop_no": no}, t)
+                self.goto.abort("STOP", t)
+                order_id = self._stop_order
+        if no is None:
             if not joined:
-                self._stop_no = no
-                self._stop_order = self.orders.new("STOP", "sent", {"stop_no": no}, t)
-            self.goto.abort("STOP", t)
-            order_id = self._stop_order
-        if not joined:
+                self.note("STOP waits for the link process, which is being started again", "warn")
+        elif not joined:
             self.note(f"STOP {no} pressed: sent first, in every slot until confirmed")
         return order_id
 
@@ -495,7 +616,10 @@ class AcousticSession:
         if self.op is None:
             return False
         with self._lock:
-            done = bool(self.op.cancel_stop())
+            try:
+                done = bool(self.op.cancel_stop())
+            except LinkProcessDown as exc:
+                raise NotNow(str(exc)) from None
             if done and self._stop_order is not None:
                 self.orders.set_state(self._stop_order, "cancelled: by the pilot (no autopilot to hold)", self.now())
         if done:
@@ -503,7 +627,7 @@ class AcousticSession:
         return done
 
     def stopping(self) -> bool:
-        return bool(self.op is not None and self.op.stop_active)
+        return bool(self.op is not None and (self.op.stop_active or self._stop_pending))
 
     def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,
                            budget_bytes: int | None = None) -> int:
@@ -756,8 +880,14 @@ class AcousticSession:
             "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
             "profile": "acoustic",
             "synced": self.op is not None and not self.op.resyncing,
+            **self._link_process_state(),
             "next_report_in_s": self._next_status_in(),
         }
+
+    def _link_process_state(self) -> dict:
+        if isinstance(self.op, AcousticLinkProcess):
+            return self.op.link_process_state
+        return {"link_process": None, "link_process_reason": None, "link_process_pid": None}
 
     def state(self) -> dict:
         return {

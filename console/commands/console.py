@@ -122,6 +122,7 @@ def _run_acoustic(args, endpoint, key) -> int:
     from rovlink.command import CommandError
     from rovlink.console.acoustic.session import AcousticSession
     from rovlink.console.linkthread import LinkThread
+    from rovlink.link.acoustic.process import AcousticLinkProcess
     from rovlink.link.transports.transport import TransportError
 
     from .serve import default_record_path, serve_operator
@@ -131,13 +132,19 @@ def _run_acoustic(args, endpoint, key) -> int:
     record = None if args.no_record else (args.record or default_record_path())
 
     async def main() -> None:
+        # The machine, the modem and its pacing run in a process of their own
+        # (link/acoustic/process.py), watched from a thread and loop of this one.  The modem is
+        # opened here once first, so that a wrong port or a modem that refuses is one line now,
+        # not a restart loop.
         link = LinkThread().start()
         try:
             await link.call(endpoint.start())
+            await link.call(endpoint.close())
         except TransportError as exc:
             await link.stop()
             raise CommandError(str(exc)) from None
-        session = AcousticSession(endpoint, key, record=record)
+        link_process = AcousticLinkProcess(args.link, key)
+        session = AcousticSession(None, key, record=record, link=link_process)
         link.spawn(session.run(), name="acoustic operator")
         try:
             await serve_operator(session, args, link=link,
@@ -145,7 +152,9 @@ def _run_acoustic(args, endpoint, key) -> int:
                                         "authenticated; targets, STOP and thumbnails, no sticks"
                                         + (f"\n  recording: {record}" if record else ""))
         finally:
-            await link.stop(endpoint.close())
+            await link.stop()
+            # The link process sends STOP as the console ends, then nothing more: waited for here.
+            await asyncio.to_thread(link_process.close)
             session.close()
 
     try:

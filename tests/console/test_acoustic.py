@@ -59,7 +59,8 @@ def acoustic(tmp_path_factory):
         assert wait_for(lambda: get(base + "/api/pose")["received"], 120), "no status from the ROV over the modems"
         yield base, radio, rov, console, gcs_port
     finally:
-        end_processes(console, rov)
+        end_processes(console)  # (first: its link process sends STOP as it ends, which the ROV takes)
+        end_processes(rov)
         pair.close()
         rov_log.close()
         console_log.close()
