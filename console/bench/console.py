@@ -23,7 +23,9 @@
 from __future__ import annotations
 
 import gc
+import json
 import random
+import sys
 import tempfile
 import time
 import tracemalloc
@@ -203,6 +205,8 @@ def run(args) -> int:
         from .loaded import loaded_lines, loaded_target, measure_loaded
 
         rows = [measure_loaded(args.loaded_minutes, burners=args.loaded_burners)]
+        # The first row printed at once: the comparison takes as long again.
+        print(json.dumps({"loaded_row": rows[0]}), file=sys.stderr, flush=True)
         if args.loaded_compare:
             rows.append(measure_loaded(args.loaded_minutes, link_thread=True, burners=args.loaded_burners))
         doc["loaded"] = rows

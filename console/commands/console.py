@@ -77,7 +77,8 @@ def run(args) -> int:
         while True:
             try:
                 await link.call(endpoint.start())
-                await link.call(endpoint.close())
+                if not args.link_thread:  # the link process opens it again, in its own process
+                    await link.call(endpoint.close())
                 break
             except TransportError as exc:
                 if "Address already in use" in str(exc) and (waited is None or time.monotonic() - waited < PORT_WAIT_S):
@@ -89,8 +90,7 @@ def run(args) -> int:
                     continue
                 await link.stop()
                 raise CommandError(str(exc)) from None
-        if args.link_thread:  # the link's loop in the link thread, its transport opened there
-            await link.call(endpoint.start())
+        if args.link_thread:  # the link's loop in the link thread, on the transport opened above
             operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
         else:
             master = MasterProcess(args.link, bitrate_bps=args.bitrate, delay_s=args.delay,
