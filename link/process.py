@@ -65,6 +65,22 @@ CALLS = ("set_velocity", "set_pilot_in_force", "set_attended", "recentred", "req
          "send_order", "cancel_stop", "abandon_image")
 
 
+LINK_NICE = -10            # the link process's priority where the system allows it (CAP_SYS_NICE, root)
+
+
+def raise_priority(nice: int = LINK_NICE) -> int:
+    """Ask for a scheduling priority above the machine's other work (a poll's deadline is
+    tens of milliseconds; a CPU-bound process beside it takes whole time slices), and
+    return the nice value the process has.  Refused (no CAP_SYS_NICE): said once, and it
+    runs at the console's priority."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except (PermissionError, OSError) as exc:
+        log.warning("could not raise the link process's priority to nice %d (%s): it runs at the console's; "
+                    "a busy machine may delay its polls", nice, exc)
+    return os.getpriority(os.PRIO_PROCESS, 0)
+
+
 class LinkProcessDown(RuntimeError):
     """The link process is not running (it ended and is being started again)."""
 
@@ -94,6 +110,7 @@ def child_main(commands, events, spec: dict) -> None:
     # Ctrl-C in the console's terminal reaches this process too: the console's end (its
     # pipe closing) is what ends it, with a STOP first.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise_priority()
     try:
         code = asyncio.run(_child(commands, events, spec))
     except KeyboardInterrupt:  # the console's Ctrl-C reaches its whole group; the pipe's end says the rest

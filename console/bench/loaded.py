@@ -44,6 +44,14 @@ def _free_port(kind=None) -> int:
         return s.getsockname()[1]
 
 
+def _nice(pid: int) -> int | None:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return int(f.read().rsplit(")", 1)[1].split()[16])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _pinned(cores: set[int]):
     def pin() -> None:
         die_with_parent()
@@ -153,6 +161,7 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
                 stop.set()
                 browser.close()
         link_pid = after.get("link_process_pid")
+        link_nice = _nice(link_pid) if link_pid else None
     finally:
         stop.set()
         os.sched_setaffinity(0, own_affinity)
@@ -167,6 +176,8 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
         "minutes": minutes,
         "link": "thread of the console's process" if link_thread else "process of its own",
         "link_process_pid": link_pid,
+        # Its scheduling priority (link/process.py raises it where the system allows).
+        "link_process_nice": link_nice,
         "console_pid": console.pid,
         "polls": polls,
         "replies_not_in_time": lost,
@@ -189,9 +200,10 @@ def loaded_lines(rows: list[dict]) -> list[str]:
             f"{rows[0]['cores']['vehicle']}; on {rows[0]['cores']['console']} rovlink console, {rows[0]['burners']} "
             f"CPU-bound processes, {READS_PER_S:g} API reads a second and headless Chromium showing the page; "
             f"{rows[0]['minutes']:g} min after {WARM_UP_S:g} s of warm-up",
-            format_table(["the link runs in", "polls", "not answered in time", "%", "LINK LOST", "FAILSAFE",
+            format_table(["the link runs in", "nice", "polls", "not answered in time", "%", "LINK LOST", "FAILSAFE",
                           "up / degraded / lost %"], [
-                [r["link"], r["polls"], r["replies_not_in_time"], r["late_percent"], r["link_lost_alerts"],
+                [r["link"], r.get("link_process_nice", "—") if r.get("link_process_pid") else "—",
+                 r["polls"], r["replies_not_in_time"], r["late_percent"], r["link_lost_alerts"],
                  r["failsafe_alerts"],
                  f"{r['state_percent']['up']} / {r['state_percent']['degraded']} / {r['state_percent']['lost']}"]
                 for r in rows])]

@@ -48,7 +48,7 @@ import threading
 import time
 from typing import Callable
 
-from ..process import CALL_TIMEOUT_S, RESTART_AFTER_S, TURN_S, LinkProcessDown, PortMirror
+from ..process import CALL_TIMEOUT_S, RESTART_AFTER_S, TURN_S, LinkProcessDown, PortMirror, raise_priority
 from .operator import AcousticOperator, modem_idle
 from .wire import PACKET_BYTES, OrderRefused
 
@@ -89,6 +89,7 @@ def acoustic_child_main(commands, events, spec: dict) -> None:
     # Ctrl-C in the console's terminal reaches this process too: the console's end (its
     # pipe closing) is what ends it, with a STOP first.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise_priority()
     try:
         code = asyncio.run(_child(commands, events, spec))
     except KeyboardInterrupt:
