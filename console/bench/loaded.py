@@ -15,33 +15,21 @@ the console's own process, as before issue 33, for the before-and-after figures.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-import urllib.request
+
+from rovlink.link.transports.transport import free_udp_port
 
 from .child import die_with_parent, end_child
 from .page import CHROMIUM, CHROMIUM_ARGS
+from .pilot import _free_port, _get
 
 WARM_UP_S = 20.0
 READS_PER_S = 40.0
-
-
-def _get(url: str):
-    with urllib.request.urlopen(url, timeout=10) as r:
-        return json.loads(r.read())
-
-
-def _free_port(kind=None) -> int:
-    import socket
-
-    with socket.socket(socket.AF_INET, kind or socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _nice(pid: int) -> int | None:
@@ -69,16 +57,13 @@ def _cores() -> tuple[set[int], set[int]]:
 
 
 def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners: int = 2) -> dict:
-    import socket
-
     from playwright.sync_api import sync_playwright
 
     vehicle_core, console_core = _cores()
     workdir = tempfile.mkdtemp(prefix="rovlink-bench-loaded-")
     key = os.path.join(workdir, "link.key")
     subprocess.run([sys.executable, "-m", "rovlink", "keygen", key], check=True, capture_output=True)
-    udp = socket.SOCK_DGRAM
-    console_udp, chan_a, chan_b, rov_udp = (_free_port(udp) for _ in range(4))
+    console_udp, chan_a, chan_b, rov_udp = (free_udp_port() for _ in range(4))
     http, viser = _free_port(), _free_port()
     base = f"http://127.0.0.1:{http}"
     procs: list[subprocess.Popen] = []
