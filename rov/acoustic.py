@@ -24,6 +24,14 @@ Decisions:
 - HOLD and MODE are done when the autopilot takes the mode (nothing of them runs
   after); SURFACE runs while the vehicle rises and is done at the surface, so that
   a STOP or the failsafe on the way shows it aborted (§9.4).
+- FOLLOW (a THUMB with its FOLLOW bit, §9.3 and §10) with a `follower`: the camera
+  runs at `camera_hz` (rov/followcam.py, as on the radio node), its frames kept at
+  160x120 grey for `history_s` (three minutes: a thumbnail takes about one, and the
+  pilot draws on it after), the tracker fed every frame.  The thumbnail asked for is
+  the newest frame, coded with the ROI where the object is now, led by the TRACK
+  record.  A THUMB naming the same ROI on the same thumbnail goes on with the track
+  in force; one without FOLLOW ends it.  Without a follower the machine answers
+  FOLLOW "impossible now".
 """
 
 from __future__ import annotations
@@ -41,9 +49,13 @@ from rovlink.link.aio import recv_within
 from rovlink.link.radio.messages import Mode
 from rovlink.link.transports.transport import Endpoint
 
+from .followcam import FollowCamera
+
 log = logging.getLogger("rovlink.rov.acoustic")
 
 THUMB_SIZE = (80, 60)  # width, height
+FOLLOW_SIZE = (160, 120)  # the camera frames a FOLLOW tracks in: grey, twice the thumbnail
+FOLLOW_HISTORY_S = 180.0  # a ROI drawn on a thumbnail this old still finds its object (~35 MB at 10 Hz)
 PACKET = 8
 SURFACE_DONE_M = 0.3  # §9.4: a SURFACE order is done when the vehicle is this shallow
 
@@ -60,9 +72,19 @@ def thumbnail(image: np.ndarray, size: tuple[int, int] = THUMB_SIZE) -> np.ndarr
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
 
 
+def _scaled(roi, factor: float) -> tuple[int, int, int, int] | None:
+    """An ROI in another size of the same picture, rounded outwards (so it still covers what it framed)."""
+    if roi is None:
+        return None
+    x0, y0, x1, y1 = roi
+    return (int(math.floor(x0 * factor)), int(math.floor(y0 * factor)),
+            int(math.ceil(x1 * factor)), int(math.ceil(y1 * factor)))
+
+
 class AcousticNode:
     def __init__(self, endpoint: Endpoint, bridge, grab, key: bytes, *, failsafe_s: float = 60.0,
-                 failsafe_action: str = "hold", encode=None, pace_s: float = 1.0) -> None:
+                 failsafe_action: str = "hold", encode=None, pace_s: float = 1.0, follower=None,
+                 camera_hz: float = 10.0, history_s: float = FOLLOW_HISTORY_S) -> None:
         self.endpoint = endpoint
         self.bridge = bridge
         self.grab = grab
@@ -78,6 +100,11 @@ class AcousticNode:
                                       failsafe_action=ac.FAILSAFE_SURFACE if failsafe_action == "surface"
                                       else ac.FAILSAFE_HOLD)
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="thumbnail")
+        # FOLLOW (§9.3's THUMB, §10): the camera at its own rate, the tracker in every frame.
+        self.machine.follows = follower is not None
+        self.camera = None if follower is None else FollowCamera(
+            follower, lambda: self.grab(self.bridge.snapshot()), self._note, camera_hz=camera_hz,
+            history_s=history_s, shrink=lambda frame: thumbnail(frame, FOLLOW_SIZE))
         self._loop: asyncio.AbstractEventLoop | None = None
         self._goto: tuple[int, object] | None = None  # (oid, ticket) being flown
         self._tickets: dict[int, object] = {}  # oid -> ticket of an arm/mode/hold/surface request
@@ -89,6 +116,8 @@ class AcousticNode:
     async def run(self) -> None:
         self._loop = asyncio.get_running_loop()
         pump = asyncio.create_task(self._pump())
+        if self.camera is not None:
+            self.camera.start()
         try:
             while True:
                 data = await recv_within(self.endpoint, 0.1)
@@ -98,6 +127,8 @@ class AcousticNode:
                         self._on_events(self.machine.receive(bytes(data[i:i + PACKET]), now), now)
         finally:
             pump.cancel()
+            if self.camera is not None:
+                self.camera.close()
             self._worker.shutdown(wait=False, cancel_futures=True)
 
     async def _pump(self) -> None:
@@ -218,15 +249,7 @@ class AcousticNode:
         loop = self._loop
 
         def work() -> bytes:
-            small = thumbnail(self.grab(snap))
-            roi = order.clipped_roi()
-            budget = order.budget  # of DEBT stream; the object is [N:2] and the stream
-            try:
-                stream = self._encode(small, budget, roi=roi, shift=order.shift if roi else 0, mono=True)
-            except ValueError:
-                stream = self._encode(small, budget, mono=True)
-            stream = bytes(stream)[:ac.MAX_OBJECT - 2]
-            return len(stream).to_bytes(2, "big") + stream
+            return self.thumbnail_object(oid, order, snap)
 
         def done(f: concurrent.futures.Future) -> None:
             if f.cancelled() or loop is None or loop.is_closed():
@@ -240,6 +263,34 @@ class AcousticNode:
                 pass
 
         self._worker.submit(work).add_done_callback(done)
+
+    def thumbnail_object(self, oid: int, order, snap) -> bytes:
+        """The thumbnail object THUMB `oid` asks for, `[N:2]` and its stream (led by the
+        TRACK record under FOLLOW), from the newest camera frame (or one grabbed now)."""
+        record, budget, roi = b"", order.budget, order.clipped_roi()  # BUDGET: bytes of DEBT stream
+        frame, at = self.camera.newest() if self.camera is not None else (None, None)
+        if self.camera is not None:
+            if order.follow:  # started (or gone on with) before the picture is taken
+                self.camera.follow(_scaled(roi, FOLLOW_SIZE[0] / THUMB_SIZE[0]), order.keep, order.drawn_on,
+                                   resume=True)
+            else:
+                self.camera.stop_following()
+            followed = self.camera.followed() if order.follow else None
+            if followed is not None:
+                frame, at, tracked, record = followed
+                roi = _scaled(tracked, THUMB_SIZE[0] / FOLLOW_SIZE[0]) if tracked else None
+                budget = max(budget - len(record), 1)  # BUDGET counts the TRACK record (§10)
+        if frame is None:
+            frame, at = self.grab(snap), time.monotonic()
+        if self.camera is not None:
+            self.camera.mark(oid, at)  # a FOLLOW drawn on this thumbnail starts on its frame
+        small = thumbnail(frame)
+        try:
+            stream = self._encode(small, budget, roi=roi, shift=order.shift if roi else 0, mono=True)
+        except ValueError:
+            stream = self._encode(small, budget, mono=True)
+        stream = (record + bytes(stream))[:ac.MAX_OBJECT - 2]
+        return len(stream).to_bytes(2, "big") + stream
 
     def _note(self, text: str) -> None:
         log.info("%s", text)

@@ -150,11 +150,11 @@ def run_rov(args) -> int:
         if acoustic:
             from rovlink.rov.acoustic import AcousticNode
 
+            follower, follow = _follower(args, camera)
             node = AcousticNode(endpoint, bridge, camera.capture, key, failsafe_s=failsafe,
-                                failsafe_action=args.failsafe_action)
-            version = (f"acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; "
-                       f"failsafe: {args.failsafe_action} position" if args.failsafe_action == "hold" else
-                       "acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: surface")
+                                failsafe_action=args.failsafe_action, follower=follower, camera_hz=args.camera_hz)
+            version = ("acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: "
+                       + ("hold position" if args.failsafe_action == "hold" else "surface") + f"; {follow}")
         else:
             follower, follow = _follower(args, camera)
             node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key,

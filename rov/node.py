@@ -35,8 +35,8 @@ Decisions:
 - An ROI reaching outside the image is clipped to it; one left empty is
   dropped.  A setting DEBT refuses is logged and the image is sent without
   its ROI rather than not at all.
-- FOLLOW (docs/PROTOCOL.md §10) with a `follower` (rov/follow.py): a camera
-  thread grabs frames at `camera_hz` and keeps the last `history_s` of them;
+- FOLLOW (docs/PROTOCOL.md §10) with a `follower` (rov/follow.py): its camera
+  (rov/followcam.py, shared with the acoustic node) grabs frames at `camera_hz` and keeps the last `history_s` of them;
   the tracker starts on the frame of the picture the ROI was drawn on (or the
   newest, when that one is no longer kept), catches up through the frames
   since, then follows every new one.  Pictures under FOLLOW are the newest
@@ -79,6 +79,8 @@ from rovlink.link.radio.slave import (
     status_from_pose,
 )
 from rovlink.link.transports.transport import Endpoint
+
+from .followcam import FollowCamera
 
 log = logging.getLogger("rovlink.rov.node")
 
@@ -179,12 +181,8 @@ class RovNode:
         self._lock = threading.Lock()
         self.follower = follower
         self.slave.follows = follower is not None
-        self.camera_hz = camera_hz
-        self._frames: list[tuple[float, np.ndarray]] = []  # (captured at, frame), oldest first
-        self._frames_kept = max(int(history_s * camera_hz), 1)
-        self._picture_at: dict[int, float] = {}  # IMG -> when its frame was captured
-        self._follow_lock = threading.Lock()  # the frames and the follower: camera thread, encoder, loop
-        self._camera_stop = threading.Event()
+        self.camera = None if follower is None else FollowCamera(
+            follower, lambda: self.grab(self.bridge.snapshot()), self._note, camera_hz=camera_hz, history_s=history_s)
 
     # ------------------------------------------------------------------
 
@@ -192,13 +190,14 @@ class RovNode:
         """Serve the link until cancelled."""
         self._loop = asyncio.get_running_loop()
         status_task = asyncio.create_task(self._status_loop())
-        if self.follower is not None:
-            threading.Thread(target=self._camera_loop, name="follow-camera", daemon=True).start()
+        if self.camera is not None:
+            self.camera.start()
         try:
             await run_slave(self.link_end, self.endpoint, self._on_events)
         finally:
             status_task.cancel()
-            self._camera_stop.set()
+            if self.camera is not None:
+                self.camera.close()
             self._worker.shutdown(wait=False, cancel_futures=True)
 
     async def _status_loop(self) -> None:
@@ -346,64 +345,16 @@ class RovNode:
     # FOLLOW (§10)
     # ------------------------------------------------------------------
 
-    def _camera_loop(self) -> None:
-        period = 1.0 / self.camera_hz
-        while not self._camera_stop.is_set():
-            started = time.monotonic()
-            try:
-                frame = np.asarray(self.grab(self.bridge.snapshot()))
-            except Exception as exc:  # a camera that fails now may deliver later: said, not fatal
-                self._note(f"camera frame not captured: {exc}")
-                self._camera_stop.wait(1.0)
-                continue
-            self.take_frame(frame, time.monotonic())
-            self._camera_stop.wait(max(period - (time.monotonic() - started), 0.0))
-
     @property
     def last_frame_at(self) -> float | None:
         """When the newest camera frame kept was captured (monotonic), None before the first."""
-        with self._follow_lock:
-            return self._frames[-1][0] if self._frames else None
-
-    def take_frame(self, frame: np.ndarray, at: float) -> None:
-        """One camera frame: kept, and followed when a FOLLOW stands."""
-        with self._follow_lock:
-            self._frames.append((at, frame))
-            del self._frames[: -self._frames_kept]
-            self.follower.frame(frame, at)
+        return self.camera.last_frame_at if self.camera is not None else None
 
     def _follow(self, settings: ImageSettings) -> None:
-        with self._follow_lock:
-            if not settings.follow:
-                self.follower.stop()
-                return
-            drawn_at = self._picture_at.get(settings.drawn_on)
-            start = next((i for i, (at, _) in enumerate(self._frames) if at == drawn_at), None)
-            if start is None:
-                if not self._frames:
-                    self._note("FOLLOW: no camera frame yet; the ROI stays where it was drawn")
-                    return
-                start = len(self._frames) - 1
-                self._note(f"FOLLOW: picture {settings.drawn_on} is no longer kept; following from the newest frame")
-            at, frame = self._frames[start]
-            height, width = frame.shape[:2]
-            roi = clip_roi(settings.roi, width, height)
-            if roi is None:
-                self._note("FOLLOW: the ROI lies outside the picture")
-                return
-            self.follower.start(frame, roi, settings.keep, at)
-            for at, frame in self._frames[start + 1:]:  # catch up with the frames since
-                self.follower.frame(frame, at)
-            self._note(f"FOLLOW from picture {settings.drawn_on}: {len(self._frames) - 1 - start} frames caught up")
-
-    def _followed_frame(self) -> tuple[np.ndarray, float, tuple | None, bytes] | None:
-        """The newest frame, the ROI it is coded with and its TRACK record, under FOLLOW."""
-        with self._follow_lock:
-            if not self._frames or not self.follower.active:
-                return None
-            at, frame = self._frames[-1]
-            roi, record = self.follower.picture(at)
-            return frame, at, roi, record.encode()
+        if settings.follow:
+            self.camera.follow(settings.roi, settings.keep, settings.drawn_on)
+        else:
+            self.camera.stop_following()
 
     def _note(self, text: str) -> None:
         log.info("%s", text)
@@ -459,23 +410,18 @@ class RovNode:
 
     def _capture_and_encode(self, snap, settings: ImageSettings, img: int | None = None) -> bytes:
         t0 = time.perf_counter()
-        followed = self._followed_frame() if settings.follow and self.follower is not None else None
+        followed = self.camera.followed() if settings.follow and self.camera is not None else None
         record, budget = b"", settings.budget_bytes
         if followed is not None:
             image, at, roi, record = followed
             budget = max(budget - len(record), 1)  # BUDGET counts the TRACK record (§10)
         else:
-            if self.follower is not None:
-                with self._follow_lock:
-                    image, at = (self._frames[-1][1], self._frames[-1][0]) if self._frames else (None, None)
-                if image is None:
-                    image, at = np.asarray(self.grab(snap)), time.monotonic()
-            else:
-                image, at = np.asarray(self.grab(snap)), None
+            image, at = self.camera.newest() if self.camera is not None else (None, None)
+            if image is None:
+                image, at = np.asarray(self.grab(snap)), (time.monotonic() if self.camera is not None else None)
             roi = settings.roi
         if img is not None and at is not None:
-            with self._follow_lock:
-                self._picture_at[img] = at  # FOLLOW may start on this picture's frame
+            self.camera.mark(img, at)  # FOLLOW may start on this picture's frame
         image = np.asarray(image)
         height, width = image.shape[:2]
         roi = clip_roi(roi, width, height)

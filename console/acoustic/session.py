@@ -78,7 +78,7 @@ class AcousticSession:
     sees a session (console/session/contract.py).  `endpoint` None and `key`
     None: a replay.  `record`: a JSON-lines file of the session, or None."""
 
-    capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, follow=False, picture="thumbnail",
+    capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, follow=True, picture="thumbnail",
                                 image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
 
     def __init__(self, endpoint, key: bytes | None, *, clock: Callable[[], float] = time.monotonic,
@@ -631,7 +631,22 @@ class AcousticSession:
 
     def set_image_settings(self, *, roi=None, shift: int | None = None, mono: bool | None = None,
                            budget_bytes: int | None = None) -> int:
-        """A thumbnail (80x60 grey) on request: `roi` in its pixels, x1 and y1 exclusive."""
+        """A thumbnail (80x60 grey) on request: `roi` in its pixels, x1 and y1 exclusive.
+        It ends a FOLLOW (its ROI stays where it is drawn), as an IMAGE order does on the radio link."""
+        return self._ask_thumbnail(roi, shift, budget_bytes)
+
+    def follow_roi(self, roi, *, keep: bool = True, drawn_on: int = 0, shift: int | None = None) -> int:
+        """A thumbnail whose ROI follows its object (§9.3's THUMB with FOLLOW, §10): `roi`
+        as drawn on the thumbnail whose OID is `drawn_on`; the ROV tracks it in every camera
+        frame and codes the thumbnail with the ROI where the object is now.  Asking again
+        with the same ROI and the same `drawn_on` goes on with the ROV's track."""
+        if roi is None:
+            raise OrderError("Follow needs an ROI drawn on a thumbnail")
+        if isinstance(drawn_on, bool) or not isinstance(drawn_on, int) or not 0 <= drawn_on <= 255:
+            raise OrderError(f"the thumbnail an ROI was drawn on is named by its OID, 0..255, not {drawn_on!r}")
+        return self._ask_thumbnail(roi, shift, None, follow=(bool(keep), drawn_on))
+
+    def _ask_thumbnail(self, roi, shift: int | None, budget_bytes: int | None, follow: tuple | None = None) -> int:
         current = self.requested_settings
         budget = current.budget_bytes if budget_bytes is None else budget_bytes
         if not isinstance(budget, int) or not ac.MIN_BUDGET <= budget <= ac.MAX_BUDGET:
@@ -647,7 +662,9 @@ class AcousticSession:
                                  f"(pixels of the {ac.THUMB_W}x{ac.THUMB_H} thumbnail), not {tuple(roi)}")
             roi = (x0, y0, x1, y1)
         shift = current.shift if shift is None else shift
-        request = ac.ThumbRequest(0, budget, roi or (0, 0, 0, 0), shift if roi else 0, True)
+        keep, drawn_on = follow if follow is not None else (False, 0)
+        request = ac.ThumbRequest(0, budget, roi or (0, 0, 0, 0), shift if roi else 0, True,
+                                  follow=follow is not None, keep=keep, drawn_on=drawn_on)
         bad = request.invalid()
         if bad:
             raise OrderError(f"thumbnail: {bad}")
@@ -655,8 +672,10 @@ class AcousticSession:
             settings = ImageSettings(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget)
         except ValueError as exc:
             raise OrderError(str(exc)) from None
-        order_id = self._send(request, "IMAGE", {"roi": list(roi) if roi else None, "shift": settings.shift,
-                                                 "mono": True, "budget_bytes": budget}, settings)
+        detail = {"roi": list(roi) if roi else None, "shift": settings.shift, "mono": True, "budget_bytes": budget}
+        if follow is not None:
+            detail.update(follow=True, keep=keep, drawn_on=drawn_on)
+        order_id = self._send(request, "IMAGE", detail, settings)
         with self._lock:
             self.requested_settings = settings
         return order_id
@@ -664,10 +683,6 @@ class AcousticSession:
     def next_image(self) -> None:
         raise NotNow("the acoustic link sends a thumbnail on request, one at a time: there is no next picture "
                      "to skip to (ask for a thumbnail)")
-
-    def follow_roi(self, roi, *, keep: bool = True, drawn_on: int = 0, shift: int | None = None) -> int:
-        raise NotNow("the acoustic link's thumbnails come one at a time, on request: there is no stream of "
-                     "pictures for an ROI to follow (docs/PROTOCOL.md §10 is the radio profile's)")
 
     def set_velocity(self, vx: float, vy: float, vz: float, vyaw: float) -> None:
         if (vx, vy, vz, vyaw) != NEUTRAL:

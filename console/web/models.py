@@ -105,7 +105,8 @@ class FollowOrder(Request):
 
     roi: tuple[StrictInt, StrictInt, StrictInt, StrictInt] = Field(
         strict=False, description="region of interest (x0, y0, x1, y1) in pixels of picture img, x0 < x1, y0 < y1")
-    img: int = Field(ge=0, le=7, description="IMG of the picture the ROI was drawn on")
+    img: int = Field(ge=0, le=255, description="the picture the ROI was drawn on: its IMG (radio, 0..7) or its "
+                                               "thumbnail's OID (acoustic)")
     keep: bool = Field(True, description="while the track is lost, keep its last ROI (false: no ROI)")
 
 

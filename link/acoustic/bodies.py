@@ -132,7 +132,8 @@ class GoToBody:
 
 @dataclass(frozen=True)
 class ThumbRequest:
-    """Uplink KIND 5 (2 packets): the DEBT settings of one 80x60 thumbnail."""
+    """Uplink KIND 5 (2 packets): the DEBT settings of one 80x60 thumbnail, and
+    whether its ROI follows its object (FOLLOW, §10's over this profile)."""
 
     oid: int
     budget: int = 198
@@ -140,15 +141,19 @@ class ThumbRequest:
     shift: int = 0
     mono: bool = True
     reserved: int = 0
+    follow: bool = False  # the ROI follows what it framed in thumbnail DRAWN_ON
+    keep: bool = False  # while the track is lost: the last ROI (1) or none (0)
+    drawn_on: int = 0  # the OID of the THUMB whose thumbnail the ROI was drawn on; 0: none
 
     def encode(self) -> bytes:
-        return struct.pack(">B4BBH", self.oid, *self.roi, self.shift << 4 | self.mono << 3, self.budget) + bytes(4)
+        flags = self.shift << 4 | self.mono << 3 | self.follow << 2 | self.keep << 1
+        return struct.pack(">B4BBHB", self.oid, *self.roi, flags, self.budget, self.drawn_on) + bytes(3)
 
     @classmethod
     def decode(cls, body: bytes) -> ThumbRequest:
-        oid, x0, y0, x1, y1, sm, budget = struct.unpack(">B4BBH", body[:8])
-        reserved = (sm & 7) | int.from_bytes(body[8:12], "big")
-        return cls(oid, budget, (x0, y0, x1, y1), sm >> 4, _bit(sm, 3), reserved)
+        oid, x0, y0, x1, y1, sm, budget, drawn_on = struct.unpack(">B4BBHB", body[:9])
+        reserved = (sm & 1) | int.from_bytes(body[9:12], "big")
+        return cls(oid, budget, (x0, y0, x1, y1), sm >> 4, _bit(sm, 3), reserved, _bit(sm, 2), _bit(sm, 1), drawn_on)
 
     def invalid(self) -> str | None:
         if self.reserved:
@@ -158,6 +163,10 @@ class ThumbRequest:
         x0, y0, x1, y1 = self.roi
         if any(self.roi) and (x1 <= x0 or y1 <= y0 or x0 >= THUMB_W or y0 >= THUMB_H):
             return "empty ROI"
+        if self.follow and not any(self.roi):
+            return "FOLLOW without an ROI"
+        if not self.follow and (self.keep or self.drawn_on):
+            return "KEEP or DRAWN_ON without FOLLOW"
         return None
 
     def clipped_roi(self) -> tuple[int, int, int, int] | None:

@@ -162,6 +162,7 @@ class AcousticRov(_End):
         self._full_leaving: int | None = None
         self._operator_holds: tuple[int, float] | None = None  # the last POLL's HELD (with HAVE_STATUS), when taken
         self.thumb: _Thumb | None = None
+        self.follows = False  # the node has a tracker: a THUMB with FOLLOW can be taken
         self._events: list = []
 
     # -- the node's side -------------------------------------------------------
@@ -330,7 +331,7 @@ class AcousticRov(_End):
         elif isinstance(order, OrderBody) and order.op == OP_MODE:
             impossible |= order.arg in (Mode.POS_HOLD, Mode.GUIDED) and not v.position_valid
         elif isinstance(order, ThumbRequest):
-            impossible = False
+            impossible = order.follow and not self.follows  # FOLLOW needs a tracker on this ROV
         if impossible:
             self.result = R_IMPOSSIBLE
             return

@@ -34,7 +34,7 @@ def test_it_is_a_session_of_the_one_contract_and_says_what_its_link_carries(api)
     assert isinstance(session, VehicleSession)
     caps = client.get("/api/config").json()["capabilities"]
     assert caps["profile"] == "acoustic" and caps["velocity"] is False and caps["picture"] == "thumbnail"
-    assert caps["follow"] is False and caps["next_image"] is False
+    assert caps["follow"] is True and caps["next_image"] is False  # FOLLOW rides in THUMB (§9.3)
     assert client.get("/api/config").json()["limits"]["budget_bytes"][1] == 439  # what a thumbnail request carries
     link = client.get("/api/link").json()
     assert link["profile"] == "acoustic" and link["version"] == "acoustic" and link["lost_after_s"] == 20.0
@@ -56,7 +56,9 @@ def test_it_is_a_session_of_the_one_contract_and_says_what_its_link_carries(api)
     # Well formed, but not what this link carries: a conflict with the link, said so.
     ("/api/orders/velocity", {"vx": 0.5}, 409, "no sticks"),
     ("/api/image/next", None, 409, "on request"),
-    ("/api/image/follow", {"roi": [10, 10, 40, 30], "img": 0, "keep": True}, 409, "no stream of pictures"),
+    ("/api/image/follow", {"roi": [10, 10, 90, 30], "img": 3, "keep": True}, 422, "80x60"),
+    ("/api/image/follow", {"roi": [10, 10, 40, 30], "img": 256, "keep": True}, 422, "img"),
+    ("/api/image/follow", {"img": 3}, 422, "roi"),
 ])
 def test_a_bad_request_is_refused_with_its_reason_and_queues_nothing(api, path, body, status, words):
     client, session, holder = api

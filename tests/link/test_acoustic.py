@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from rovlink.link import acoustic as ac
 from rovlink.link.acoustic.sim import AcousticSim, fixed_camera
+from rovlink.link.acoustic.wire import R_INVALID
 from rovlink.link.radio.messages import Mode
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "PROTOCOL.md"
@@ -40,6 +41,8 @@ STATUS18 = ac.StatusBody(armed=True, hold=True, autopilot=True, uplink=True, mod
                      stop_no2=1, oid=3)  # STATUS17 and ARMED: a STATUS_SAME says it
 GOTO = ac.GoToBody(2, 125, -30, 45, -9000, yaw_set=True)
 THUMB = ac.ThumbRequest(3, budget=198, roi=(20, 15, 60, 45), shift=4, mono=True)
+FOLLOW = ac.ThumbRequest(5, budget=198, roi=(20, 15, 60, 45), shift=4, mono=True, follow=True, keep=True, drawn_on=3)
+FOLLOWED_OBJECT = bytes.fromhex("00056622616263")  # [N = 5] TRACK lost, KEEP, 3.4 s; "abc"
 
 
 def vectors() -> list[bytes]:
@@ -58,6 +61,8 @@ def vectors() -> list[bytes]:
         _down(17, ac.DOWN_STATUS, STATUS17.encode()),
         _down(18, ac.DOWN_STATUS_SAME, ac.same_body(17, STATUS18.encode())),
         _up(0, ac.UP_POLL, ac.PollBody().encode()),
+        _up(5, ac.UP_THUMB, FOLLOW.encode()),
+        ac.data_packet(1, 0, FOLLOWED_OBJECT),
     ]
 
 
@@ -152,7 +157,7 @@ BODIES = st.one_of(
     st.builds(ac.OrderBody, u8, u8, st.integers(0, 65535)),
     st.builds(ac.GoToBody, u8, i16, i16, i16, i16, st.booleans(), st.booleans(), st.booleans()),
     st.builds(ac.ThumbRequest, u8, st.integers(0, 65535), st.tuples(u8, u8, u8, u8), st.integers(0, 15),
-              st.booleans()),
+              st.booleans(), follow=st.booleans(), keep=st.booleans(), drawn_on=u8),
     st.builds(ac.StatusBody, i16, i16, i16, st.integers(0, 35999), *[st.booleans()] * 8, st.integers(0, 7),
               st.integers(0, 7), st.integers(0, 3), u8, u8),
     st.builds(ac.ThumbEnd, u8, st.binary(min_size=3, max_size=3)),
@@ -694,3 +699,48 @@ def test_the_operators_first_poll_after_the_sync_is_the_vector():
     for i, p in enumerate(_chunks(v[1])):
         op.receive(p, 5.0 + i)
     assert op.next_packet(7.0) == v[12]  # no thumbnail asked for yet, no STATUS taken
+
+
+# ---------------------------------------------------------------------------
+# FOLLOW in THUMB (issue 34: §9.3 and §10)
+# ---------------------------------------------------------------------------
+
+
+def _take_thumb(rov: ac.AcousticRov, request: ac.ThumbRequest, ctr: int) -> list:
+    events = []
+    for i, p in enumerate(_chunks(_up(ctr, ac.UP_THUMB, request.encode()))):
+        events += rov.receive(p, 2.0 + ctr + i * 0.5)
+    return events
+
+
+def test_a_rov_with_a_tracker_takes_a_followed_thumbnail_and_one_without_says_impossible_now():
+    rov = _rov_in_session()
+    rov.follows = True
+    assert _take_thumb(rov, FOLLOW, 0) == [ac.ThumbnailWanted(5, FOLLOW)]
+    assert rov.result == ac.R_TAKEN and rov.last_oid == 5
+    plain = _rov_in_session()  # no tracker: the order is consumed and answered RESULT 4
+    assert _take_thumb(plain, FOLLOW, 0) == []
+    assert plain.result == ac.R_IMPOSSIBLE and plain.last_oid == 5 and plain.thumb is None
+
+
+@pytest.mark.parametrize("request_, why", [
+    (replace(FOLLOW, roi=(0, 0, 0, 0), shift=0), "FOLLOW without an ROI"),
+    (replace(FOLLOW, follow=False), "KEEP or DRAWN_ON without FOLLOW"),
+    (replace(FOLLOW, follow=False, keep=False), "KEEP or DRAWN_ON without FOLLOW"),
+])
+def test_a_followed_thumbnail_that_makes_no_sense_is_invalid_and_nothing_is_captured(request_, why):
+    assert request_.invalid() == why
+    rov = _rov_in_session()
+    rov.follows = True
+    assert _take_thumb(rov, request_, 0) == []
+    assert rov.result == R_INVALID and rov.thumb is None
+
+
+def test_a_thumb_from_before_follow_decodes_as_it_did_and_reserved_bit_0_stays_reserved():
+    assert ac.ThumbRequest.decode(THUMB.encode()) == THUMB and not THUMB.follow and THUMB.invalid() is None
+    body = bytearray(FOLLOW.encode())
+    body[5] |= 1  # bit 0 of the flags byte
+    assert ac.ThumbRequest.decode(bytes(body)).invalid() == "reserved bits set"
+    body = bytearray(FOLLOW.encode())
+    body[11] = 1  # the last of the 3 zero bytes
+    assert ac.ThumbRequest.decode(bytes(body)).invalid() == "reserved bits set"

@@ -216,3 +216,61 @@ def test_the_rov_codes_each_picture_with_the_followed_roi_and_says_when_the_trac
 
     asyncio.run(asyncio.wait_for(scenario(), 90))
 
+
+
+def test_the_acoustic_rov_follows_between_thumbnails_and_its_thumbnail_says_the_track(camera, ladder):
+    """Issue 34 over the acoustic profile (§9.3, §10): the ROI drawn on one thumbnail is
+    tracked in every camera frame kept since, each followed thumbnail is coded where the
+    object is then and says the track; the same request again goes on with the track."""
+    from rovlink.link import acoustic as ac
+    from rovlink.rov.acoustic import FOLLOW_SIZE, THUMB_SIZE, AcousticNode
+
+    from .test_node import FakeBridge
+
+    scripted = ScriptedCamera(camera, facing(ladder, side_m=-2.0))
+    node = AcousticNode(None, FakeBridge(), scripted.grab, bytes(range(32)), follower=RoiFollower("klt"))
+    assert node.machine.follows
+    scale = THUMB_SIZE[0] / camera.width
+    clock = [100.0]
+
+    def frames(poses):
+        for pose in poses:
+            scripted.pose = pose
+            clock[0] += 0.1
+            node.camera.take_frame(camera.capture(pose), clock[0])
+
+    def ask(oid, **follow):
+        obj = node.thumbnail_object(oid, ac.ThumbRequest(oid, budget=120, shift=4, **follow), None)
+        assert int.from_bytes(obj[:2], "big") == len(obj) - 2
+        track, stream = split_track(obj[2:])
+        return track, debt.unpack_header(stream).roi, len(stream)
+
+    def true_box():
+        b = camera.object_box(scripted.pose, ladder).clipped
+        return tuple(v * scale for v in b)
+
+    frames([scripted.pose] * 3)
+    track, roi, _ = ask(1)
+    assert track is None and roi is None  # a plain thumbnail: no record
+    drawn = tuple(int(round(v)) for v in true_box())  # the pilot drags it on thumbnail 1
+    # The vehicle sways 2 m east over 2 s, before the pilot's FOLLOW reaches it: the ROV catches up.
+    frames([facing(ladder, side_m=-2.0 + 0.1 * i) for i in range(1, 21)])
+    track, roi, size = ask(3, roi=drawn, follow=True, keep=False, drawn_on=1)
+    assert track is not None and track.state == TrackState.HOLDS and not track.keep
+    assert size <= 120 - 2  # BUDGET counts the TRACK record
+    assert iou(roi, true_box()) >= 0.5
+    assert (roi[0] + roi[2]) / 2 < (drawn[0] + drawn[2]) / 2 - 8  # it moved left with the ladder (80 px wide)
+    started = sum("FOLLOW from picture" in line for line in node.log)
+    # A minute later, the same request again: the ROV goes on with its track (no new start).
+    frames([facing(ladder, side_m=0.1 * i) for i in range(0, 11)])
+    track, roi, _ = ask(5, roi=drawn, follow=True, keep=True, drawn_on=1)
+    assert track.state == TrackState.HOLDS and track.keep and iou(roi, true_box()) >= 0.5
+    assert sum("FOLLOW from picture" in line for line in node.log) == started == 1
+    # Turned away: the ladder leaves the view; the next thumbnail says the track is lost.
+    frames([facing(ladder, side_m=1.0, yaw_deg=6.0 * i) for i in range(1, 16)])
+    track, roi, _ = ask(7, roi=drawn, follow=True, keep=False, drawn_on=1)
+    assert track.state == TrackState.LOST and track.lost_for_ds > 0 and roi is None
+    # A thumbnail without FOLLOW ends the following: no record, the ROI as asked.
+    track, roi, _ = ask(9, roi=(10, 10, 30, 30))
+    assert track is None and roi == (10, 10, 30, 30) and not node.camera.follower.active
+    assert FOLLOW_SIZE[0] == 2 * THUMB_SIZE[0]

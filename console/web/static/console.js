@@ -1186,10 +1186,22 @@ function wireFollow() {
   $("roi-follow").onclick = async () => {
     const roi = page.roi;
     if (!roi || page.followDrawnOn === undefined) return;
-    const sent = await api("/api/image/follow", { roi, img: page.followDrawnOn, keep: $("roi-keep").checked });
+    const asked = { roi, img: page.followDrawnOn, keep: $("roi-keep").checked };
+    const sent = await api("/api/image/follow", asked);
     if (!sent) return;
-    page.follow = { id: sent.id };
+    page.follow = { id: sent.id, ...asked };
     setRoi(null);  // the ROV moves it now: the solid box on each picture is where it went
+    renderFollowControls();
+    renderTrack(lastImageState);
+  };
+  // The acoustic link's thumbnails come one at a time: the next one names the same ROI on
+  // the same thumbnail, and the ROV goes on with its track (docs/PROTOCOL.md §9.3).
+  $("follow-again").onclick = async () => {
+    const f = page.follow;
+    if (!f || !f.roi) return;
+    const sent = await api("/api/image/follow", { roi: f.roi, img: f.img, keep: f.keep });
+    if (!sent) return;
+    page.follow = { ...f, id: sent.id };
     renderTrack(lastImageState);
   };
 }
@@ -1197,6 +1209,7 @@ function wireFollow() {
 function renderFollowControls() {
   $("roi-follow").hidden = !page.roi || !!page.noFollow;
   $("roi-keep-label").hidden = !page.roi || !!page.noFollow;
+  $("follow-again").hidden = !(page.follow && page.follow.roi) || document.body.dataset.profile !== "acoustic";
 }
 
 function trackText(track) {
@@ -1276,7 +1289,7 @@ function wire() {
       roi, shift: parseInt($("shift").value, 10), mono: $("mono").checked, budget_bytes: parseInt($("budget").value, 10),
     });
     if (sent && roi) { page.roiSent = { id: sent.id, roi }; renderRoiStatus(); }
-    if (sent) { page.follow = null; renderTrack(null); }  // an IMAGE order ends the following
+    if (sent) { page.follow = null; renderFollowControls(); renderTrack(null); }  // an IMAGE order ends the following
   };
   const gotoTarget = () => ({
     x_m: parseFloat($("goto-x").value), y_m: parseFloat($("goto-y").value),
