@@ -234,3 +234,80 @@ def test_a_ground_station_sees_the_acoustic_vehicle_and_its_go_to_and_stops_it(a
         assert abs(after["x_m"] - before["x_m"]) < 0.6  # the stick stream moved nothing
     finally:
         gcs.close()
+
+
+SHOWN = """() => {
+  const box = document.getElementById('roi-box');
+  const track = document.getElementById('track-text');
+  const key = document.getElementById('image').dataset.key || '';
+  return [parseInt(key.split(':')[0] || '0', 10), box.hidden ? null : parseFloat(box.style.left),
+          track.dataset.state || '', track.textContent];
+}"""
+VERIFIED = ("document.getElementById('image-decoded').textContent.includes('verified')"
+            " && !document.getElementById('image-decoded').textContent.includes('UNVERIFIED')")
+
+
+def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic):
+    """Issue 34 over the acoustic link (§9.3, §10), as the pilot meets it: an ROI dragged
+    on a thumbnail, Follow; the vehicle turned right by a go-to; "Ask again, following":
+    the ROI the next thumbnail was coded with has moved left with what it framed; turned
+    away, the next thumbnail says the track is LOST."""
+    from playwright.sync_api import sync_playwright
+
+    base = acoustic[0]
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1366, "height": 768})
+        page.goto(base + "/")
+        page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
+                               timeout=30000)
+        page.click("#take")
+        page.wait_for_function("document.getElementById('control-text').textContent.includes('You have control')")
+        if not get(base + "/api/pose")["armed"]:
+            page.click("#arm")
+            page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=60000)
+        page.fill("#budget", "100")
+        page.click("#apply-image")
+        page.wait_for_function(VERIFIED, timeout=300000)
+        first = page.evaluate(SHOWN)[0]
+        drawn_on = int(page.evaluate("document.getElementById('image').dataset.img"))  # the thumbnail's OID
+
+        # An ROI dragged on the thumbnail, set to follow.
+        box = page.locator("#image").bounding_box()
+        page.mouse.move(box["x"] + box["width"] * 0.4, box["y"] + box["height"] * 0.35)
+        page.mouse.down()
+        page.mouse.move(box["x"] + box["width"] * 0.62, box["y"] + box["height"] * 0.65, steps=5)
+        page.mouse.up()
+        assert page.is_visible("#roi-follow") and page.is_checked("#roi-keep")
+        page.click("#roi-follow")
+        page.wait_for_function(f"({SHOWN})()[0] > {first} && ({SHOWN})()[2] === 'holds' && ({SHOWN})()[1] !== null"
+                               f" && {VERIFIED}", timeout=300000)
+        serial, left0, _, text = page.evaluate(SHOWN)
+        assert "track holds" in text and page.is_visible("#follow-again")
+        sent = [o for o in get(base + "/api/orders") if o["kind"] == "IMAGE"][-1]
+        assert sent.get("follow") is True and sent.get("drawn_on") == drawn_on, sent
+
+        def turn(by_deg: float) -> None:
+            pose = get(base + "/api/pose")["received"]
+            for field, value in (("x", pose["x_m"]), ("y", pose["y_m"]), ("z", pose["z_m"]),
+                                 ("yaw", pose["yaw_deg"] + by_deg)):
+                page.fill(f"#goto-{field}", f"{value:.1f}")
+            page.click("#goto-go")
+            page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'",
+                                   timeout=120000)
+
+        # Turned right: what the ROI framed slides left in the next thumbnail.
+        turn(20.0)
+        page.click("#follow-again")
+        page.wait_for_function(f"({SHOWN})()[0] > {serial} && ({SHOWN})()[1] !== null && {VERIFIED}",
+                               timeout=300000)
+        serial, left1, state, text = page.evaluate(SHOWN)
+        assert state == "holds", text
+        assert left1 < left0 - 5, (left0, left1)
+        # Turned away: the next thumbnail says the track is lost, the last ROI kept.
+        turn(120.0)
+        page.click("#follow-again")
+        page.wait_for_function(f"({SHOWN})()[0] > {serial} && {VERIFIED}", timeout=300000)
+        _, _, state, text = page.evaluate(SHOWN)
+        assert state == "lost" and "track LOST" in text and "last ROI kept" in text, text
+        browser.close()
