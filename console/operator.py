@@ -869,11 +869,7 @@ class Operator:
     def _link_process_state(self) -> dict:
         if not isinstance(self.master, MasterProcess):
             return {"link_process": None, "link_process_reason": None, "link_process_pid": None}
-        up = self.master.up
-        if not up and not self.master.ever_up and self.master.down_reason is None:
-            return {"link_process": "starting", "link_process_reason": None, "link_process_pid": None}
-        return {"link_process": "up" if up else "down", "link_process_reason": None if up else self.master.down_reason,
-                "link_process_pid": self.master.pid if up else None}
+        return self.master.link_process_state
 
     def orders_state(self) -> list[dict]:
         return self.orders.state()

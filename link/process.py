@@ -1,6 +1,8 @@
-"""The radio link in a process of its own: the transport, the master and its
-clock and deadlines, apart from the console's page, scene, gateway and
-picture decoding (issue 33).
+"""A link in a process of its own (issue 33): what both profiles' link processes
+share (`LinkProcess`, the console's side; the child's entry, pipe, endpoint and
+command thread), and the radio link's own: the transport, the master and its
+clock and deadlines, apart from the console's page, scene, gateway and picture
+decoding.  The acoustic profile's stands on the same (link/acoustic/process.py).
 
 Goal: a poll leaves on time whatever the console's process is doing.  The
 console's threads share one interpreter lock; a busy page, a software-rendered
@@ -46,7 +48,7 @@ import os
 import signal
 import threading
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Coroutine
 
 from .radio.frame import MAX_FRAME
 from .radio.master import Master, MasterStats, StopConfirmed
@@ -85,6 +87,139 @@ class LinkProcessDown(RuntimeError):
     """The link process is not running (it ended and is being started again)."""
 
 
+# ---------------------------------------------------------------------------
+# The child, either profile's: its entry, its pipe, its endpoint, its commands
+# (`what` names the process in what it says: "link", "acoustic link")
+# ---------------------------------------------------------------------------
+
+_ChildRun = Callable[[Any, Callable[[tuple], None], Any, dict], Coroutine[Any, Any, int]]
+
+
+def child_entry(child: _ChildRun, commands, events, spec: dict, what: str) -> None:
+    """A link process's life: its endpoint opened (`spec["url"]`), then `child(commands,
+    send, endpoint, spec)` run to its exit code, then the process ends."""
+    logging.basicConfig(level=logging.WARNING, format=f"rovlink {what} process: %(message)s")
+    # Ctrl-C in the console's terminal reaches this process too: the console's end (its
+    # pipe closing) is what ends it, with a STOP first.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise_priority()
+    try:
+        code = asyncio.run(_child_life(child, commands, events, spec))
+    except KeyboardInterrupt:  # the console's Ctrl-C reaches its whole group; the pipe's end says the rest
+        code = 0
+    os._exit(code)
+
+
+async def _child_life(child: _ChildRun, commands, events, spec: dict) -> int:
+    send = _pipe_sender(events)
+    endpoint = await _open_endpoint(spec["url"], send)
+    if endpoint is None:
+        return 2
+    return await child(commands, send, endpoint, spec)
+
+
+def _pipe_sender(events) -> Callable[[tuple], None]:
+    """What the child tells the console, from any of its threads."""
+    send_lock = threading.Lock()
+
+    def send(message: tuple) -> None:
+        try:
+            with send_lock:
+                events.send(message)
+        except (OSError, EOFError, ValueError):  # the console is gone: its pipe says so to the command thread
+            pass
+
+    return send
+
+
+async def _open_endpoint(url: str, send: Callable[[tuple], None]):
+    """The link's transport, started; None (and "fatal", why) where it cannot open."""
+    from .transports.transport import TransportError
+    from .transports.urls import open_transport
+
+    try:
+        endpoint = open_transport(url)
+        await endpoint.start()
+    except (TransportError, OSError, ValueError) as exc:
+        send(("fatal", f"could not open {url}: {exc}"))
+        return None
+    return endpoint
+
+
+def _serve_calls(commands, *, what: str, calls: tuple[str, ...], machine, lock: threading.Lock,
+                status: Callable[[], dict], gone: Callable[[], None],
+                refused: tuple[type[Exception], ...] = ()) -> None:
+    """The command thread: each call of `calls` made on `machine` and answered with its
+    status; a `refused` exception is the machine's own refusal, answered in its words.
+    The console's pipe closing (or "quit") ends it, and `gone` is told."""
+    while True:
+        try:
+            message = commands.recv()
+        except (EOFError, OSError):
+            break
+        if message[0] == "quit":
+            break
+        _, name, args = message
+        try:
+            if name not in calls:
+                raise ValueError(f"{name} is not a call of the {what} process")
+            with lock:
+                result = getattr(machine, name)(*args)
+                now_status = status()
+            answer = ("ok", result, now_status)
+        except Exception as exc:  # said to the caller, whose order it was
+            with lock:
+                now_status = status()
+            answer = (("refused", str(exc), now_status) if isinstance(exc, refused)
+                      else ("error", f"{type(exc).__name__}: {exc}", now_status))
+        try:
+            commands.send(answer)
+        except (OSError, EOFError):
+            break
+    gone()
+
+
+async def serve_until_console_gone(commands, send: Callable[[tuple], None], endpoint, loops: list[Coroutine],
+                                   *, what: str, **serving: Any) -> set[asyncio.Task] | None:
+    """The child up: its command thread (`_serve_calls` with `serving`), "up" said, its
+    `loops` run until the console is gone.  Returns the loops, still running, for the
+    child's STOP; None where one of them failed (said "fatal", the endpoint closed)."""
+    loop = asyncio.get_running_loop()
+    parent_gone = asyncio.Event()
+    threading.Thread(target=_serve_calls, args=(commands,),
+                     kwargs={"what": what, "gone": lambda: loop.call_soon_threadsafe(parent_gone.set), **serving},
+                     name=f"{what} commands", daemon=True).start()
+    send(("up", os.getpid()))
+    tasks = {loop.create_task(c) for c in loops}
+    gone = loop.create_task(parent_gone.wait())
+    done, _ = await asyncio.wait(tasks | {gone}, return_when=asyncio.FIRST_COMPLETED)
+    failed = next((t for t in done if t in tasks), None)
+    if failed is not None:  # a loop itself failed: said, and the console starts a new one
+        send(("fatal", f"the {what} loop stopped: {failed.exception()!r}"))
+        for task in tasks | {gone}:
+            task.cancel()
+        await endpoint.close()
+        return None
+    return tasks
+
+
+async def until_set(event: threading.Event, within_s: float, step_s: float) -> None:
+    """Wait for `event` (a STOP settled) at most `within_s`, looking every `step_s`."""
+    deadline = time.monotonic() + within_s
+    while not event.is_set() and time.monotonic() < deadline:
+        await asyncio.sleep(step_s)
+
+
+async def end_loops(tasks: set[asyncio.Task]) -> None:
+    for task in tasks:
+        task.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
+# ---------------------------------------------------------------------------
+# The radio's child
+# ---------------------------------------------------------------------------
+
 def _status(master) -> dict:
     return {
         "stats": dataclasses.asdict(master.stats),
@@ -100,46 +235,15 @@ def _protocol(master):
     return master.master if isinstance(master, SecureMaster) else master
 
 
-# ---------------------------------------------------------------------------
-# The child
-# ---------------------------------------------------------------------------
-
 def child_main(commands, events, spec: dict) -> None:
     """The link process's entry (multiprocessing's target)."""
-    logging.basicConfig(level=logging.WARNING, format="rovlink link process: %(message)s")
-    # Ctrl-C in the console's terminal reaches this process too: the console's end (its
-    # pipe closing) is what ends it, with a STOP first.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    raise_priority()
-    try:
-        code = asyncio.run(_child(commands, events, spec))
-    except KeyboardInterrupt:  # the console's Ctrl-C reaches its whole group; the pipe's end says the rest
-        code = 0
-    os._exit(code)
+    child_entry(_child, commands, events, spec, "link")
 
 
-async def _child(commands, events, spec: dict) -> int:
+async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) -> int:
     from .aio import run_master
-    from .transports.transport import TransportError, port_change, port_down_reason
-    from .transports.urls import open_transport
+    from .transports.transport import port_change, port_down_reason
 
-    loop = asyncio.get_running_loop()
-    send_lock = threading.Lock()
-    parent_gone = asyncio.Event()
-
-    def send(message: tuple) -> None:
-        try:
-            with send_lock:
-                events.send(message)
-        except (OSError, EOFError, ValueError):  # the console is gone: its pipe says so to the command thread
-            pass
-
-    try:
-        endpoint = open_transport(spec["url"])
-        await endpoint.start()
-    except (TransportError, OSError, ValueError) as exc:
-        send(("fatal", f"could not open {spec['url']}: {exc}"))
-        return 2
     t0 = spec["t0"]
 
     def clock() -> float:
@@ -168,43 +272,11 @@ async def _child(commands, events, spec: dict) -> int:
         if news is not None:
             send(("port", port_seen[0], news, port_down_reason(endpoint)))
 
-    def serve_commands() -> None:
-        while True:
-            try:
-                message = commands.recv()
-            except (EOFError, OSError):
-                break
-            if message[0] == "quit":
-                break
-            _, name, args = message
-            try:
-                if name not in CALLS:
-                    raise ValueError(f"{name} is not a call of the link process")
-                with lock:
-                    result = getattr(master, name)(*args)
-                    status = _status(master)
-                answer = ("ok", result, status)
-            except Exception as exc:  # said to the caller, whose order it was
-                with lock:
-                    status = _status(master)
-                answer = ("error", f"{type(exc).__name__}: {exc}", status)
-            try:
-                commands.send(answer)
-            except (OSError, EOFError):
-                break
-        loop.call_soon_threadsafe(parent_gone.set)
-
-    threading.Thread(target=serve_commands, name="link commands", daemon=True).start()
-    send(("up", os.getpid()))
-    runner = loop.create_task(run_master(master, endpoint, on_events, clock=clock, lock=lock,
-                                         on_bytes=lambda data, t: send(("rx", data, t)), on_turn=on_turn))
-    gone = loop.create_task(parent_gone.wait())
-    await asyncio.wait({runner, gone}, return_when=asyncio.FIRST_COMPLETED)
-    if runner.done():  # the loop itself failed: said, and the console starts a new one
-        exc = runner.exception()
-        send(("fatal", f"the link loop stopped: {exc!r}"))
-        gone.cancel()
-        await endpoint.close()
+    runner = run_master(master, endpoint, on_events, clock=clock, lock=lock,
+                        on_bytes=lambda data, t: send(("rx", data, t)), on_turn=on_turn)
+    tasks = await serve_until_console_gone(commands, send, endpoint, [runner], what="link", calls=CALLS,
+                                           machine=master, lock=lock, status=lambda: _status(master))
+    if tasks is None:
         return 3
     # The console is gone: STOP, then silence (the ROV's failsafe holds it).
     with lock:
@@ -215,11 +287,8 @@ async def _child(commands, events, spec: dict) -> int:
         if not master.stopping:
             master.send_order(Stop())
     print("rovlink link process: the console is gone; sending STOP, then no more polls", flush=True)
-    deadline = time.monotonic() + STOP_AFTER_PARENT_S
-    while not confirmed.is_set() and time.monotonic() < deadline:
-        await asyncio.sleep(0.02)
-    runner.cancel()
-    await asyncio.gather(runner, return_exceptions=True)
+    await until_set(confirmed, STOP_AFTER_PARENT_S, 0.02)
+    await end_loops(tasks)
     await endpoint.close()
     print("rovlink link process: STOP " + ("confirmed" if confirmed.is_set() else "not confirmed") +
           "; polling stopped", flush=True)
@@ -230,11 +299,6 @@ async def _child(commands, events, spec: dict) -> int:
 # The console's side
 # ---------------------------------------------------------------------------
 
-class _Decoder:
-    def __init__(self) -> None:
-        self.crc_errors = 0
-
-
 class PortMirror:
     """The link process's transport as the console sees it: up or down, and why."""
 
@@ -244,24 +308,22 @@ class PortMirror:
         self.stats = type("PortStats", (), {"last_error": None})()
 
 
-class MasterProcess:
-    """The master, run in a process of its own; the session calls it as it would
-    the master (the calls of `CALLS`, `stopping`, `stats`, `estimated_ber()`,
-    `decoder.crc_errors`, `image_received`, `trunk_bytes`)."""
+class LinkProcess:
+    """A link process as the console runs it, either profile's: started (spawn), its
+    calls answered over one pipe and its messages read from another, watched, and
+    started again whenever it ends.  A profile says what its child is and is given
+    (`_child`), what it reads of a status (`_take_status`), what the counts of one
+    that ended carry (`_carry_counts`), and takes its own messages."""
 
-    def __init__(self, url: str, *, bitrate_bps: float, delay_s: float, max_frame: int | None,
-                 t0: float) -> None:
+    refusal: type[Exception] = ValueError  # raised for a call the machine refused ("refused")
+    # The process's end said at once (calls refused meanwhile), before it is joined;
+    # or joined first (at once for a process that ended), then "down" and why set together.
+    down_before_join = False
+
+    def __init__(self, url: str, what: str, port: PortMirror) -> None:
         self.url = url
-        self.bitrate_bps, self.delay_s, self.t0 = bitrate_bps, delay_s, t0
-        self.key: bytes | None = None
-        # Frame arithmetic only (trunk sizes): never polls.
-        self._frames: Any = Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame or MAX_FRAME)
-        self.port = PortMirror(max_frame)
-        self.on_reply: Callable[[bytes, bool, float], None] | None = None
-        self.decoder = _Decoder()
-        self._status: dict = {"stats": dataclasses.asdict(MasterStats()), "stopping": False, "ber": 0.0,
-                              "crc_errors": 0, "image_received": 0, "pilot_in_force": False}
-        self._stats_before: dict = {}  # counts of the link processes that ended
+        self.what = what  # its name in what is said of it: "link", "acoustic link"
+        self.port = port
         self._call_lock = threading.Lock()
         self._process = None
         self._commands = None
@@ -271,12 +333,188 @@ class MasterProcess:
         self.ever_up = False
         self.down_reason: str | None = None  # why it ended, until it runs again
         self.last_exit: str | None = None
+
+    # -- what a profile says ----------------------------------------------------
+
+    def _child(self) -> tuple[Callable[[Any, Any, dict], None], dict]:
+        """The child's entry (multiprocessing's target) and what it is given."""
+        raise NotImplementedError
+
+    def _take_status(self, status: dict) -> None:
+        raise NotImplementedError
+
+    def _carry_counts(self) -> None:
+        """It ended: its counts kept for the next one's, its status as none's."""
+        raise NotImplementedError
+
+    # -- what the session reads -------------------------------------------------
+
+    @property
+    def link_process_state(self) -> dict:
+        """The link state's `link_process` fields (console/session/state.py LinkState)."""
+        up, reason = self.up, self.down_reason  # (read once: the loop sets them)
+        if not up and not self.ever_up and reason is None:
+            return {"link_process": "starting", "link_process_reason": None, "link_process_pid": None}
+        return {"link_process": "up" if up else "down", "link_process_reason": None if up else reason,
+                "link_process_pid": self.pid if up else None}
+
+    # -- its calls --------------------------------------------------------------
+
+    def _call(self, name: str, *args):
+        with self._call_lock:
+            if not self.up or self._commands is None:
+                raise LinkProcessDown(f"the {self.what} process is not running (it is being started again)")
+            try:
+                self._commands.send(("call", name, args))
+                if not self._commands.poll(CALL_TIMEOUT_S):
+                    raise LinkProcessDown(f"the {self.what} process did not answer {name} within "
+                                          f"{CALL_TIMEOUT_S:g} s")
+                kind, result, status = self._commands.recv()
+            except (OSError, EOFError) as exc:
+                raise LinkProcessDown(f"the {self.what} process is gone ({exc or type(exc).__name__})") from None
+        self._take_status(status)
+        if kind == "refused":
+            raise self.refusal(result)
+        if kind == "error":
+            raise ValueError(result)
+        return result
+
+    # -- running it -------------------------------------------------------------
+
+    def _spawn(self) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        commands, child_commands = ctx.Pipe(duplex=True)
+        child_events, events = ctx.Pipe(duplex=False)
+        target, spec = self._child()
+        process = ctx.Process(target=target, args=(child_commands, events, spec),
+                              name="rovlink-" + self.what.replace(" ", "-"), daemon=False)
+        process.start()
+        child_commands.close()
+        events.close()
+        self._process, self._commands, self._events = process, commands, child_events
+
+    async def _supervise(self, take: Callable[[tuple], None], *, turn: Callable[[], None],
+                         up: Callable[[int], None], down: Callable[[str], None]) -> None:
+        """Run the link process, start it again whenever it ends, until cancelled: its
+        messages of every profile taken here, the rest by `take`; `turn` every `TURN_S`
+        while it runs; `up` once it is up (its pid), `down` once it ended (why)."""
+        loop = asyncio.get_running_loop()
+        while True:
+            self._spawn()
+            ended = loop.create_future()
+
+            def readable(ended=ended) -> None:
+                try:
+                    while self._events.poll():
+                        self._dispatch(self._events.recv(), take, up)
+                except (EOFError, OSError):
+                    if not ended.done():
+                        ended.set_result(None)
+
+            loop.add_reader(self._events.fileno(), readable)
+            try:
+                while not ended.done():
+                    turn()
+                    await asyncio.wait({ended}, timeout=TURN_S)
+            finally:
+                loop.remove_reader(self._events.fileno())
+            was_up = self.up
+            if self.down_before_join:
+                self.up = False
+                self._carry_counts()
+            await loop.run_in_executor(None, self._process.join, 5.0)
+            code = self._process.exitcode
+            why = self.last_exit or (f"it ended with exit code {code}" if code is not None and code >= 0
+                                     else f"it was killed (signal {-code})" if code is not None
+                                     else "its pipe closed")
+            self.last_exit = None
+            self.down_reason = why if was_up or self.ever_up else f"it could not start: {why}"
+            if not self.down_before_join:
+                self.up = False
+                self._carry_counts()
+            self._close_pipes()
+            down(self.down_reason)
+            await asyncio.sleep(RESTART_AFTER_S if was_up else max(RESTART_AFTER_S, 1.0))
+
+    def _dispatch(self, message: tuple, take: Callable[[tuple], None], up: Callable[[int], None]) -> None:
+        kind = message[0]
+        if kind == "port":
+            _, is_up, _news, reason = message
+            self.port.is_up = bool(is_up)
+            self.port.stats.last_error = reason
+        elif kind == "up":
+            self.pid = message[1]
+            self.up = self.ever_up = True
+            self.down_reason = None
+            up(self.pid)
+        elif kind == "fatal":
+            self.last_exit = message[1]
+        else:
+            take(message)
+
+    def _close_pipes(self) -> None:
+        for conn in (self._commands, self._events):
+            if conn is not None:
+                conn.close()
+        self._commands = self._events = None
+
+    def _tell_to_end(self) -> None:
+        """The console ends: the link process is told (it sends STOP, then nothing more)."""
+        self.up = False
+        with self._call_lock:
+            if self._commands is not None:
+                try:
+                    self._commands.send(("quit",))
+                except (OSError, EOFError):
+                    pass
+
+    def _end(self, timeout_s: float) -> None:
+        """Told to end, and waited for (its STOP first), killed past `timeout_s`."""
+        self._tell_to_end()
+        process = self._process
+        if process is not None and process.is_alive():
+            process.join(timeout_s)
+            if process.is_alive():
+                process.kill()
+                process.join(2)
+        self._close_pipes()
+        self._process = None
+
+
+class _Decoder:
+    def __init__(self) -> None:
+        self.crc_errors = 0
+
+
+class MasterProcess(LinkProcess):
+    """The master, run in a process of its own; the session calls it as it would
+    the master (the calls of `CALLS`, `stopping`, `stats`, `estimated_ber()`,
+    `decoder.crc_errors`, `image_received`, `trunk_bytes`)."""
+
+    down_before_join = True
+
+    def __init__(self, url: str, *, bitrate_bps: float, delay_s: float, max_frame: int | None,
+                 t0: float) -> None:
+        super().__init__(url, "link", PortMirror(max_frame))
+        self.bitrate_bps, self.delay_s, self.t0 = bitrate_bps, delay_s, t0
+        self.key: bytes | None = None
+        # Frame arithmetic only (trunk sizes): never polls.
+        self._frames: Any = Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame or MAX_FRAME)
+        self.on_reply: Callable[[bytes, bool, float], None] | None = None
+        self.decoder = _Decoder()
+        self._status: dict = {"stats": dataclasses.asdict(MasterStats()), "stopping": False, "ber": 0.0,
+                              "crc_errors": 0, "image_received": 0, "pilot_in_force": False}
+        self._stats_before: dict = {}  # counts of the link processes that ended
         # What the session last set, given again to a link process started anew.
         self._kept: dict[str, tuple] = {}
 
     def authenticate(self, key: bytes) -> None:
         self.key = key
         self._frames = SecureMaster(self._frames, key)
+
+    def _child(self) -> tuple[Callable[[Any, Any, dict], None], dict]:
+        return child_main, {"url": self.url, "bitrate_bps": self.bitrate_bps, "delay_s": self.delay_s,
+                            "t0": self.t0, "key": self.key}
 
     # -- what the session reads ---------------------------------------------
 
@@ -308,23 +546,11 @@ class MasterProcess:
         self._status = status
         self.decoder.crc_errors = status["crc_errors"]
 
-    # -- what the session orders ----------------------------------------------
+    def _carry_counts(self) -> None:
+        self._stats_before = {k: v for k, v in self.stats.__dict__.items() if isinstance(v, int)}
+        self._status = {**self._status, "stats": dataclasses.asdict(MasterStats()), "stopping": False}
 
-    def _call(self, name: str, *args):
-        with self._call_lock:
-            if not self.up or self._commands is None:
-                raise LinkProcessDown("the link process is not running (it is being started again)")
-            try:
-                self._commands.send(("call", name, args))
-                if not self._commands.poll(CALL_TIMEOUT_S):
-                    raise LinkProcessDown(f"the link process did not answer {name} within {CALL_TIMEOUT_S:g} s")
-                kind, result, status = self._commands.recv()
-            except (OSError, EOFError) as exc:
-                raise LinkProcessDown(f"the link process is gone ({exc or type(exc).__name__})") from None
-        self._take_status(status)
-        if kind == "error":
-            raise ValueError(result)
-        return result
+    # -- what the session orders ----------------------------------------------
 
     def _keep_and_call(self, name: str, *args) -> None:
         """A setting that holds until changed: kept for a new link process, and not
@@ -367,85 +593,31 @@ class MasterProcess:
 
     # -- running it -----------------------------------------------------------
 
-    def _spawn(self) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        commands, child_commands = ctx.Pipe(duplex=True)
-        child_events, events = ctx.Pipe(duplex=False)
-        spec = {"url": self.url, "bitrate_bps": self.bitrate_bps, "delay_s": self.delay_s, "t0": self.t0,
-                "key": self.key}
-        process = ctx.Process(target=child_main, args=(child_commands, events, spec), name="rovlink-link",
-                              daemon=False)
-        process.start()
-        child_commands.close()
-        events.close()
-        self._process, self._commands, self._events = process, commands, child_events
-
     async def run(self, on_events: Callable[[list, float], None], *, clock: Callable[[], float],
                   on_bytes: Callable[[bytes, float], None] | None = None,
                   on_turn: Callable[[float], None] | None = None,
                   on_up: Callable[[int, float], None] | None = None,
                   on_down: Callable[[str, float], None] | None = None) -> None:
         """Run the link process, start it again whenever it ends, until cancelled."""
-        loop = asyncio.get_running_loop()
-        try:
-            while True:
-                self._spawn()
-                ended = loop.create_future()
 
-                def readable(ended=ended) -> None:
-                    try:
-                        while self._events.poll():
-                            self._dispatch(self._events.recv(), on_events, on_bytes, on_up, clock)
-                    except (EOFError, OSError):
-                        if not ended.done():
-                            ended.set_result(None)
+        def take(message: tuple) -> None:
+            kind = message[0]
+            if kind == "events":
+                _, batch, t, status = message
+                self._take_status(status)
+                on_events(batch, t)
+            elif kind == "rx":
+                if on_bytes is not None:
+                    on_bytes(message[1], message[2])
+            elif kind == "reply":
+                if self.on_reply is not None:
+                    self.on_reply(message[1], message[2], message[3])
 
-                loop.add_reader(self._events.fileno(), readable)
-                try:
-                    while not ended.done():
-                        if on_turn is not None and self.up:
-                            on_turn(clock())
-                        await asyncio.wait({ended}, timeout=TURN_S)
-                finally:
-                    loop.remove_reader(self._events.fileno())
-                was_up = self.up
-                self.up = False
-                self._stats_before = {k: v for k, v in self.stats.__dict__.items() if isinstance(v, int)}
-                self._status = {**self._status, "stats": dataclasses.asdict(MasterStats()), "stopping": False}
-                await loop.run_in_executor(None, self._process.join, 5.0)
-                code = self._process.exitcode
-                why = self.last_exit or (f"it ended with exit code {code}" if code is not None and code >= 0
-                                         else f"it was killed (signal {-code})" if code is not None
-                                         else "its pipe closed")
-                self.last_exit = None
-                self.down_reason = why if was_up or self.ever_up else f"it could not start: {why}"
-                self._close_pipes()
-                if on_down is not None:
-                    on_down(self.down_reason, clock())
-                await asyncio.sleep(RESTART_AFTER_S if was_up else max(RESTART_AFTER_S, 1.0))
-        finally:
-            self.stop()
+        def turn() -> None:
+            if on_turn is not None and self.up:
+                on_turn(clock())
 
-    def _dispatch(self, message: tuple, on_events, on_bytes, on_up, clock) -> None:
-        kind = message[0]
-        if kind == "events":
-            _, batch, t, status = message
-            self._take_status(status)
-            on_events(batch, t)
-        elif kind == "rx":
-            if on_bytes is not None:
-                on_bytes(message[1], message[2])
-        elif kind == "reply":
-            if self.on_reply is not None:
-                self.on_reply(message[1], message[2], message[3])
-        elif kind == "port":
-            _, up, _news, reason = message
-            self.port.is_up = bool(up)
-            self.port.stats.last_error = reason
-        elif kind == "up":
-            self.pid = message[1]
-            self.up = self.ever_up = True
-            self.down_reason = None
+        def up(pid: int) -> None:
             # What the session had set holds in the new master too (the pilot's wish, whether
             # it is in force, whether a pilot attends).
             for name, args in list(self._kept.items()):
@@ -454,30 +626,17 @@ class MasterProcess:
                 except (LinkProcessDown, ValueError):
                     pass
             if on_up is not None:
-                on_up(self.pid, clock())
-        elif kind == "fatal":
-            self.last_exit = message[1]
+                on_up(pid, clock())
 
-    def _close_pipes(self) -> None:
-        for conn in (self._commands, self._events):
-            if conn is not None:
-                conn.close()
-        self._commands = self._events = None
+        def down(why: str) -> None:
+            if on_down is not None:
+                on_down(why, clock())
+
+        try:
+            await self._supervise(take, turn=turn, up=up, down=down)
+        finally:
+            self.stop()
 
     def stop(self, timeout_s: float = STOP_AFTER_PARENT_S + 2.0) -> None:
         """End the link process as the console ends: it sends STOP, then stops polling."""
-        process = self._process
-        self.up = False
-        with self._call_lock:
-            if self._commands is not None:
-                try:
-                    self._commands.send(("quit",))
-                except (OSError, EOFError):
-                    pass
-        if process is not None and process.is_alive():
-            process.join(timeout_s)
-            if process.is_alive():
-                process.kill()
-                process.join(2)
-        self._close_pipes()
-        self._process = None
+        self._end(timeout_s)
