@@ -188,6 +188,7 @@ class FeatureTracker:
     MIN_POINTS = 8
     MAX_POINTS = 60
     MATCH_SCORE = 0.8  # the patch's best correlation: found (also to take a lost object back)
+    UNIQUE_MARGIN = 0.1  # ... and that far above the best correlation half a patch away or more
 
     def __init__(self, cv2) -> None:
         self.cv2 = cv2
@@ -263,9 +264,17 @@ class FeatureTracker:
             return None
         result = self.cv2.matchTemplate(grey[sy0:sy1, sx0:sx1], self.template, self.cv2.TM_CCOEFF_NORMED)
         _, peak, _, (u, v) = self.cv2.minMaxLoc(result)
-        if peak < self.MATCH_SCORE:
+        if peak < self.MATCH_SCORE or not self._unique(result, peak, u, v, tw, th):
             return None
         return sx0 + u + tw / 2 - (x0 + x1) / 2, sy0 + v + th / 2 - (y0 + y1) / 2
+
+    def _unique(self, result: np.ndarray, peak: float, u: int, v: int, tw: int, th: int) -> bool:
+        """The peak stands out: nothing at least half a patch away matches nearly as well.
+        Bare sand matches itself everywhere, and a patch taken for the object there would
+        "hold" a track whose object left the picture long ago."""
+        others = result.copy()
+        others[max(v - th // 2, 0):v + th // 2 + 1, max(u - tw // 2, 0):u + tw // 2 + 1] = -1.0
+        return not others.size or float(others.max()) < peak - self.UNIQUE_MARGIN
 
     def update(self, frame: np.ndarray) -> Box | None:
         before = self.corners.mean(axis=0)

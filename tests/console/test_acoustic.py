@@ -57,7 +57,7 @@ def acoustic(tmp_path_factory):
     base = f"http://127.0.0.1:{port}"
     try:
         assert wait_for(lambda: get(base + "/api/pose")["received"], 120), "no status from the ROV over the modems"
-        yield base, radio, rov, console, gcs_port
+        yield base, radio, rov, console, gcs_port, tmp / "rov.log"
     finally:
         end_processes(console)  # (first: its link process sends STOP as it ends, which the ROV takes)
         end_processes(rov)
@@ -75,7 +75,7 @@ def order(base: str, kind: str) -> dict | None:
 def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
     from playwright.sync_api import sync_playwright
 
-    base, radio, rov, console, _ = acoustic
+    base, radio, rov, console, _, _ = acoustic
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1366, "height": 768})
@@ -186,7 +186,7 @@ def test_a_ground_station_sees_the_acoustic_vehicle_and_its_go_to_and_stops_it(a
     from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 
     m = mavutil.mavlink
-    base, _, _, _, gcs_port = acoustic
+    base, _, _, _, gcs_port, _ = acoustic
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{gcs_port}", dialect="ardupilotmega", source_system=255)
     try:
         hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=30)
@@ -254,7 +254,11 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
     away, the next thumbnail says the track is LOST."""
     from playwright.sync_api import sync_playwright
 
-    base = acoustic[0]
+    base, rov_log = acoustic[0], acoustic[5]
+
+    def rov_says(word: str) -> list[str]:
+        return [line.strip() for line in open(rov_log, encoding="utf-8", errors="replace") if word in line][-5:]
+
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1366, "height": 768})
@@ -272,18 +276,18 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
         first = page.evaluate(SHOWN)[0]
         drawn_on = int(page.evaluate("document.getElementById('image').dataset.img"))  # the thumbnail's OID
 
-        # An ROI dragged on the thumbnail, set to follow.
+        # An ROI round the amphorae, dragged on the thumbnail, set to follow.
         box = page.locator("#image").bounding_box()
-        page.mouse.move(box["x"] + box["width"] * 0.4, box["y"] + box["height"] * 0.35)
+        page.mouse.move(box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.4)
         page.mouse.down()
-        page.mouse.move(box["x"] + box["width"] * 0.62, box["y"] + box["height"] * 0.65, steps=5)
+        page.mouse.move(box["x"] + box["width"] * 0.85, box["y"] + box["height"] * 0.75, steps=5)
         page.mouse.up()
         assert page.is_visible("#roi-follow") and page.is_checked("#roi-keep")
         page.click("#roi-follow")
-        page.wait_for_function(f"({SHOWN})()[0] > {first} && ({SHOWN})()[2] === 'holds' && ({SHOWN})()[1] !== null"
-                               f" && {VERIFIED}", timeout=300000)
-        serial, left0, _, text = page.evaluate(SHOWN)
-        assert "track holds" in text and page.is_visible("#follow-again")
+        page.wait_for_function(f"({SHOWN})()[0] > {first} && ({SHOWN})()[1] !== null && {VERIFIED}", timeout=240000)
+        serial, left0, state, text = page.evaluate(SHOWN)
+        assert state == "holds" and "track holds" in text, (text, get(base + "/api/image"), rov_says("FOLLOW"))
+        assert page.is_visible("#follow-again")
         sent = [o for o in get(base + "/api/orders") if o["kind"] == "IMAGE"][-1]
         assert sent.get("follow") is True and sent.get("drawn_on") == drawn_on, sent
 
@@ -302,7 +306,7 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
         page.wait_for_function(f"({SHOWN})()[0] > {serial} && ({SHOWN})()[1] !== null && {VERIFIED}",
                                timeout=300000)
         serial, left1, state, text = page.evaluate(SHOWN)
-        assert state == "holds", text
+        assert state == "holds", (text, rov_says("FOLLOW"))
         assert left1 < left0 - 5, (left0, left1)
         # Turned away: the next thumbnail says the track is lost, the last ROI kept.
         turn(120.0)
