@@ -24,14 +24,10 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import numpy as np
-
-from rovlink import debt
 from rovlink.link.aio import run_master
 from rovlink.link.process import LinkProcessDown, MasterProcess
 from rovlink.link.radio.frame import MAX_FRAME
@@ -58,44 +54,36 @@ from rovlink.link.radio.messages import (
     NO_IMAGE_DATA,
     FollowSettings,
     ImageSettings,
-    Mode,
     ProtocolError,
     Reply,
     Stop,
     Velocity,
 )
 from rovlink.link.radio.secure import InauthenticFrame, LateReply, SecureMaster, Synced
-from rovlink.link.report import VehicleReport, report_from_reply
-from rovlink.link.transports.transport import Endpoint, port_change, port_down_reason
-from rovlink.link.units import position_order, velocity_ints, wish_of, wrap_deg
+from rovlink.link.report import report_from_reply
+from rovlink.link.transports.transport import Endpoint, port_down_reason
+from rovlink.link.units import position_order, velocity_ints, wish_of
 
+from .session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
 from .session.contract import Capabilities
-from .session.goto import GoToWatch, resolve_target
+from .session.goto import GoToWatch
 from .session.health import LinkHealth
-from .session.images import DaemonWorker, ImageReceiver, ImageView
-from .session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
+from .session.images import ImageReceiver
+from .session.odometry import History, Odometry, Pose
 from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
-from .session.predictor import NEUTRAL_WISH, Predictor, preview_path
+from .session.predictor import NEUTRAL_WISH, Predictor
 from .session.recorder import Recorder
 
 __all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "NotNow", "Operator", "OrderError", "Pose"]
 
 log = logging.getLogger("rovlink.console.operator")
 
-MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
 
+class Operator(SessionBase):
+    """The radio profile's session (console/session/contract.py's VehicleSession),
+    on the ground every session stands on (console/session/base.py)."""
 
-class OrderError(ValueError):
-    """An order the operator cannot send as given; the message says why."""
-
-
-class NotNow(OrderError):
-    """A well-formed order the link cannot carry, or not now (HTTP 409): sticks on
-    the acoustic link, an order before the ROV's first status, during a STOP."""
-
-
-class Operator:
-    """The radio profile's session (console/session/contract.py's VehicleSession)."""
+    _logger = log
 
     capabilities = Capabilities(profile="radio", velocity=True, next_image=True, follow=True, picture="stream",
                                 image_budget_max=MAX_BUDGET, report_every_s=0.3)
@@ -114,8 +102,7 @@ class Operator:
         if isinstance(master, MasterProcess) and endpoint is None:
             endpoint = master.port  # the link process's transport, as it says it is
         self.endpoint = endpoint
-        self._clock = clock or time.monotonic
-        self._t0 = self._clock()
+        self._start_session(clock or time.monotonic, decoder="debt-decode", warm_up="debt-warm-up (console)")
         max_frame = (endpoint.max_frame if endpoint is not None else None) or MAX_FRAME
         self.master = master or Master(bitrate_bps=bitrate_bps, delay_s=delay_s, max_frame=max_frame)
         # The protocol machine itself (in version 2 `master` is the SecureMaster around it).
@@ -126,18 +113,8 @@ class Operator:
         self.bitrate_bps = bitrate_bps
         self.delay_s = delay_s
         self.rov_failsafe_s = FAILSAFE_S  # the ROV's (docs/PROTOCOL.md §3); create_app may say otherwise
-        self._lock = threading.RLock()
-        self._subscribers: list[Callable[[str, Any], None]] = []
-        self._quiet = False
-        # Clock time of session time 0, for the pilot's clock times (a replay sets the recording's).
-        self.wall0 = time.time()
         self._initial_settings = image_settings
-        # DEBT compiles on first use: ahead, in a daemon thread (never holding the exit).
-        self._warm_up = debt.warm_up_in_background("debt-warm-up (console)")
-        self._port_up: bool | None = None  # the endpoint's port as last seen (`_watch_port`)
-        self._decoder = DaemonWorker("debt-decode")
         self._stops_to_resend: list[int] = []  # STOPs a link process took with it, for the next one
-        self._link_starts = 0
         self._link_down_said: str | None = None  # the link process's end last said, until it runs again
         if isinstance(self.master, MasterProcess):
             self.master.t0 = self._t0  # one session clock in both processes
@@ -169,98 +146,14 @@ class Operator:
         # "1.1" until `authenticate` puts version 2 around the master (a replay: its recording says).
         self.link_version = "2" if isinstance(self.master, SecureMaster) else "1.1"
 
-    def reset(self) -> None:
-        """Start the session's state over (a replay seeking back), keeping who the
-        operator is: its lock, subscribers, decode thread, clock and settings."""
-        # Let a decode of the old state finish first: it would land on the new one.
-        try:
-            self._decoder.submit(lambda: None).result(timeout=10)
-        except Exception:  # shut down, or slow: nothing more to wait for
-            pass
-        with self._lock:
-            self._new_parts(replaying=self.health.replaying, lost_after_s=self.health.lost_after_s)
-            self.link_version = "1.1"
+    def _start_over(self) -> None:
+        """`reset`'s: the parts made anew, a replay's switches kept (lock held)."""
+        self._new_parts(replaying=self.health.replaying, lost_after_s=self.health.lost_after_s)
+        self.link_version = "1.1"
 
-    # ------------------------------------------------------------------
-    # Time, subscribers, the log
-    # ------------------------------------------------------------------
-
-    def now(self) -> float:
-        """Session time in seconds (monotonic, 0 at start; simulated in benchmarks)."""
-        return self._clock() - self._t0
-
-    def use_clock(self, clock: Callable[[], float], *, wall0: float | None = None) -> None:
-        """Session time from `clock` from now on, itself (a replay's timeline)."""
-        self._clock, self._t0 = clock, 0.0
-        if wall0 is not None:
-            self.wall0 = wall0
-
-    def subscribe(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
-        with self._lock:
-            self._subscribers.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
-
-        return unsubscribe
-
-    def publish(self, topic: str, payload: Any) -> None:
-        """Tell every subscriber (the command layer publishes its own events here too)."""
-        self._publish(topic, payload)
-
-    def _publish(self, topic: str, payload: Any) -> None:
-        if self._quiet:
-            return
-        for callback in list(self._subscribers):
-            try:
-                callback(topic, payload)
-            except Exception:
-                log.exception("subscriber failed on %s", topic)
-
-    @contextlib.contextmanager
-    def quiet(self) -> Iterator[None]:
-        """Publish nothing inside (a replay's seek), then the resulting state once."""
-        self._quiet = True
-        try:
-            yield
-        finally:
-            self._quiet = False
-        self._publish("pose", self.pose_state())
-        self._publish("image", self.image_state())
+    def _publish_settled(self) -> None:
+        super()._publish_settled()
         self._publish("wish", self.wish_state())
-
-    def wall(self, t: float) -> float:
-        """Clock time (Unix seconds) of session time `t`."""
-        return self.wall0 + t
-
-    def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
-        """A log line. `level`: "alert" (the pilot must see it: link lost, failsafe,
-        forged frames, an order refused), "warn", or "info" (routine: an image complete).
-        `cause`: the condition an alert is about ("link", "failsafe", "port", "process": the link process), so that
-        `clear_alerts` can mark it cleared when the condition ends."""
-        line = LogLine(self.now(), text, level, cause)
-        self.history.log.append(line)
-        self._publish("log", self._log_entry(line))
-
-    def clear_alerts(self, cause: str) -> None:
-        """The condition `cause` has ended: its alerts still standing are marked
-        cleared (and published again, so that every page greys them)."""
-        t = self.now()
-        with self._lock:
-            cleared = [line for line in list(self.history.log) if line.cause == cause and line.cleared is None]
-            for line in cleared:
-                line.cleared = t
-        for line in cleared:
-            self._publish("log", self._log_entry(line))
-
-    def _log_entry(self, line: LogLine) -> dict:
-        return {"t": line.t, "wall": round(self.wall(line.t), 3), "text": line.text, "level": line.level,
-                "cause": line.cause, "cleared_wall": None if line.cleared is None else round(self.wall(line.cleared), 3)}
-
-    def log_entries(self, last: int = LOG_KEPT) -> list[dict]:
-        return [self._log_entry(line) for line in list(self.history.log)[-last:]]
 
     # ------------------------------------------------------------------
     # The link driver
@@ -336,19 +229,6 @@ class Operator:
         self.health.watch(t)
         self._watch_port()
 
-    def _watch_port(self) -> None:
-        """This console's own modem port going down (unplugged, its adapter gone) is
-        an alert with the transport's reason, beside the LINK LOST it causes; its
-        coming back clears it."""
-        self._port_up, news = port_change(self.endpoint, self._port_up)
-        if news is None:
-            return
-        if not self._port_up:
-            self.note(news, "alert", cause="port")
-        else:
-            self.note(news)
-            self.clear_alerts("port")
-
     def bytes_received(self, data: bytes, t: float) -> None:
         self.recorder.write({"k": "rx", "t": round(t, 4), "hex": data.hex()})
         self.health.event(t, "rx", len(data))
@@ -370,19 +250,6 @@ class Operator:
             self.master.on_reply = record_reply
             self.link_version = "2"
         self.recorder.write({"k": "link", "t": round(self.now(), 4), "version": 2})
-
-    def close(self) -> None:
-        self.recorder.close()
-        self._decoder.shutdown()
-
-    def wait_debt_idle(self, timeout: float = 300.0) -> bool:
-        """Wait until nothing of DEBT runs in this operator's threads: its
-        warm-up done and every decode handed over so far finished (True), or
-        `timeout` seconds (False).  For a caller that needs a quiet moment,
-        such as the memory benchmark around tracemalloc's start and stop."""
-        deadline = time.monotonic() + timeout
-        self._warm_up.join(timeout)
-        return not self._warm_up.is_alive() and self._decoder.wait_idle(max(deadline - time.monotonic(), 0.0))
 
     # ------------------------------------------------------------------
     # What happened on the link (the master's events, or a replay's)
@@ -569,14 +436,7 @@ class Operator:
     def set_mode(self, mode: str | int) -> int:
         """Request a mode (a name of MODE_NAMES or its number); the returned
         order id is followed until the vehicle reports the mode, or refused."""
-        if isinstance(mode, str):
-            if mode.upper() not in MODE_NAMES:
-                raise OrderError(f"unknown mode {mode!r}; one of {', '.join(MODE_NAMES)}")
-            value = MODE_NAMES[mode.upper()]
-        else:
-            if mode not in MODE_NAMES.values():
-                raise OrderError(f"mode must be 1..6, got {mode!r}")
-            value = Mode(mode)
+        value = mode_of(mode)
         t = self.now()
         with self._lock, self._link_call():
             self.master.request_mode(value, t)
@@ -598,23 +458,13 @@ class Operator:
                 raise NotNow(str(exc)) from None
         return order_id
 
-    def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
-                      body: bool = False) -> int:
-        for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m), ("yaw_deg", yaw_deg)):
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise OrderError(f"{name} must be a finite number, got {v!r}")
-        yaw = wrap_deg(yaw_deg)
+    def _queue_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float, *, relative: bool, body: bool,
+                        detail: dict) -> int:
         try:
-            order = position_order(x_m, y_m, z_m, yaw, relative=relative, body=body)
+            order = position_order(x_m, y_m, z_m, yaw_deg, relative=relative, body=body)
         except ProtocolError as exc:
             raise OrderError(str(exc)) from None
-        # The ROV flies a position order in GUIDED: the pilot is told before it goes.
-        order_id = self._queue(order, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
-                                                   "relative": relative, "body": body, "mode": "GUIDED"})
-        with self._lock:
-            target = resolve_target(x_m, y_m, z_m, yaw, relative=relative, body=body, fix=self.odometry.fix)
-            self.goto.started(order_id, target, self.now())
-        return order_id
+        return self._queue(order, "POSITION", detail)
 
     def stop(self) -> int:
         """STOP: neutral velocity now, cancel queued targets, hold depth."""
@@ -697,43 +547,15 @@ class Operator:
             self.history.commanded.append((self.now(), *self._wish))
         self._publish("wish", self.wish_state())
 
-    def replayed_order(self, record: dict) -> None:
-        """A recorded order or change of its state, listed as it was."""
-        self.orders.replayed(record, self.now())
-
     # ------------------------------------------------------------------
     # State (any thread; no side effects)
     # ------------------------------------------------------------------
-
-    @property
-    def replaying(self) -> bool:
-        return self.health.replaying
-
-    @replaying.setter
-    def replaying(self, value: bool) -> None:
-        self.health.replaying = bool(value)
-
-    @property
-    def lost_after_s(self) -> float:
-        return self.health.lost_after_s
-
-    @property
-    def image(self) -> ImageView:
-        return self.images.view
 
     @property
     def last_reply(self) -> Reply | None:
         """The radio reply itself (wire units), for link tools and tests; the
         console's surfaces read `vehicle()`."""
         return self._last_reply
-
-    def vehicle(self) -> VehicleReport | None:
-        """What the ROV last said of itself, in SI, with when it was sampled."""
-        fix = self.odometry.fix
-        return None if fix is None else fix.report
-
-    def odometry_age_s(self) -> float | None:
-        return self.odometry.age_s(self.now())
 
     def velocity_wish(self) -> tuple[float, float, float, float]:
         return self._wish
@@ -748,12 +570,6 @@ class Operator:
         with self._lock:
             return self.predictor.predict(self.odometry.fix, self.now() if at is None else at, self.rov_failsafe_s)
 
-    def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
-                     step_s: float = 0.5) -> list[tuple[float, float, float]]:
-        """Where a POSITION order would take the vehicle (GUIDED, from the predicted pose)."""
-        start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
-        return preview_path(start, x_m, y_m, z_m, yaw_deg, seconds=seconds, step_s=step_s)
-
     def uncertainty_m(self) -> float | None:
         """How far the vehicle may be from the prediction: the odometry's age at the
         most it can move.  Full speed while it is armed, or while the link is lost
@@ -765,23 +581,6 @@ class Operator:
         may_drive = fix.report.armed or self.link_condition()[0] == "lost"
         speed = MAX_SPEED_MPS if may_drive else math.hypot(*fix.velocity[:3])
         return round(speed * max(0.0, age), 3)
-
-    def ned_velocity(self) -> tuple[float, float, float, float] | None:
-        """Measured north, east, down m/s and yaw deg/s (None before two reports)."""
-        with self._lock:
-            fix = self.odometry.fix
-            return None if fix is None or self.odometry.fixes < 2 else fix.velocity
-
-    def measured_velocity(self) -> dict | None:
-        """Speeds from successive received poses (finite differences, smoothed): body
-        forward and right, down, and yaw rate; None before two replies."""
-        with self._lock:
-            return self.odometry.measured_velocity()
-
-    def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
-        """("up" | "degraded" | "lost" | "replay" | "starting", seconds since the last reply):
-        the one definition of a lost link (console.session.health)."""
-        return self.health.condition(self.now() if t is None else t)
 
     def pose_state(self) -> dict:
         fix = self.odometry.fix
@@ -829,12 +628,6 @@ class Operator:
         return ("the ROV is preparing its first picture (its picture coder starts up: up to a minute on a "
                 "first run); it shows here as it arrives")
 
-    def image_history(self) -> list[dict]:
-        return self.images.history()
-
-    def picture(self) -> np.ndarray | None:
-        return self.images.view.picture
-
     def link_state(self) -> dict:
         t = self.now()
         with self._lock:
@@ -862,27 +655,6 @@ class Operator:
             "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             # Why this console's own modem port is down (None while it is up, or for a replay).
             "port_error": port_down_reason(self.endpoint),
-            **self._link_process_state(),
+            **self._link_process_state(self.master),
             "profile": "radio",
-        }
-
-    def _link_process_state(self) -> dict:
-        if not isinstance(self.master, MasterProcess):
-            return {"link_process": None, "link_process_reason": None, "link_process_pid": None}
-        return self.master.link_process_state
-
-    def orders_state(self) -> list[dict]:
-        return self.orders.state()
-
-    def state(self) -> dict:
-        return {
-            "pose": self.pose_state(),
-            "image": self.image_state(),
-            "link": self.link_state(),
-            "velocity_wish": self.wish_state(),
-            "orders": self.orders_state(),
-            "log": self.log_entries(20),
-            "replaying": self.replaying,
-            # The session's clock time now: a replay's own (it stands still while paused).
-            "wall": round(self.wall(self.now()), 3),
         }

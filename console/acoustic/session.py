@@ -32,24 +32,19 @@ feeds the recorded statuses, thumbnails, orders and log lines back through
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
-import threading
 import time
 from dataclasses import asdict
-from typing import Any, Callable, Iterator
+from typing import Any, Callable
 
-import numpy as np
-
-from rovlink import debt
-from rovlink.console.operator import MAX_SPEED_MPS, NotNow, OrderError
+from rovlink.console.session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
 from rovlink.console.session.contract import Capabilities
-from rovlink.console.session.goto import GoToWatch, resolve_target
+from rovlink.console.session.goto import GoToWatch
 from rovlink.console.session.health import LinkHealth
-from rovlink.console.session.images import DaemonWorker, ImageReceiver, ImageView
-from rovlink.console.session.odometry import LOG_KEPT, History, LogLine, Odometry, Pose
-from rovlink.console.session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
+from rovlink.console.session.images import ImageReceiver
+from rovlink.console.session.odometry import History, LogLine, Odometry, Pose
+from rovlink.console.session.orders import REPORTED_MODE_NAMES, OrderBook
 from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
@@ -57,10 +52,10 @@ from rovlink.link.acoustic.process import AcousticLinkProcess
 from rovlink.link.aio import recv_within
 from rovlink.link.process import LinkProcessDown
 from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.radio.messages import ImageSettings, Mode
+from rovlink.link.radio.messages import ImageSettings
 from rovlink.link.report import VehicleReport, report_from_status
-from rovlink.link.transports.transport import port_change, port_down_reason
-from rovlink.link.units import acoustic_goto, wrap_deg
+from rovlink.link.transports.transport import port_down_reason
+from rovlink.link.units import acoustic_goto
 
 log = logging.getLogger("rovlink.console.acoustic")
 
@@ -73,10 +68,13 @@ SETTLED = ("rejected", "refused", "cancelled", "unknown", "not carried out", "ar
            "followed")
 
 
-class AcousticSession:
+class AcousticSession(SessionBase):
     """The operator's end of the acoustic link, as every surface of the console
-    sees a session (console/session/contract.py).  `endpoint` None and `key`
-    None: a replay.  `record`: a JSON-lines file of the session, or None."""
+    sees a session (console/session/contract.py), on the ground every session
+    stands on (console/session/base.py).  `endpoint` None and `key` None: a
+    replay.  `record`: a JSON-lines file of the session, or None."""
+
+    _logger = log
 
     capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, follow=True, picture="thumbnail",
                                 image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
@@ -88,25 +86,16 @@ class AcousticSession:
             # on CLOCK_MONOTONIC: the session reads the same clock, so the machine's times are its own.
             endpoint, clock = endpoint or link.port, time.monotonic
         self.endpoint = endpoint
-        self._clock = clock
-        self._t0 = clock()
-        self.wall0 = time.time()
+        self._start_session(clock, decoder="debt-decode (thumbnails)", warm_up="debt-warm-up (acoustic console)")
         self.pace_s = pace_s
         self.op: Any = link if link is not None else ac.AcousticOperator(key) if key is not None else None
         self._stop_pending = False  # a STOP pressed while no link process ran: pressed again in the next
-        self._link_starts = 0
-        self._lock = threading.RLock()
-        self._subscribers: list[Callable[[str, Any], None]] = []
-        self._quiet = False
-        self._decoder = DaemonWorker("debt-decode (thumbnails)")
-        self._warm_up = debt.warm_up_in_background("debt-warm-up (acoustic console)")
         self.rov_failsafe_s = float(ac.FAILSAFE_S)  # until the ROV's SYNC says its own
         self.failsafe_action = "hold"
         self.link_version = "acoustic"
         self.bitrate_bps, self.delay_s = 64.0, 0.0  # what a replay's meta may carry; unused here
         self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
-        self._port_up: bool | None = None
         self.recorder = Recorder(record, {"profile": "acoustic", "pace_s": pace_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                           "wall0": round(self.wall0, 3)})
@@ -131,85 +120,15 @@ class AcousticSession:
         self._heard_at: float | None = None  # the machine's last authentic frame, as last handed to health
         self._alerting = False
 
-    def reset(self) -> None:
-        """Start over (a replay seeking back), keeping the lock, subscribers and decoder."""
-        try:
-            self._decoder.submit(lambda: None).result(timeout=10)
-        except Exception:  # shut down, or slow: nothing more to wait for
-            pass
-        with self._lock:
-            self._new_parts(replaying=self.health.replaying)
+    def _start_over(self) -> None:
+        """`reset`'s: the parts made anew, a replay's switch kept (lock held)."""
+        self._new_parts(replaying=self.health.replaying)
 
-    # ------------------------------------------------------------------
-    # Time, subscribers, the log (as the radio session's)
-    # ------------------------------------------------------------------
-
-    def now(self) -> float:
-        return self._clock() - self._t0
-
-    def use_clock(self, clock: Callable[[], float], *, wall0: float | None = None) -> None:
-        self._clock, self._t0 = clock, 0.0
-        if wall0 is not None:
-            self.wall0 = wall0
-
-    def wall(self, t: float) -> float:
-        return self.wall0 + t
-
-    def subscribe(self, callback: Callable[[str, Any], None]) -> Callable[[], None]:
-        with self._lock:
-            self._subscribers.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
-
-        return unsubscribe
-
-    def publish(self, topic: str, payload: Any) -> None:
-        self._publish(topic, payload)
-
-    def _publish(self, topic: str, payload: Any) -> None:
-        if self._quiet:
-            return
-        for callback in list(self._subscribers):
-            try:
-                callback(topic, payload)
-            except Exception:  # a subscriber's bug never stops the link
-                log.exception("subscriber failed on %s", topic)
-
-    @contextlib.contextmanager
-    def quiet(self) -> Iterator[None]:
-        self._quiet = True
-        try:
-            yield
-        finally:
-            self._quiet = False
-        self._publish("pose", self.pose_state())
-        self._publish("image", self.image_state())
-
-    def note(self, text: str, level: str = "info", *, cause: str | None = None) -> None:
-        line = LogLine(self.now(), text, level, cause)
-        self.history.log.append(line)
-        self.recorder.write({"k": "note", "t": round(line.t, 3), "text": text, "level": level, "cause": cause})
-        (log.warning if level == "alert" else log.info)("%s", text)
-        self._publish("log", self._log_entry(line))
-
-    def clear_alerts(self, cause: str) -> None:
-        t = self.now()
-        with self._lock:
-            cleared = [line for line in list(self.history.log) if line.cause == cause and line.cleared is None]
-            for line in cleared:
-                line.cleared = t
-        for line in cleared:
-            self._publish("log", self._log_entry(line))
-
-    def _log_entry(self, line: LogLine) -> dict:
-        return {"t": line.t, "wall": round(self.wall(line.t), 3), "text": line.text, "level": line.level,
-                "cause": line.cause, "cleared_wall": None if line.cleared is None else round(self.wall(line.cleared), 3)}
-
-    def log_entries(self, last: int = LOG_KEPT) -> list[dict]:
-        return [self._log_entry(line) for line in list(self.history.log)[-last:]]
+    def _noted(self, line: LogLine) -> None:
+        """A log line is recorded (a replay shows it as it was) and said in the console's log."""
+        self.recorder.write({"k": "note", "t": round(line.t, 3), "text": line.text, "level": line.level,
+                             "cause": line.cause})
+        (log.warning if line.level == "alert" else log.info)("%s", line.text)
 
     # ------------------------------------------------------------------
     # The link
@@ -360,18 +279,6 @@ class AcousticSession:
             self._heard_at = heard
             self.health.reply(t, None)
             self.health.watch(t)
-
-    def _watch_port(self) -> None:
-        """The local modem's port going down is said at once, loudly, with the
-        transport's reason, not 20 s later as a lost link; and its coming back."""
-        self._port_up, news = port_change(self.endpoint, self._port_up)
-        if news is None:
-            return
-        if not self._port_up:
-            self.note(news, "alert", cause="port")
-        else:
-            self.note(news)
-            self.clear_alerts("port")
 
     def _mark_sending(self) -> None:
         """The order on the air is "sent" (repeated until a STATUS names it)."""
@@ -552,34 +459,18 @@ class AcousticSession:
         return order_id
 
     def set_mode(self, mode: str | int) -> int:
-        if isinstance(mode, str):
-            if mode.upper() not in MODE_NAMES:
-                raise OrderError(f"unknown mode {mode!r}; one of {', '.join(MODE_NAMES)}")
-            value = MODE_NAMES[mode.upper()]
-        else:
-            if mode not in MODE_NAMES.values():
-                raise OrderError(f"mode must be 1..6, got {mode!r}")
-            value = Mode(mode)
+        value = mode_of(mode)
         order_id = self._send(ac.OrderBody(0, ac.OP_MODE, int(value)), "MODE", {"mode": value.name})
         self.note(f"mode {value.name} requested")
         return order_id
 
-    def send_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, relative: bool = False,
-                      body: bool = False) -> int:
-        for name, v in (("x_m", x_m), ("y_m", y_m), ("z_m", z_m), ("yaw_deg", yaw_deg)):
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise OrderError(f"{name} must be a finite number, got {v!r}")
-        yaw = wrap_deg(yaw_deg)
+    def _queue_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float, *, relative: bool, body: bool,
+                        detail: dict) -> int:
         try:
-            target = acoustic_goto(x_m, y_m, z_m, yaw, relative=relative, body=body)
+            target = acoustic_goto(x_m, y_m, z_m, yaw_deg, relative=relative, body=body)
         except ValueError as exc:
             raise OrderError(str(exc)) from None
-        order_id = self._send(target, "POSITION", {"x_m": x_m, "y_m": y_m, "z_m": z_m, "yaw_deg": yaw,
-                                                   "relative": relative, "body": body, "mode": "GUIDED"})
-        with self._lock:
-            goal = resolve_target(x_m, y_m, z_m, yaw, relative=relative, body=body, fix=self.odometry.fix)
-            self.goto.started(order_id, goal, self.now())
-        return order_id
+        return self._send(target, "POSITION", detail)
 
     def stop(self) -> int:
         """STOP: first, ahead of anything queued, in every slot until confirmed."""
@@ -735,47 +626,9 @@ class AcousticSession:
             elif kind in ("rx", "tx"):
                 self.health.event(t, kind, PACKET)
 
-    def replayed_order(self, record: dict) -> None:
-        self.orders.replayed(record, self.now())
-
     # ------------------------------------------------------------------
     # The read side (any thread; no side effects)
     # ------------------------------------------------------------------
-
-    @property
-    def replaying(self) -> bool:
-        return self.health.replaying
-
-    @replaying.setter
-    def replaying(self, value: bool) -> None:
-        self.health.replaying = bool(value)
-
-    @property
-    def lost_after_s(self) -> float:
-        return self.health.lost_after_s
-
-    @property
-    def image(self) -> ImageView:
-        return self.images.view
-
-    def vehicle(self) -> VehicleReport | None:
-        fix = self.odometry.fix
-        return None if fix is None else fix.report
-
-    def odometry_age_s(self) -> float | None:
-        return self.odometry.age_s(self.now())
-
-    def ned_velocity(self) -> tuple[float, float, float, float] | None:
-        with self._lock:
-            fix = self.odometry.fix
-            return None if fix is None or self.odometry.fixes < 2 else fix.velocity
-
-    def measured_velocity(self) -> dict | None:
-        with self._lock:
-            return self.odometry.measured_velocity()
-
-    def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
-        return self.health.condition(self.now() if t is None else t)
 
     def predicted_pose(self, at: float | None = None) -> Pose | None:
         """Where the vehicle is now: with no sticks it holds where it was, or flies
@@ -795,11 +648,6 @@ class AcousticSession:
         points = preview_path(pose, x, y, z, yaw, seconds=min(age, self.rov_failsafe_s), step_s=0.5)
         px, py, pz = points[-1]
         return Pose(px, py, pz, pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
-
-    def preview_path(self, x_m: float, y_m: float, z_m: float, yaw_deg: float = 0.0, *, seconds: float = 30.0,
-                     step_s: float = 0.5) -> list[tuple[float, float, float]]:
-        start = self.predicted_pose() or Pose(0, 0, 0, 0, 0, 0)
-        return preview_path(start, x_m, y_m, z_m, yaw_deg, seconds=seconds, step_s=step_s)
 
     def uncertainty_m(self) -> float | None:
         """How far the vehicle may be from where it is shown: the report's age at
@@ -861,15 +709,6 @@ class AcousticSession:
                    f"after the next status, about a packet a second"
         return "no thumbnail yet: ask for one (pictures on the acoustic link come on request)"
 
-    def image_history(self) -> list[dict]:
-        return self.images.history()
-
-    def picture(self) -> np.ndarray | None:
-        return self.images.view.picture
-
-    def orders_state(self) -> list[dict]:
-        return self.orders.state()
-
     def link_state(self) -> dict:
         t = self.now()
         r = self.vehicle()
@@ -895,35 +734,6 @@ class AcousticSession:
             "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
             "profile": "acoustic",
             "synced": self.op is not None and not self.op.resyncing,
-            **self._link_process_state(),
+            **self._link_process_state(self.op),
             "next_report_in_s": self._next_status_in(),
         }
-
-    def _link_process_state(self) -> dict:
-        if isinstance(self.op, AcousticLinkProcess):
-            return self.op.link_process_state
-        return {"link_process": None, "link_process_reason": None, "link_process_pid": None}
-
-    def state(self) -> dict:
-        return {
-            "pose": self.pose_state(),
-            "image": self.image_state(),
-            "link": self.link_state(),
-            "velocity_wish": self.wish_state(),
-            "orders": self.orders_state(),
-            "log": self.log_entries(20),
-            "replaying": self.replaying,
-            "wall": round(self.wall(self.now()), 3),
-        }
-
-    # ------------------------------------------------------------------
-
-    def close(self) -> None:
-        """Close the recording (the link itself belongs to whoever opened it)."""
-        self.recorder.close()
-        self._decoder.shutdown()
-
-    def wait_debt_idle(self, timeout: float = 300.0) -> bool:
-        deadline = time.monotonic() + timeout
-        self._warm_up.join(timeout)
-        return not self._warm_up.is_alive() and self._decoder.wait_idle(max(deadline - time.monotonic(), 0.0))

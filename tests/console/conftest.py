@@ -6,6 +6,9 @@ loopback port, all in one event loop on a background thread, the way
 The link runs at 19.2 kbit/s with 20 ms delay so that an image arrives in a
 second or two instead of eleven (nothing in the web layer depends on the
 rate), the ROV's failsafe waits 1 s instead of 3, and no bit is flipped.
+
+`browser` and `open_page`: the operator page in headless Chromium against the
+module's `live` console (a module with other needs keeps fixtures of its own).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import pytest
 from rovlink.console.operator import Operator
 from rovlink.console.stack import Stack, StackConfig
 
-from ..helpers import free_tcp_port
+from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port
 
 
 def wait_for(predicate, timeout_s: float, period_s: float = 0.05):
@@ -130,3 +133,36 @@ def running_console(*, scene: bool = False, failsafe_s: float = 1.0, tracker: st
 def live():
     with running_console() as console:
         yield console
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Debian's headless Chromium driven by Playwright (no browser download), one a module."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture
+def open_page(browser, live):
+    """Opens operator pages on the module's `live` console, each in a context of its own;
+    fails the test if a page logged a script error."""
+    contexts, errors = [], []
+
+    def open_():
+        context = browser.new_context()
+        contexts.append(context)
+        page = context.new_page()
+        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+        page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
+        page.goto(live.url)
+        page.wait_for_function("document.body.dataset.clientId !== undefined")
+        return page
+
+    yield open_
+    for context in contexts:
+        context.close()
+    assert not errors, errors

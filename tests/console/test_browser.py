@@ -12,7 +12,7 @@ import itertools
 
 import pytest
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, get_json, needs_chromium
+from ..helpers import get_json, needs_chromium
 from .conftest import wait_for
 from .pages import after_updates, take_control, wish
 
@@ -34,37 +34,6 @@ PIXEL_CHECKSUM = """() => {
   for (let i = 0; i < d.length; i += 1) sum = (sum * 31 + d[i]) % 1000000007;
   return sum;
 }"""
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
-
-
-@pytest.fixture
-def open_page(browser, live):
-    """Opens operator pages; fails the test if a page logged a script error."""
-    contexts, errors = [], []
-
-    def open_():
-        context = browser.new_context()
-        contexts.append(context)
-        page = context.new_page()
-        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
-        page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
-        page.goto(live.url)
-        page.wait_for_function("document.body.dataset.clientId !== undefined")
-        return page
-
-    yield open_
-    for context in contexts:
-        context.close()
-    assert not errors, errors
 
 
 def x_m(live) -> float:

@@ -10,7 +10,7 @@ import pytest
 
 from rovlink.link.radio.messages import FollowSettings
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, get_json, needs_chromium
+from ..helpers import free_tcp_port, get_json, needs_chromium
 from .conftest import running_console, wait_for
 from .pages import take_control, wish
 
@@ -111,36 +111,6 @@ def test_the_scene_draws_the_ray_from_the_capture_through_the_coded_roi_to_the_s
     finally:
         desk.release(holder.id)
         scene.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
-
-
-@pytest.fixture
-def open_page(browser, live):
-    contexts, errors = [], []
-
-    def open_():
-        context = browser.new_context()
-        contexts.append(context)
-        page = context.new_page()
-        page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
-        page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
-        page.goto(live.url)
-        page.wait_for_function("document.body.dataset.clientId !== undefined")
-        return page
-
-    yield open_
-    for context in contexts:
-        context.close()
-    assert not errors, errors
 
 
 SHOWN = """() => {
