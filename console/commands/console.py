@@ -118,15 +118,18 @@ def _run_acoustic(args, endpoint, key) -> int:
     """The acoustic profile (docs/PROTOCOL.md §9): the same cockpit, API, scene and
     gateway as the radio link's, over an `AcousticSession`."""
     import asyncio
+    import sys
+    import time
 
     from rovlink.command import CommandError
     from rovlink.console.acoustic.session import AcousticSession
     from rovlink.console.linkthread import LinkThread
-    from rovlink.link.acoustic.process import AcousticLinkProcess
-    from rovlink.link.transports.transport import TransportError
+    from rovlink.link.acoustic.process import STOP_AFTER_CONSOLE_S, AcousticLinkProcess
+    from rovlink.link.transports.transport import PORT_LOCKED, TransportError
 
     from .serve import default_record_path, serve_operator
 
+    PORT_WAIT_S = STOP_AFTER_CONSOLE_S + 3.0
     if key is None:
         raise CommandError("the acoustic profile is always authenticated: give --key FILE (no --insecure)")
     record = None if args.no_record else (args.record or default_record_path())
@@ -137,12 +140,24 @@ def _run_acoustic(args, endpoint, key) -> int:
         # opened here once first, so that a wrong port or a modem that refuses is one line now,
         # not a restart loop.
         link = LinkThread().start()
-        try:
-            await link.call(endpoint.start())
-            await link.call(endpoint.close())
-        except TransportError as exc:
-            await link.stop()
-            raise CommandError(str(exc)) from None
+        # A console that ended a moment ago may leave its link process on the modem while it
+        # sends its STOP (up to 15 s): its lock on the port is waited for, as on UDP.
+        waited = None
+        while True:
+            try:
+                await link.call(endpoint.start())
+                await link.call(endpoint.close())
+                break
+            except TransportError as exc:
+                if PORT_LOCKED in str(exc) and (waited is None or time.monotonic() - waited < PORT_WAIT_S):
+                    if waited is None:
+                        waited = time.monotonic()
+                        print(f"rovlink console: {args.link} is in use (a console that ended may still be sending "
+                              f"its STOP); waiting up to {PORT_WAIT_S:g} s", file=sys.stderr, flush=True)
+                    await asyncio.sleep(0.25)
+                    continue
+                await link.stop()
+                raise CommandError(str(exc)) from None
         link_process = AcousticLinkProcess(args.link, key)
         session = AcousticSession(None, key, record=record, link=link_process)
         link.spawn(session.run(), name="acoustic operator")

@@ -41,6 +41,9 @@ class TransportError(Exception):
     """A transport URL or operation that cannot work; the message says why."""
 
 
+PORT_LOCKED = "locked for its own use"  # how a serial port another program holds is said
+
+
 class PortUnavailable(TransportError):
     """The device or socket itself cannot be opened (absent, no permission, busy): a
     retry a moment later would say the same, so starting says it at once.  A port
@@ -342,6 +345,7 @@ class _SerialDriver(_Driver):
         port.baudrate = self.baud
         port.timeout = 0
         port.write_timeout = 2.0
+        port.exclusive = True  # one program per modem: a second console or ROV is told, not mixed in
         try:
             port.open()
         except serial.SerialException as exc:
@@ -434,6 +438,8 @@ def serial_open_error(path: str, exc: Exception) -> str:
         return f"no permission to open {path} (is this user in the port's group, e.g. dialout?)"
     if code == errno.EBUSY:
         return f"{path} is busy (another program has it open)"
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK):
+        return f"{path} is in use: another program holds it ({PORT_LOCKED})"
     return f"serial port {path} cannot be opened: {os.strerror(code) if code else exc}"
 
 

@@ -193,6 +193,7 @@ class _WlModemDriver(_Driver):
         port.baudrate = ep.baud
         port.timeout = 0
         port.write_timeout = 2.0
+        port.exclusive = True  # one program per modem: a second console or ROV is told, not mixed in
         try:
             port.open()
         except serial.SerialException as exc:

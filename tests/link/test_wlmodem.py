@@ -27,7 +27,7 @@ from collections import deque
 
 import pytest
 
-from rovlink.link.transports.transport import TransportError
+from rovlink.link.transports.transport import PORT_LOCKED, TransportError
 from rovlink.link.transports.wlmodem import PACKET_BYTES, WlModemEndpoint, open_wlmodem
 
 from ..helpers import Pty, run_async
@@ -344,6 +344,29 @@ def test_a_port_that_does_not_answer_is_no_modem():
     finally:
         pty.down()
     assert f"no Water Linked modem answers on {path}" in msg
+
+
+def test_a_modem_another_program_holds_is_refused_saying_so(pair):
+    """One program per modem: a second console (or ROV) on a port in use is told at
+    once, and never mixes its packets into the first one's link."""
+    url = f"wlmodem://{pair.path('top')}?role=a&channel=3"
+
+    async def main():
+        first = open_wlmodem(url)
+        await first.start()
+        try:
+            second = open_wlmodem(url)
+            with pytest.raises(TransportError) as err:
+                await second.start(timeout_s=1.0)
+            assert str(err.value) == (f"{url}: could not open: {pair.path('top')} is in use: another program "
+                                      f"holds it ({PORT_LOCKED})")
+        finally:
+            await first.close()
+        again = open_wlmodem(url)  # released with the first's close
+        await again.start()
+        await again.close()
+
+    run(main())
 
 
 # -- a pair of modems ---------------------------------------------------------------
