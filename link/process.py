@@ -420,6 +420,7 @@ class LinkProcess:
                 loop.remove_reader(self._events.fileno())
             was_up = self.up
             if self.down_before_join:
+                self.down_reason = "it ended; why is being read"  # never "down" without a word, while joined
                 self.up = False
                 self._carry_counts()
             await loop.run_in_executor(None, self._process.join, 5.0)
