@@ -80,8 +80,8 @@ def _add_rov(subparsers) -> None:
     p.add_argument("--tracker", choices=("klt", "ncc", "csrt", "kcf", "none"), default="klt",
                    help="the tracker behind FOLLOW, an ROI that follows its object (docs/PROTOCOL.md §10; "
                         "needs the 'tracking' extra); none: FOLLOW is refused (default klt)")
-    p.add_argument("--camera-hz", type=positive, default=10.0, metavar="HZ",
-                   help="camera frames a second the tracker follows (default 10)")
+    p.add_argument("--camera-hz", type=positive, default=None, metavar="HZ",
+                   help="camera frames a second the tracker follows (default 10; acoustic: 5)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     add_key_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
@@ -123,6 +123,8 @@ def run_rov(args) -> int:
             raise CommandError("--failsafe-action is the acoustic profile's (a wlmodem:// link); "
                                "the radio profile's failsafe holds")
     failsafe = args.failsafe if args.failsafe is not None else (60.0 if acoustic else 3.0)
+    if args.camera_hz is None:
+        args.camera_hz = 5.0 if acoustic else 10.0
     try:
         camera = open_camera(args.camera)
     except (CameraError, ValueError) as exc:

@@ -12,8 +12,8 @@ Goals
 
 Plan
 - A daemon thread grabs a frame `camera_hz` times a second, keeps the last
-  `history_s` of them (optionally shrunk first: the acoustic node keeps 160x120
-  grey, twice its thumbnail, so three minutes fit in 35 MB) and feeds each to the
+  `history_s` of them (optionally shrunk first: the acoustic node keeps 320x240
+  grey, so three minutes at 5 frames a second take 69 MB) and feeds each to the
   follower.
 - `mark(key, at)` remembers which frame a picture was coded from (the radio's IMG,
   the acoustic THUMB's OID); `follow(...)` starts the tracker there.

@@ -148,8 +148,18 @@ def measure(*, seconds: float = 170.0, budget: int = 900, shift: int = 6, tracke
     run.first_roi = tuple(int(round(v)) for v in first_box)
     others = {}
     for name in compare:  # every tracker on the same frames, started where the pilot drew the ROI
-        others[name] = {"tracker": make_tracker(name), "frames": 0, "seconds": 0.0, "in_view": 0, "half": 0, "lost": 0}
-        others[name]["tracker"].init(first_frame, run.first_roi)
+        others[name] = {"tracker": make_tracker(name), "frames": 0, "seconds": 0.0, "in_view": 0, "half": 0, "lost": 0,
+                        "shrink": None, "scale": 1.0}
+    if "klt" in compare:
+        # The acoustic ROV's tracker (rov/acoustic.py): the same frames, grey, as it keeps them.
+        from .acoustic import FOLLOW_SIZE, follow_frame
+
+        others[ACOUSTIC_ROW] = {"tracker": make_tracker("klt"), "frames": 0, "seconds": 0.0, "in_view": 0, "half": 0,
+                                "lost": 0, "shrink": follow_frame,
+                                "scale": FOLLOW_SIZE[0] / camera.width}
+    for entry in others.values():
+        frame = entry["shrink"](first_frame) if entry["shrink"] else first_frame
+        entry["tracker"].init(frame, tuple(int(round(v * entry["scale"])) for v in run.first_roi))
 
     state = {"frame": first_frame, "at": 0.0, "pose": first_pose, "kept": [(0.0, first_frame)]}
     captures: dict[int, Capture] = {}
@@ -206,13 +216,14 @@ def measure(*, seconds: float = 170.0, budget: int = 900, shift: int = 6, tracke
             follower.frame(frame, now)
         truth = camera.object_box(pose, obj)
         for entry in others.values():
+            seen = entry["shrink"](frame) if entry["shrink"] else frame
             t0 = time.perf_counter()
-            box = entry["tracker"].update(frame)
+            box = entry["tracker"].update(seen)
             entry["seconds"] += time.perf_counter() - t0
             entry["frames"] += 1
             if truth.in_view:
                 entry["in_view"] += 1
-                entry["half"] += iou(box, truth.clipped) >= 0.5
+                entry["half"] += iou(box, tuple(v * entry["scale"] for v in truth.clipped)) >= 0.5
             entry["lost"] += box is None
         x, y, z, yaw = pose
         slave.update_status(status_from_pose(x_m=x, y_m=y, z_m=z, roll_deg=0.0, pitch_deg=0.0, yaw_deg=math.degrees(yaw),
@@ -259,6 +270,9 @@ def measure(*, seconds: float = 170.0, budget: int = 900, shift: int = 6, tracke
             "frames": entry["frames"],
         }
     return run
+
+
+ACOUSTIC_ROW = "klt, acoustic (grey)"
 
 
 def figures(run: Run, width: int = 320) -> dict:

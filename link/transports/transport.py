@@ -340,12 +340,11 @@ class _SerialDriver(_Driver):
     async def open(self) -> None:
         import serial  # pyserial
 
-        port = serial.Serial()
+        port = serial.Serial(exclusive=True)  # one program per modem: a second console or ROV is told, not mixed in
         port.port = self.path
         port.baudrate = self.baud
         port.timeout = 0
         port.write_timeout = 2.0
-        port.exclusive = True  # one program per modem: a second console or ROV is told, not mixed in
         try:
             port.open()
         except serial.SerialException as exc:

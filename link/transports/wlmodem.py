@@ -188,12 +188,11 @@ class _WlModemDriver(_Driver):
         import serial  # pyserial
 
         ep = self.endpoint
-        port = serial.Serial()
+        port = serial.Serial(exclusive=True)  # one program per modem: a second console or ROV is told, not mixed in
         port.port = ep.path
         port.baudrate = ep.baud
         port.timeout = 0
         port.write_timeout = 2.0
-        port.exclusive = True  # one program per modem: a second console or ROV is told, not mixed in
         try:
             port.open()
         except serial.SerialException as exc:

@@ -273,4 +273,4 @@ def test_the_acoustic_rov_follows_between_thumbnails_and_its_thumbnail_says_the_
     # A thumbnail without FOLLOW ends the following: no record, the ROI as asked.
     track, roi, _ = ask(9, roi=(10, 10, 30, 30))
     assert track is None and roi == (10, 10, 30, 30) and not node.camera.follower.active
-    assert FOLLOW_SIZE[0] == 2 * THUMB_SIZE[0]
+    assert FOLLOW_SIZE[0] == 4 * THUMB_SIZE[0]
