@@ -105,6 +105,7 @@ class CorrelationTracker:
     def __init__(self, cv2) -> None:
         self.cv2 = cv2
         self.lost = False
+        self.matched = 0.0
 
     def init(self, frame: np.ndarray, box: Box) -> None:
         x0, y0, x1, y1 = (float(v) for v in box)
@@ -188,11 +189,13 @@ class FeatureTracker:
     MIN_POINTS = 8
     MAX_POINTS = 60
     MATCH_SCORE = 0.8  # the patch's best correlation: found (also to take a lost object back)
+    RETAKE_SCORE = 0.9  # a patch that matched less well than this is taken again where it was found
     UNIQUE_MARGIN = 0.1  # ... and that far above the best correlation half a patch away or more
 
     def __init__(self, cv2) -> None:
         self.cv2 = cv2
         self.lost = False
+        self.matched = 0.0
 
     def init(self, frame: np.ndarray, box: Box) -> None:
         grey = self._grey8(frame)
@@ -203,14 +206,19 @@ class FeatureTracker:
         self._anchor(grey)
         self.lost = False
 
-    def _anchor(self, grey: np.ndarray) -> None:
+    def _anchor(self, grey: np.ndarray, template: bool = True) -> None:
         """New corners to follow, each motion measured from here: one fit from the anchor
-        rather than one per frame, so small errors do not pile up frame after frame."""
+        rather than one per frame, so small errors do not pile up frame after frame.  The
+        patch is taken again only with `template`: a patch matched frame after frame and
+        taken again each time loses every motion under half a pixel a frame (an object
+        far off, moving slowly), so it is kept while it still matches well."""
         self.prev = grey
         self.anchor_corners = self.corners.copy()
         self.anchor_points = self._features(grey)
         self.points = self.anchor_points.copy()
         x0, y0, x1, y1 = self._box()
+        if not template and self.template is not None:
+            return
         if x0 >= 0 and y0 >= 0 and x1 <= grey.shape[1] and y1 <= grey.shape[0] and x1 - x0 >= 4 and y1 - y0 >= 4:
             self.template = grey[y0:y1, x0:x1].copy()  # a patch wholly in the picture, else the last one
 
@@ -252,7 +260,8 @@ class FeatureTracker:
         return affine
 
     def _match(self, grey: np.ndarray, reach: float) -> tuple[float, float] | None:
-        """Where the ROI's patch moved (dx, dy), looked for `reach` patch sizes around it; None if not clearly found."""
+        """Where the ROI's patch moved (dx, dy), looked for `reach` patch sizes around it; None if not clearly found.
+        `self.matched` is its correlation."""
         if self.template is None:
             return None
         th, tw = self.template.shape
@@ -266,6 +275,7 @@ class FeatureTracker:
         _, peak, _, (u, v) = self.cv2.minMaxLoc(result)
         if peak < self.MATCH_SCORE or not self._unique(result, peak, u, v, tw, th):
             return None
+        self.matched = peak
         return sx0 + u + tw / 2 - (x0 + x1) / 2, sy0 + v + th / 2 - (y0 + y1) / 2
 
     def _unique(self, result: np.ndarray, peak: float, u: int, v: int, tw: int, th: int) -> bool:
@@ -294,7 +304,7 @@ class FeatureTracker:
             if shift is None:
                 return None
             self.corners = self.corners + np.float32(shift)
-            self._anchor(grey)
+            self._anchor(grey, template=self.matched < self.RETAKE_SCORE)
             self.lost = False
             self.velocity = np.zeros(2, np.float32)
             return self._box()
@@ -308,7 +318,7 @@ class FeatureTracker:
             shift = self._match(grey, reach=1.0)
             if shift is not None:
                 self.corners = self.corners + np.float32(shift)
-                self._anchor(grey)
+                self._anchor(grey, template=self.matched < self.RETAKE_SCORE)
             else:
                 self.prev = grey
         box = self._box()
