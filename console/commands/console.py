@@ -40,8 +40,6 @@ def run(args) -> int:
 
     require_console_extra()
     import asyncio
-    import sys
-    import time
 
     from rovlink.command import CommandError, check_frame_size, link_key
     from rovlink.console.linkthread import LinkThread
@@ -73,23 +71,7 @@ def run(args) -> int:
         # Opened here once, so that a wrong port is one line now, not a restart loop.  A
         # console that ended a moment ago may leave its link process on the port while it
         # sends its STOP (link/process.py): that is waited for, a few seconds.
-        waited = None
-        while True:
-            try:
-                await link.call(endpoint.start())
-                if not args.link_thread:  # the link process opens it again, in its own process
-                    await link.call(endpoint.close())
-                break
-            except TransportError as exc:
-                if "Address already in use" in str(exc) and (waited is None or time.monotonic() - waited < PORT_WAIT_S):
-                    if waited is None:
-                        waited = time.monotonic()
-                        print(f"rovlink console: {args.link} is in use (a console that ended may still be sending "
-                              f"its STOP); waiting up to {PORT_WAIT_S:g} s", file=sys.stderr, flush=True)
-                    await asyncio.sleep(0.25)
-                    continue
-                await link.stop()
-                raise CommandError(str(exc)) from None
+        await _open_first(link, endpoint, args.link, PORT_WAIT_S, keep_open=args.link_thread)
         if args.link_thread:  # the link's loop in the link thread, on the transport opened above
             operator = Operator(endpoint, bitrate_bps=args.bitrate, delay_s=args.delay, record=record)
         else:
@@ -118,14 +100,11 @@ def _run_acoustic(args, endpoint, key) -> int:
     """The acoustic profile (docs/PROTOCOL.md §9): the same cockpit, API, scene and
     gateway as the radio link's, over an `AcousticSession`."""
     import asyncio
-    import sys
-    import time
 
     from rovlink.command import CommandError
     from rovlink.console.acoustic.session import AcousticSession
     from rovlink.console.linkthread import LinkThread
     from rovlink.link.acoustic.process import STOP_AFTER_CONSOLE_S, AcousticLinkProcess
-    from rovlink.link.transports.transport import PORT_LOCKED, TransportError
 
     from .serve import default_record_path, serve_operator
 
@@ -142,22 +121,7 @@ def _run_acoustic(args, endpoint, key) -> int:
         link = LinkThread().start()
         # A console that ended a moment ago may leave its link process on the modem while it
         # sends its STOP (up to 15 s): its lock on the port is waited for, as on UDP.
-        waited = None
-        while True:
-            try:
-                await link.call(endpoint.start())
-                await link.call(endpoint.close())
-                break
-            except TransportError as exc:
-                if PORT_LOCKED in str(exc) and (waited is None or time.monotonic() - waited < PORT_WAIT_S):
-                    if waited is None:
-                        waited = time.monotonic()
-                        print(f"rovlink console: {args.link} is in use (a console that ended may still be sending "
-                              f"its STOP); waiting up to {PORT_WAIT_S:g} s", file=sys.stderr, flush=True)
-                    await asyncio.sleep(0.25)
-                    continue
-                await link.stop()
-                raise CommandError(str(exc)) from None
+        await _open_first(link, endpoint, args.link, PORT_WAIT_S, keep_open=False)
         link_process = AcousticLinkProcess(args.link, key)
         session = AcousticSession(None, key, record=record, link=link_process)
         link.spawn(session.run(), name="acoustic operator")
@@ -177,3 +141,36 @@ def _run_acoustic(args, endpoint, key) -> int:
     except KeyboardInterrupt:
         pass
     return 0
+
+
+async def _open_first(link, endpoint, url: str, wait_s: float, *, keep_open: bool) -> None:
+    """Open the link's port once, here, so that a wrong port is one line now and not a
+    restart loop of the link process; closed again unless `keep_open` (the link process
+    opens it in its own process).  A port another program holds (a UDP port in use, a
+    serial port locked) may be a console that ended a moment ago, its link process still
+    sending its STOP: that is waited for, `wait_s` at most, and said once."""
+    import asyncio
+    import sys
+    import time
+
+    from rovlink.command import CommandError
+    from rovlink.link.transports.transport import PORT_LOCKED, TransportError
+
+    waited = None
+    while True:
+        try:
+            await link.call(endpoint.start())
+            if not keep_open:
+                await link.call(endpoint.close())
+            return
+        except TransportError as exc:
+            busy = "Address already in use" in str(exc) or PORT_LOCKED in str(exc)
+            if busy and (waited is None or time.monotonic() - waited < wait_s):
+                if waited is None:
+                    waited = time.monotonic()
+                    print(f"rovlink console: {url} is in use (a console that ended may still be sending its STOP); "
+                          f"waiting up to {wait_s:g} s", file=sys.stderr, flush=True)
+                await asyncio.sleep(0.25)
+                continue
+            await link.stop()
+            raise CommandError(str(exc)) from None

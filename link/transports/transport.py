@@ -110,6 +110,7 @@ class Endpoint:
         until the port itself failed to open (PortUnavailable, OSError): then at once,
         with its reason (a port that is not there now is not there a few retries
         later; the pilot is told while still at the keyboard)."""
+        self._closing = False  # an endpoint closed (a first look at its port) may be started again
         if wait:
             # The caller says why it failed, once: not also the supervisor's log.
             self._quiet_until_up = True
@@ -140,6 +141,7 @@ class Endpoint:
             except (asyncio.CancelledError, Exception):
                 pass
             self._task = None
+        self._up.clear()
         self._drop_driver()
 
     async def __aenter__(self) -> "Endpoint":

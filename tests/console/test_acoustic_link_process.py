@@ -241,3 +241,53 @@ def test_what_an_acoustic_link_process_held_when_it_ended_is_unknown_but_a_stop_
         assert not any(s.startswith(("done", "arrived", "followed")) for s in states().values()), states()
     finally:
         session.close()
+
+
+def test_a_console_started_while_its_modem_is_held_waits_for_it_and_says_so(tmp_path, capsys):
+    """A console started while the last one's link process still holds the modem (its
+    STOP under way) waits for the port, saying so once, then opens it; one held longer
+    than the wait is one clear line.  On the emulated Modem-M64's pty, locked by
+    another program as a link process locks it."""
+    import asyncio
+    import threading
+
+    import serial
+
+    from rovlink.command import CommandError
+    from rovlink.console.commands.console import _open_first
+    from rovlink.console.linkthread import LinkThread
+    from rovlink.link.emulators.m64serial import M64SerialPair
+    from rovlink.link.transports.urls import open_transport
+
+    pair = M64SerialPair(str(tmp_path / "op-modem"), str(tmp_path / "rov-modem"), params=FAST, seed=1)
+    pair.start()
+    url = f"wlmodem://{tmp_path}/op-modem?role=a&channel=4"
+
+    def hold() -> serial.Serial:
+        port = serial.Serial(exclusive=True)
+        port.port = str(tmp_path / "op-modem")
+        port.open()
+        return port
+
+    async def open_first(wait_s: float) -> None:
+        link = LinkThread().start()
+        try:
+            await _open_first(link, open_transport(url), url, wait_s, keep_open=False)
+        finally:
+            await link.stop()
+
+    try:
+        holder = hold()
+        threading.Timer(1.5, holder.close).start()  # the old link process ends
+        asyncio.run(open_first(20.0))
+        said = capsys.readouterr().err
+        assert said.count(f"{url} is in use (a console that ended may still be sending its STOP); "
+                          f"waiting up to 20 s") == 1, said
+        holder = hold()  # held for good: one line, no console
+        try:
+            with pytest.raises(CommandError, match="is in use: another program holds it"):
+                asyncio.run(open_first(1.0))
+        finally:
+            holder.close()
+    finally:
+        pair.close()

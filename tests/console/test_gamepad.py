@@ -18,7 +18,7 @@ import json
 
 import pytest
 
-from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from ..helpers import needs_chromium
 from .conftest import wait_for
 from .pages import after_ticks
 
@@ -44,16 +44,6 @@ RECORD_SENT = """(() => {
     return send.call(this, data);
   };
 })();"""
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
 
 
 @pytest.fixture
