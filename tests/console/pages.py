@@ -13,6 +13,16 @@ def take_control(page) -> None:
     page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")
 
 
+def drag_roi(page, selector: str, start: tuple[float, float], end: tuple[float, float]) -> None:
+    """A rectangle dragged with the mouse on the picture `selector`, from `start` to `end`
+    given as fractions of its width and height."""
+    box = page.locator(selector).bounding_box()
+    page.mouse.move(box["x"] + box["width"] * start[0], box["y"] + box["height"] * start[1])
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] * end[0], box["y"] + box["height"] * end[1], steps=5)
+    page.mouse.up()
+
+
 def telemetry_seen(page) -> int:
     return int(page.evaluate("+document.body.dataset.telemetry || 0"))
 

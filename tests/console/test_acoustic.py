@@ -27,6 +27,7 @@ from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from .acoustic_rig import HostileRadio, end_processes, get, post, wait_for
+from .pages import drag_roi
 
 pytestmark = [pytest.mark.browser, pytest.mark.processes, pytest.mark.slow, needs_chromium]
 ROVLINK = [sys.executable, "-m", "rovlink"]
@@ -66,6 +67,15 @@ def acoustic(tmp_path_factory):
         console_log.close()
 
 
+def open_cockpit(browser, base: str):
+    """The operator page at 1366x768, configured, its link up."""
+    page = browser.new_page(viewport={"width": 1366, "height": 768})
+    page.goto(base + "/")
+    page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
+                           timeout=30000)
+    return page
+
+
 def order(base: str, kind: str) -> dict | None:
     """The newest order of `kind` the console lists."""
     mine = [o for o in get(base + "/api/orders") if o["kind"] == kind]
@@ -78,10 +88,7 @@ def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
     base, radio, rov, console, _, _ = acoustic
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1366, "height": 768})
-        page.goto(base + "/")
-        page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
-                               timeout=30000)
+        page = open_cockpit(browser, base)
         # The same page as the radio link's, with the 3-D scene embedded ...
         assert page.evaluate("document.body.dataset.profile") == "acoustic"
         scene = page.locator("#scene")
@@ -261,10 +268,7 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
 
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1366, "height": 768})
-        page.goto(base + "/")
-        page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
-                               timeout=30000)
+        page = open_cockpit(browser, base)
         page.click("#take")
         page.wait_for_function("document.getElementById('control-text').textContent.includes('You have control')")
         if not get(base + "/api/pose")["armed"]:
@@ -277,11 +281,7 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
         drawn_on = int(page.evaluate("document.getElementById('image').dataset.img"))  # the thumbnail's OID
 
         # An ROI round the amphorae, dragged on the thumbnail, set to follow.
-        box = page.locator("#image").bounding_box()
-        page.mouse.move(box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.4)
-        page.mouse.down()
-        page.mouse.move(box["x"] + box["width"] * 0.85, box["y"] + box["height"] * 0.75, steps=5)
-        page.mouse.up()
+        drag_roi(page, "#image", (0.5, 0.4), (0.85, 0.75))
         assert page.is_visible("#roi-follow") and page.is_checked("#roi-keep")
         page.click("#roi-follow")
         page.wait_for_function(f"({SHOWN})()[0] > {first} && ({SHOWN})()[1] !== null && {VERIFIED}", timeout=240000)

@@ -12,7 +12,7 @@ from rovlink.link.radio.messages import FollowSettings
 
 from ..helpers import free_tcp_port, get_json, needs_chromium
 from .conftest import running_console, wait_for
-from .pages import take_control, wish
+from .pages import drag_roi, take_control, wish
 
 FIRST_IMAGE_MS = 90000
 
@@ -131,11 +131,7 @@ def test_a_followed_roi_moves_with_its_object_as_the_vehicle_turns_and_the_page_
     page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=30000)
     page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=FIRST_IMAGE_MS)
     # An ROI round the amphorae, dragged on the arriving picture, set to follow.
-    box = page.locator("#image").bounding_box()
-    page.mouse.move(box["x"] + box["width"] * 0.5, box["y"] + box["height"] * 0.4)
-    page.mouse.down()
-    page.mouse.move(box["x"] + box["width"] * 0.85, box["y"] + box["height"] * 0.75, steps=5)
-    page.mouse.up()
+    drag_roi(page, "#image", (0.5, 0.4), (0.85, 0.75))
     assert page.is_visible("#roi-follow") and page.is_checked("#roi-keep")
     page.click("#roi-follow")
     assert wait_for(lambda: isinstance(live.operator.requested_settings, FollowSettings), 5), "no FOLLOW order"
