@@ -192,7 +192,7 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         assert procs.pose()["armed"] and procs.pose()["mode"] == "DEPTH_HOLD", (_why(procs), procs.logs_text())
         start = _fresh_pose(procs)
         gcs.stick_x = 600
-        assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), "the stick drives"
+        assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), ("the stick drives", _why(procs))
 
         # The console dies with the stick forward; the ROV fails safe and holds.
         procs.kill_console()
