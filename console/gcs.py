@@ -30,10 +30,16 @@ it, and is refused while a page holds it):
 - COMMAND_LONG ARM_DISARM, DO_SET_MODE, SET_MODE -> arm/mode requests;
   SET_POSITION_TARGET_LOCAL_NED and a GUIDED "go to" (MISSION_ITEM_INT with
   current=2) -> POSITION; DO_PAUSE_CONTINUE (pause) -> STOP.
-- Every command gets COMMAND_ACK IN_PROGRESS at once, then its real outcome:
-  ACCEPTED when the replies show it done (or the ROV acknowledged the order),
-  FAILED with a STATUSTEXT reason, DENIED while someone else holds control,
-  TEMPORARILY_REJECTED while the link is lost.
+- Every command gets COMMAND_ACK IN_PROGRESS at once, then its real outcome,
+  only when the vehicle has said it (console/session/fates.py): ACCEPTED when
+  the replies show it done (or the ROV acknowledged the order), FAILED with a
+  STATUSTEXT reason when the ROV rejected it (or the console never sent it),
+  CANCELLED when superseded; DENIED while someone else holds control,
+  TEMPORARILY_REJECTED while the link is lost.  An order the vehicle has not
+  answered is never failed for it: after WAITING_SAID_S a STATUSTEXT says it
+  still waits, and if it is followed late the ACCEPTED comes then, with a
+  STATUSTEXT saying how late.  An unknown fate gets a STATUSTEXT and no final
+  ACK (nobody can say whether it was done).
 - Parameters and missions answer just enough that a ground station does not
   hang: a few read-only parameters, no mission items.
 - Camera: the latest picture is the console's `/api/image/latest.png` (the
@@ -43,8 +49,8 @@ it, and is refused while a page holds it):
 Plan: one thread per connection (pymavlink is blocking); every order goes
 through `DeskCommands`, a client of the console's one command layer
 (`console.control.ControlDesk.submit`, as `Caller(via="gcs")`), and its
-outcome is the fate the console gives the order (acknowledged or followed,
-rejected or refused with a reason), so the gateway holds no order state of
+outcome is the fate the console gives the order (a `Fate`: acknowledged or
+followed, rejected with a reason...), so the gateway holds no order state of
 its own beyond the commands it is waiting to answer.
 """
 
@@ -60,6 +66,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega
 
 from rovlink.console.control import Arm, Caller, Drive, GoTo, SetMode, Stop
+from rovlink.console.session.fates import Fate, words
 from rovlink.link.radio.messages import Mode
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SUB_TO_PROTOCOL, mode_name
 from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
@@ -67,7 +74,8 @@ from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
 log = logging.getLogger("rovlink.console.gcs")
 
 EARTH_RADIUS_M = 6_378_137.0
-ORDER_TIMEOUT_S = 15.0  # no fate by then: FAILED (the console gives arm/mode theirs within 3 s)
+WAITING_SAID_S = 15.0    # still no word from the vehicle: a STATUSTEXT says it waits (never FAILED for it)
+AWAITED_KEPT_S = 600.0   # a command the vehicle never answered is no longer reported on after this
 MANUAL_CONTROL_NEUTRAL_Z = 500
 
 
@@ -143,10 +151,11 @@ class DeskCommands:
     def stop(self) -> int:
         return self.desk.submit(Stop(), self._caller(need_control=False))  # open to everyone
 
-    def order_state(self, order_id: int) -> str | None:
+    def order_fate(self, order_id: int) -> tuple[Fate, str, dict] | None:
+        """The order's fate as the console tracks it, its reason and its whole state."""
         for info in self.operator.orders_state():
             if info.get("id") == order_id:
-                return str(info.get("state"))
+                return Fate(info["state"]), str(info.get("reason", "")), info
         return None
 
 
@@ -158,9 +167,10 @@ class DeskCommands:
 @dataclass
 class _Awaited:
     command: int | None  # the COMMAND_LONG to answer, if any
-    deadline: float
-    done: Callable[[], bool | str | None]  # True: accepted; a str: failed with that reason; None/False: not yet
+    order_id: int
+    asked_at: float
     what: str
+    said: Fate | None = None  # the pending or unknown fate a STATUSTEXT told already
 
 
 # Messages the gateway streams, with ArduSub's default rates (Hz) and the
@@ -285,20 +295,26 @@ class GcsLink:
                 if centre and not self._alerted["centre"]:
                     self.statustext(m.MAV_SEVERITY_WARNING, "rovlink: centre the sticks to drive")
                 self._alerted["centre"] = centre
-            elif topic == "order" and str(payload.get("state", "")).startswith(("rejected", "cancelled", "failed")):
-                self.statustext(m.MAV_SEVERITY_WARNING,
-                                f"rovlink: {payload.get('kind')} {payload.get('state')}"[:50])
-            elif topic == "order" and payload.get("kind") == "POSITION" \
-                    and str(payload.get("state", "")).startswith(("arrived", "aborted")) \
-                    and payload.get("id") not in self._goto_told:
-                # The go-to's end, as the page shows it (the ROV acknowledges a go-to
-                # when GUIDED takes it; arriving or giving up comes later).
-                self._goto_told.add(payload.get("id"))
-                arrived = str(payload["state"]).startswith("arrived")
-                self.statustext(m.MAV_SEVERITY_INFO if arrived else m.MAV_SEVERITY_WARNING,
-                                f"rovlink: go-to #{payload.get('id')} {payload['state']}"[:50])
+            elif topic == "order":
+                self._order_news(payload)
         except (OSError, AttributeError):
             pass
+
+    def _order_news(self, info: dict) -> None:
+        """What the ground station hears of an order's fate beside its COMMAND_ACK."""
+        m = ardupilotmega
+        fate, reason, kind = Fate(info["state"]), str(info.get("reason", "")), info.get("kind")
+        if fate in (Fate.REJECTED, Fate.CANCELLED):
+            self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {kind} {words(fate, reason)}"[:50])
+        elif fate is Fate.FOLLOWED and ("t_waiting" in info or "t_unknown" in info):
+            # Followed after the console had said it waits: the vehicle did it, late.
+            self.statustext(m.MAV_SEVERITY_INFO, f"rovlink: {kind} followed, {reason}"[:50])
+        elif kind == "POSITION" and fate in (Fate.ARRIVED, Fate.ABORTED) and info.get("id") not in self._goto_told:
+            # The go-to's end, as the page shows it (the ROV acknowledges a go-to
+            # when GUIDED takes it; arriving or giving up comes later).
+            self._goto_told.add(info.get("id"))
+            self.statustext(m.MAV_SEVERITY_INFO if fate is Fate.ARRIVED else m.MAV_SEVERITY_WARNING,
+                            f"rovlink: go-to #{info.get('id')} {words(fate, reason)}"[:50])
 
     def _speeds(self) -> tuple[float, float, float]:
         """North, east, down m/s: the session's own measure (the page shows the same)."""
@@ -498,21 +514,35 @@ class GcsLink:
         self._awaited.append(awaited)
 
     def _check_awaited(self) -> None:
+        """Each command's final COMMAND_ACK once the vehicle has said its fate;
+        meanwhile a STATUSTEXT when it has waited long, or its fate is unknown."""
         m = ardupilotmega
         t = self.now()
         for awaited in list(self._awaited):
-            outcome = awaited.done()
-            if outcome is True:
+            known = self.commands.order_fate(awaited.order_id)
+            if known is None:  # gone from the console's list: nothing more will be told
+                self._awaited.remove(awaited)
+                continue
+            fate, reason, _ = known
+            if fate.outcome == "done":
                 self._ack(awaited.command, m.MAV_RESULT_ACCEPTED, 100)
                 if awaited.command is None:
                     self.statustext(m.MAV_SEVERITY_INFO, f"rovlink: {awaited.what} acknowledged by the ROV")
-            elif isinstance(outcome, str):
+            elif fate is Fate.CANCELLED:
+                self._ack(awaited.command, m.MAV_RESULT_CANCELLED)
+            elif fate.ended and fate is not Fate.UNKNOWN:  # rejected, refused, not carried out, aborted
                 self._ack(awaited.command, m.MAV_RESULT_FAILED)
-                self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {awaited.what} {outcome}"[:50])
-            elif t > awaited.deadline:
-                self._ack(awaited.command, m.MAV_RESULT_FAILED)
-                self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {awaited.what} not done in time"[:50])
+                self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {awaited.what} {words(fate, reason)}"[:50])
+            elif t - awaited.asked_at > AWAITED_KEPT_S:
+                self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {awaited.what} {fate.value}; no longer reported")
             else:
+                if fate is Fate.UNKNOWN and awaited.said is not Fate.UNKNOWN:
+                    awaited.said = Fate.UNKNOWN  # no final ACK: nobody can say whether it was done
+                    self.statustext(m.MAV_SEVERITY_WARNING, f"rovlink: {awaited.what} fate unknown: {reason}"[:50])
+                elif fate.pending and awaited.said is None and t - awaited.asked_at > WAITING_SAID_S:
+                    awaited.said = fate
+                    self.statustext(m.MAV_SEVERITY_WARNING,
+                                    f"rovlink: {awaited.what} waiting for the vehicle ({t - awaited.asked_at:.0f} s)"[:50])
                 continue
             self._awaited.remove(awaited)
 
@@ -539,8 +569,7 @@ class GcsLink:
     def _arm(self, armed: bool) -> _Awaited:
         m = ardupilotmega
         order_id = self.commands.arm(armed)
-        return _Awaited(m.MAV_CMD_COMPONENT_ARM_DISARM, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
-                        "arm" if armed else "disarm")
+        return _Awaited(m.MAV_CMD_COMPONENT_ARM_DISARM, order_id, self.now(), "arm" if armed else "disarm")
 
     def _mode_by_number(self, custom_mode: int) -> _Awaited:
 
@@ -549,31 +578,16 @@ class GcsLink:
         if custom_mode not in SUB_TO_PROTOCOL:
             raise CommandRefused(m.MAV_RESULT_DENIED, f"mode {sub_name} not offered over the link")
         order_id = self.commands.mode(Mode(SUB_TO_PROTOCOL[custom_mode]).name)
-        return _Awaited(m.MAV_CMD_DO_SET_MODE, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id),
-                        f"mode {sub_name}")
-
-    def _order_done(self, order_id: int):
-        """The order's fate as the console tracks it: acknowledged by the ROV
-        (or, for arm and mode, followed by the vehicle), or refused."""
-
-        def done():
-            state = self.commands.order_state(order_id) or ""
-            if state.startswith(("acknowledged", "followed")):
-                return True
-            if state.startswith(("rejected", "refused", "cancelled", "not carried out", "unknown")):
-                return state
-            return None
-
-        return done
+        return _Awaited(m.MAV_CMD_DO_SET_MODE, order_id, self.now(), f"mode {sub_name}")
 
     def _stop_order(self) -> _Awaited:
         m = ardupilotmega
         order_id = self.commands.stop()
-        return _Awaited(m.MAV_CMD_DO_PAUSE_CONTINUE, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id), "STOP")
+        return _Awaited(m.MAV_CMD_DO_PAUSE_CONTINUE, order_id, self.now(), "STOP")
 
     def _goto(self, command: int | None, x: float, y: float, z: float, yaw_deg: float) -> _Awaited:
         order_id = self.commands.goto(x, y, z, yaw_deg)
-        return _Awaited(command, self.now() + ORDER_TIMEOUT_S, self._order_done(order_id), "go to")
+        return _Awaited(command, order_id, self.now(), "go to")
 
     def _position_target(self, msg) -> None:
         m = ardupilotmega

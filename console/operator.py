@@ -66,6 +66,7 @@ from rovlink.link.units import position_order, velocity_ints, wish_of
 
 from .session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
 from .session.contract import Capabilities
+from .session.fates import Fate
 from .session.goto import GoToWatch
 from .session.health import LinkHealth
 from .session.images import ImageReceiver
@@ -190,8 +191,7 @@ class Operator(SessionBase):
             self.note(f"LINK PROCESS DOWN: {why}; starting it again (no poll leaves meanwhile)", "alert",
                       cause="process")
         with self._lock:
-            stops = self.orders.link_ended(t, "unknown: the link process ended before the ROV answered; "
-                                              "not sent again")
+            stops = self.orders.link_ended(t, "the link process ended before the ROV answered; not sent again")
             self._stops_to_resend = sorted(set(self._stops_to_resend) | set(stops))
             v = self.images.view
             partial = v.img is not None and not v.complete and v.received_bytes > 0
@@ -212,7 +212,7 @@ class Operator(SessionBase):
                 try:
                     self.orders.queued(order_id, self.master.send_order(Stop()))
                 except (LinkProcessDown, ValueError) as exc:
-                    self.orders.set_state(order_id, f"unknown: not sent again ({exc})", t)
+                    self.orders.set_state(order_id, Fate.UNKNOWN, t, f"not sent again ({exc})")
         self._publish("link", self.link_state())
 
     @contextlib.contextmanager
@@ -268,20 +268,20 @@ class Operator(SessionBase):
             elif isinstance(event, (ImageProgress, ImageComplete, ImageAbandoned)):
                 self.images.on_event(event, t)
             elif isinstance(event, OrderAcknowledged):
-                self._settled(event.order_id, "acknowledged", t)
+                self._settled(event.order_id, Fate.ACKNOWLEDGED, t)
             elif isinstance(event, OrderCancelled):
-                self._settled(event.order_id, f"cancelled: {event.reason}", t)
+                self._settled(event.order_id, Fate.CANCELLED, t, event.reason)
             elif isinstance(event, OrderRejected):
-                self._settled(event.order_id, f"rejected: {event.reason_text}", t)
+                self._settled(event.order_id, Fate.REJECTED, t, event.reason_text)
             elif isinstance(event, OrderNotSent):
-                self._settled(event.order_id, f"cancelled: {event.reason} (never sent)", t)
+                self._settled(event.order_id, Fate.CANCELLED, t, f"{event.reason} (never sent)")
             elif isinstance(event, StopConfirmed):
                 mode = REPORTED_MODE_NAMES.get(int(event.mode), str(event.mode))
-                self._settled(event.order_id, f"acknowledged: holding in {mode}", t)
+                self._settled(event.order_id, Fate.ACKNOWLEDGED, t, f"holding in {mode}")
             elif isinstance(event, StopNotCarriedOut):
-                self._settled(event.order_id, "not carried out: no autopilot holds the vehicle", t)
+                self._settled(event.order_id, Fate.NOT_CARRIED_OUT, t, "no autopilot holds the vehicle")
             elif isinstance(event, OrderFateUnknown):
-                self._settled(event.order_id, "unknown: the ROV restarted before its answer came (not resent)", t)
+                self._settled(event.order_id, Fate.UNKNOWN, t, "the ROV restarted before its answer came (not resent)")
             elif isinstance(event, ReplyLost):
                 self.health.event(t, "lost")
                 self._publish("link", {"t": t, "lost": True})
@@ -296,10 +296,10 @@ class Operator(SessionBase):
                 if restarted:
                     self._resend_image_settings()
             elif isinstance(event, RequestExpired):
-                orders.refuse_request(event.what, t, "not confirmed by the ROV within its time")
+                orders.request_unrepeated(event.what, t, "the link repeated it for its 3 s")
 
-    def _settled(self, master_id: int, state: str, t: float) -> None:
-        settings = self.orders.settled(master_id, state, t)
+    def _settled(self, master_id: int, fate: Fate, t: float, reason: str = "") -> None:
+        settings = self.orders.settled(master_id, fate, t, reason)
         if settings is not None:
             with self._lock:
                 self.images.confirmed_settings = settings  # applies from the next picture on
@@ -425,7 +425,7 @@ class Operator(SessionBase):
 
     def arm(self, armed: bool) -> int:
         """Request arming (or disarming); the returned order id is followed
-        until the vehicle reports it armed (disarmed), or refused."""
+        until the vehicle reports it armed (disarmed), however late."""
         t = self.now()
         with self._lock, self._link_call():
             self.master.request_arm(bool(armed), t)
@@ -435,7 +435,7 @@ class Operator(SessionBase):
 
     def set_mode(self, mode: str | int) -> int:
         """Request a mode (a name of MODE_NAMES or its number); the returned
-        order id is followed until the vehicle reports the mode, or refused."""
+        order id is followed until the vehicle reports the mode, however late."""
         value = mode_of(mode)
         t = self.now()
         with self._lock, self._link_call():
@@ -445,7 +445,7 @@ class Operator(SessionBase):
         return order_id
 
     def _queue(self, order, kind: str, detail: dict) -> int:
-        order_id = self.orders.new(kind, "queued", detail, self.now())
+        order_id = self.orders.new(kind, Fate.QUEUED, detail, self.now())
         with self._lock:
             try:
                 self.orders.queued(order_id, self.master.send_order(order))
@@ -454,7 +454,7 @@ class Operator(SessionBase):
                     self._stops_to_resend.append(order_id)
                     self.note("STOP waits for the link process, which is being started again", "warn")
                     return order_id
-                self.orders.set_state(order_id, f"refused: {exc}", self.now())
+                self.orders.set_state(order_id, Fate.REFUSED, self.now(), str(exc))
                 raise NotNow(str(exc)) from None
         return order_id
 

@@ -53,6 +53,9 @@ class StackConfig:
     # The ROV's tracker for FOLLOW (docs/PROTOCOL.md §10, rov/follow.py): None, the
     # ROV refuses FOLLOW (and runs no camera thread: the tests' default).
     tracker: str | None = None
+    # The simulated vehicle arms this long after it is asked (ARM answered IN_PROGRESS
+    # meanwhile), as a vehicle finishing its checks does: 0, at once, as ArduSub.
+    arm_delay_s: float = 0.0
 
 
 class VehicleSide:
@@ -77,7 +80,8 @@ class VehicleSide:
 
     async def start(self) -> None:
         c = self.config
-        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
+        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m),
+                                    arm_delay_s=c.arm_delay_s).start()
         self.bridge = AutopilotBridge(self.sim.bridge_url).start()
         self.camera = open_camera(c.camera)
         chan_b, rov_end = inproc_pair("rov")

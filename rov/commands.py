@@ -18,6 +18,9 @@ Plan
 - `expire(now, reachable)` fails requests older than `deadline_s` (2 s: the
   protocol's wait for an autopilot answer, §3): REASON 2 (refused) when the
   autopilot is there and said nothing, REASON 1 (impossible now) when it is not.
+  A request the autopilot answered "in progress" is its to finish: it is
+  watched for `in_progress_s` (30 s) before it counts as unanswered, so that a
+  vehicle that arms late is not reported refused while its motors start.
 - A newer request of the same kind (arm, or mode) cancels the older one.
 """
 
@@ -32,6 +35,7 @@ from rovlink.rov.ardusub import MAV_RESULT_NAMES, mavlink
 
 COMMAND_RESEND_S = 0.5
 COMMAND_DEADLINE_S = 2.0
+COMMAND_IN_PROGRESS_S = 30.0  # an autopilot that said "in progress" has this long to finish
 
 
 class Ticket:
@@ -116,9 +120,11 @@ class Request:
 
 
 class CommandTracker:
-    def __init__(self, resend_s: float = COMMAND_RESEND_S, deadline_s: float = COMMAND_DEADLINE_S) -> None:
+    def __init__(self, resend_s: float = COMMAND_RESEND_S, deadline_s: float = COMMAND_DEADLINE_S,
+                 in_progress_s: float = COMMAND_IN_PROGRESS_S) -> None:
         self.resend_s = resend_s
         self.deadline_s = deadline_s
+        self.in_progress_s = in_progress_s
         self.requests: list[Request] = []
 
     def request(
@@ -198,12 +204,12 @@ class CommandTracker:
         """Fail requests past their deadline; return them."""
         expired = []
         for request in list(self.requests):
-            if now - request.created_s >= self.deadline_s:
+            deadline_s = self.in_progress_s if request.acked else self.deadline_s
+            if now - request.created_s >= deadline_s:
                 request.timed_out = True
                 if reachable:
-                    request.ticket.fail(
-                        f"autopilot did not answer within {self.deadline_s:g} s", Reason.REFUSED
-                    )
+                    said = "did not finish" if request.acked else "did not answer"
+                    request.ticket.fail(f"autopilot {said} within {deadline_s:g} s", Reason.REFUSED)
                 else:
                     request.ticket.fail("autopilot not reachable", Reason.IMPOSSIBLE)
                 self.requests.remove(request)

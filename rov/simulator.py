@@ -79,6 +79,7 @@ CMD_SET_MESSAGE_INTERVAL = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
 CMD_REQUEST_MESSAGE = mavlink.MAV_CMD_REQUEST_MESSAGE
 MODE_FLAG_CUSTOM_MODE_ENABLED = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
 ACCEPTED, UNSUPPORTED, FAILED = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_UNSUPPORTED, mavlink.MAV_RESULT_FAILED
+IN_PROGRESS = mavlink.MAV_RESULT_IN_PROGRESS
 
 PILOT_TIMEOUT_S = 3.0  # ArduSub's FS_PILOT_TIMEOUT default
 # By default the vehicle starts 2 m above the simulated seabed, facing north, with
@@ -113,6 +114,7 @@ class SimulatedVehicle:
         position_after_s: float | None = 0.0,
         pilot_timeout_s: float = PILOT_TIMEOUT_S,
         mode: int = SubMode.MANUAL,
+        arm_delay_s: float = 0.0,
     ) -> None:
         self._url = parse_mavlink_url(url)
         self.system_id = system_id
@@ -121,6 +123,10 @@ class SimulatedVehicle:
         self.position_after_s = position_after_s if has_position else None
         self._position_override: bool | None = None
         self.pilot_timeout_s = pilot_timeout_s
+        # A vehicle that arms late (its checks or its motors take this long): ARM is
+        # answered IN_PROGRESS at once, ACCEPTED when it is armed.  0: at once, as ArduSub.
+        self.arm_delay_s = float(arm_delay_s)
+        self._arming_at: float | None = None
         self._model = VehicleModel(state=initial_state or START_STATE, floor_depth_m=floor_depth_m)
         self._lock = threading.Lock()
         self._armed = False
@@ -234,6 +240,11 @@ class SimulatedVehicle:
                     self._model.step(now - last_step, self._controls())
                     last_step = now
                     self._check_pilot_failsafe(now)
+                    arming = self._arming_at is not None and now >= self._arming_at
+                if arming:
+                    self._set_armed(True, now)
+                    self._ack(CMD_COMPONENT_ARM_DISARM, ACCEPTED)
+                    self._send_heartbeat()
                 self._drop_silent_tcp_client(now)
                 if now >= next_heartbeat:
                     next_heartbeat = now + self._heartbeat_interval_s
@@ -310,6 +321,16 @@ class SimulatedVehicle:
         except (TypeError, ValueError, OverflowError) as exc:
             log.warning("ignored malformed %s: %s", kind, exc)
 
+    def _set_armed(self, arm: bool, now: float) -> None:
+        with self._lock:
+            if arm and not self._armed:
+                # A grace period from arming on: the pilot gets 3 s to start
+                # sending MANUAL_CONTROL before the failsafe disarms again.
+                self._last_pilot_s = max(self._last_pilot_s, now)
+            self._armed = arm
+            self._arming_at = None  # a disarm calls off an arming under way
+        log.info("%s", "armed" if arm else "disarmed")
+
     def _command_long(self, msg, now: float) -> None:
         cmd = int(msg.command)
         try:
@@ -324,13 +345,14 @@ class SimulatedVehicle:
                 self._ack(cmd, UNSUPPORTED)  # like ArduPilot: only exactly 1 (arm) or 0 (disarm)
                 return
             arm = msg.param1 == 1.0
-            with self._lock:
-                if arm and not self._armed:
-                    # A grace period from arming on: the pilot gets 3 s to start
-                    # sending MANUAL_CONTROL before the failsafe disarms again.
-                    self._last_pilot_s = max(self._last_pilot_s, now)
-                self._armed = arm
-            log.info("%s", "armed" if arm else "disarmed")
+            if arm and self.arm_delay_s > 0 and not self._armed:
+                with self._lock:
+                    if self._arming_at is None:
+                        self._arming_at = now + self.arm_delay_s
+                log.info("arming in %.1f s", self.arm_delay_s)
+                self._ack(cmd, IN_PROGRESS)
+                return
+            self._set_armed(arm, now)
             self._ack(cmd, ACCEPTED)
         elif cmd == CMD_DO_SET_MODE:
             ok = (int(msg.param1) & MODE_FLAG_CUSTOM_MODE_ENABLED) and self._set_mode(int(msg.param2))

@@ -40,6 +40,7 @@ from typing import Any, Callable
 
 from rovlink.console.session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
 from rovlink.console.session.contract import Capabilities
+from rovlink.console.session.fates import Fate
 from rovlink.console.session.goto import GoToWatch
 from rovlink.console.session.health import LinkHealth
 from rovlink.console.session.images import ImageReceiver
@@ -63,9 +64,6 @@ PACKET = ac.PACKET_BYTES
 LOST_AFTER_S = ac.SILENCE_RESYNC_S  # no authentic frame this long: the link is lost (the operator says HELLO again)
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
 DEFAULT_THUMB = ImageSettings(roi=None, shift=4, mono=True, budget_bytes=198)
-# The ROV's fates (link.acoustic.OrderFate) in the radio session's words, by order kind.
-SETTLED = ("rejected", "refused", "cancelled", "unknown", "not carried out", "arrived", "aborted", "done",
-           "followed")
 
 
 class AcousticSession(SessionBase):
@@ -229,20 +227,20 @@ class AcousticSession(SessionBase):
                   cause="process")
         with self._lock:
             for order_id, kind, _ in list(self._by_oid.values()):
-                info = self.orders.get(order_id)
-                if info is None or info["state"].startswith(SETTLED):
+                fate = self.orders.fate(order_id)
+                if fate is None or fate.ended:
                     continue
-                if not info["state"].startswith("acknowledged"):
-                    self.orders.set_state(order_id, "unknown: the link process ended before the ROV answered; "
-                                                    "not sent again", t)
+                if fate is not Fate.ACKNOWLEDGED:
+                    self.orders.set_state(order_id, Fate.UNKNOWN, t,
+                                          "the link process ended before the ROV answered; not sent again")
                 elif kind != "POSITION":
-                    self.orders.set_state(order_id, "unknown: the link process ended before the ROV told "
-                                                    "its outcome", t)
+                    self.orders.set_state(order_id, Fate.UNKNOWN, t,
+                                          "the link process ended before the ROV told its outcome")
             self._by_oid.clear()  # the next machine's OIDs are its own
-            stop = None if self._stop_order is None else self.orders.get(self._stop_order)
-            if stop is not None and not stop["state"].startswith(SETTLED + ("acknowledged",)):
+            stop = self.orders.fate(self._stop_order)
+            if stop is not None and stop.pending:
                 self._stop_pending = True
-                self.orders.set_state(self._stop_order, "queued", t)  # waits for the next link process
+                self.orders.set_state(self._stop_order, Fate.QUEUED, t)  # waits for the next link process
             self._heard_at = None
             v = self.images.view
             partial = v.img is not None and not v.complete and v.received_bytes > 0
@@ -264,9 +262,9 @@ class AcousticSession(SessionBase):
                     self._stop_no = self.op.stop(self._clock())
                     pressed = self._stop_no
                     self.orders.update(self._stop_order, stop_no=pressed)
-                    self.orders.set_state(self._stop_order, "sent", t)
+                    self.orders.set_state(self._stop_order, Fate.SENT, t)
                 except (LinkProcessDown, ValueError) as exc:
-                    self.orders.set_state(self._stop_order, f"unknown: not sent again ({exc})", t)
+                    self.orders.set_state(self._stop_order, Fate.UNKNOWN, t, f"not sent again ({exc})")
         if pressed is not None:
             self.note(f"STOP pressed again in the new link process (STOP {pressed}): sent first, in every slot "
                       "until confirmed")
@@ -313,9 +311,9 @@ class AcousticSession(SessionBase):
                 self._fate(e.oid, e.state, e.reason, t)
             elif isinstance(e, ac.StopTaken):
                 # (pressed_at is the machine's clock; t + t0 is when the packet that told it came)
-                self._stop_fate(f"acknowledged: holding, {t + self._t0 - e.pressed_at:.1f} s after it was pressed", t)
+                self._stop_fate(Fate.ACKNOWLEDGED, t, f"holding, {t + self._t0 - e.pressed_at:.1f} s after it was pressed")
             elif isinstance(e, ac.StopImpossible):
-                self._stop_fate("not carried out: no autopilot holds the vehicle", t)
+                self._stop_fate(Fate.NOT_CARRIED_OUT, t, "no autopilot holds the vehicle")
             elif isinstance(e, ac.ThumbnailProgress):
                 self._thumbnail(e.oid, e.prefix, e.verified, t, complete=False)
             elif isinstance(e, ac.ThumbnailComplete):
@@ -347,6 +345,7 @@ class AcousticSession(SessionBase):
         self.recorder.write(record)
         self._changes(was, report, uplink)
         self.goto.on_reply(self.odometry.fix, t)
+        self.orders.check_requests(self.odometry.fix, t)  # an arm or mode the status shows followed
         self._publish("pose", self.pose_state())
 
     def _changes(self, was: VehicleReport | None, now: VehicleReport, uplink: bool | None) -> None:
@@ -377,13 +376,12 @@ class AcousticSession(SessionBase):
         if known is None:
             return
         order_id, kind, settings = known
-        info = self.orders.get(order_id)
-        if info is None or info["state"].startswith(SETTLED):
+        fate = self.orders.fate(order_id)
+        if fate is None or (fate.ended and not (fate is Fate.UNKNOWN and kind in ("ARM", "DISARM", "MODE"))):
             return
-        why = f": {reason}" if reason else ""
         if state == "taken":
-            if not info["state"].startswith("acknowledged"):
-                self.orders.set_state(order_id, "acknowledged", t)
+            if fate is not Fate.ACKNOWLEDGED:
+                self.orders.set_state(order_id, Fate.ACKNOWLEDGED, t)
                 if kind == "IMAGE":
                     fix = self.odometry.fix
                     self.images.captured_after(t, None if fix is None else fix.pose)
@@ -394,26 +392,34 @@ class AcousticSession(SessionBase):
             if kind == "POSITION":
                 if self.goto.active is not None and self.goto.active.order_id == order_id:
                     self.goto.active = None
-                self.orders.set_state(order_id, "arrived", t)
-            elif kind in ("ARM", "MODE"):
-                self.orders.set_state(order_id, "followed", t)
+                self.orders.set_state(order_id, Fate.ARRIVED, t)
+            elif kind in ("ARM", "DISARM", "MODE"):
+                self.orders.set_state(order_id, Fate.FOLLOWED, t)
             else:
-                self.orders.set_state(order_id, "done", t)
+                self.orders.set_state(order_id, Fate.DONE, t)
         elif state == "not sent":
-            self.orders.set_state(order_id, f"cancelled: {reason or 'never sent'} (never sent)", t)
+            self.orders.set_state(order_id, Fate.CANCELLED, t, f"{reason or 'never sent'} (never sent)")
         elif state == "aborted" and kind == "POSITION":
             if self.goto.active is not None and self.goto.active.order_id == order_id:
                 self.goto.abort(reason or "the ROV gave it up", t)
             else:
-                self.orders.set_state(order_id, f"aborted{why}", t)
-        else:  # rejected, cancelled, aborted, unknown
-            self.orders.set_state(order_id, f"{state}{why}", t)
+                self.orders.set_state(order_id, Fate.ABORTED, t, reason)
+        elif state == "unknown" and kind in ("ARM", "DISARM", "MODE") and fate is Fate.UNKNOWN:
+            return  # said already; the statuses may yet show it followed
+        elif state == "untracked":
+            # A later order took its place in STATUS.  A go-to, an arm or a mode is still
+            # followed from the statuses and a thumbnail from its packets; anything else
+            # will never be told.
+            if kind not in ("POSITION", "ARM", "DISARM", "MODE", "IMAGE"):
+                self.orders.set_state(order_id, Fate.UNKNOWN, t, reason)
+        else:  # rejected, cancelled, aborted, unknown: the ROV's own word
+            self.orders.set_state(order_id, Fate(state), t, reason)
 
-    def _stop_fate(self, state: str, t: float) -> None:
+    def _stop_fate(self, fate: Fate, t: float, reason: str) -> None:
         if self._stop_order is not None:
-            self.orders.set_state(self._stop_order, state, t)
-            if state.startswith("acknowledged"):
-                self.note(f"STOP confirmed: {state.split(': ', 1)[1]}")
+            self.orders.set_state(self._stop_order, fate, t, reason)
+            if fate is Fate.ACKNOWLEDGED:
+                self.note(f"STOP confirmed: {reason}")
 
     def _thumbnail(self, oid: int, obj: bytes, verified: bool, t: float, *, complete: bool) -> None:
         if len(obj) < 2:
@@ -430,9 +436,9 @@ class AcousticSession(SessionBase):
             self.images.on_event(ImageComplete(oid, stream, started, t), t)
             known = self._by_oid.get(oid)
             if known is not None:
-                info = self.orders.get(known[0])
-                if info is not None and not info["state"].startswith(SETTLED):
-                    self.orders.set_state(known[0], "done", t)
+                fate = self.orders.fate(known[0])
+                if fate is not None and not fate.ended:
+                    self.orders.set_state(known[0], Fate.DONE, t)
 
     # ------------------------------------------------------------------
     # Commands (any thread): one path each, through the control desk
@@ -449,18 +455,21 @@ class AcousticSession(SessionBase):
                 raise NotNow(f"the acoustic link cannot take it now: {exc}") from None
             except LinkProcessDown as exc:
                 raise NotNow(str(exc)) from None
-            order_id = self.orders.new(kind, "queued", {**detail, "oid": oid}, t)
+            order_id = self.orders.new(kind, Fate.QUEUED, {**detail, "oid": oid}, t)
             self._by_oid[oid] = (order_id, kind, settings)
         return order_id
 
     def arm(self, armed: bool) -> int:
-        order_id = self._send(ac.OrderBody(0, ac.OP_ARM if armed else ac.OP_DISARM, 0), "ARM", {"armed": bool(armed)})
+        order_id = self._send(ac.OrderBody(0, ac.OP_ARM if armed else ac.OP_DISARM, 0), "ARM" if armed else "DISARM",
+                              {"armed": bool(armed)})
+        self.orders.watch("arm", order_id, self.now())  # followed when a status shows it, however late
         self.note("arm requested" if armed else "disarm requested")
         return order_id
 
     def set_mode(self, mode: str | int) -> int:
         value = mode_of(mode)
         order_id = self._send(ac.OrderBody(0, ac.OP_MODE, int(value)), "MODE", {"mode": value.name})
+        self.orders.watch("mode", order_id, self.now())
         self.note(f"mode {value.name} requested")
         return order_id
 
@@ -485,7 +494,7 @@ class AcousticSession(SessionBase):
                 if not joined:
                     self._stop_pending = True
                     self._stop_no = None
-                    self._stop_order = self.orders.new("STOP", "queued", {"stop_no": None}, t)
+                    self._stop_order = self.orders.new("STOP", Fate.QUEUED, {"stop_no": None}, t)
                 self.goto.abort("STOP", t)
                 order_id = self._stop_order
                 no = None
@@ -493,7 +502,7 @@ class AcousticSession(SessionBase):
                 joined = self._stop_no == no and self._stop_order is not None
                 if not joined:
                     self._stop_no = no
-                    self._stop_order = self.orders.new("STOP", "sent", {"stop_no": no}, t)
+                    self._stop_order = self.orders.new("STOP", Fate.SENT, {"stop_no": no}, t)
                 self.goto.abort("STOP", t)
                 order_id = self._stop_order
         if no is None:
@@ -512,7 +521,7 @@ class AcousticSession(SessionBase):
             except LinkProcessDown as exc:
                 raise NotNow(str(exc)) from None
             if done and self._stop_order is not None:
-                self.orders.set_state(self._stop_order, "cancelled: by the pilot (no autopilot to hold)", self.now())
+                self.orders.set_state(self._stop_order, Fate.CANCELLED, self.now(), "by the pilot (no autopilot to hold)")
         if done:
             self.note("STOP cancelled by the pilot")
         return done
@@ -638,10 +647,10 @@ class AcousticSession(SessionBase):
             if fix is None:
                 return None
             active = self.goto.active
-            info = None if active is None else self.orders.get(active.order_id)
+            fate = None if active is None else self.orders.fate(active.order_id)
         pose = fix.pose
         age = max(0.0, (self.now() if at is None else at) - fix.sampled_at)
-        if active is None or active.target is None or info is None or not info["state"].startswith("acknowledged") \
+        if active is None or active.target is None or fate is not Fate.ACKNOWLEDGED \
                 or not fix.report.armed or fix.report.hold or fix.report.failsafe or age <= 0.0:
             return pose
         x, y, z, yaw = active.target
@@ -703,9 +712,9 @@ class AcousticSession(SessionBase):
             return "no thumbnail: the link is lost"
         if self.images.view.received_bytes:
             return "decoding the first bytes of the thumbnail"
-        waiting = [o for o in self.orders.state() if o["kind"] == "IMAGE" and not o["state"].startswith(SETTLED)]
+        waiting = [o for o in self.orders.state() if o["kind"] == "IMAGE" and not Fate(o["state"]).ended]
         if waiting:
-            return f"thumbnail asked for (order {waiting[-1]['id']}, {waiting[-1]['state']}): its first bytes come " \
+            return f"thumbnail asked for (order {waiting[-1]['id']}, {waiting[-1]['text']}): its first bytes come " \
                    f"after the next status, about a packet a second"
         return "no thumbnail yet: ask for one (pictures on the acoustic link come on request)"
 

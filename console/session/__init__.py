@@ -9,7 +9,8 @@ and hands what happens to these parts, and it is the one place commands enter.
   were sent; the path a position order would take.
 - `images`: the picture being received, its decode thread, its capture window and
   the pictures to look back at.
-- `orders`: every order's fate (queued, sent, acknowledged, rejected with its reason).
+- `fates`: an order's fate typed once (`Fate`), and its words made in one place.
+- `orders`: every order's fate (queued, sent, waiting, acknowledged, followed, rejected with its reason).
 - `health`: the link's condition from replies (up, degraded, lost), its counters
   and the alerts raised when it changes.
 

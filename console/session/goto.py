@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 from rovlink.link.radio.messages import Mode
 
+from .fates import Fate
 from .odometry import Fix
 from .orders import REPORTED_MODE_NAMES, OrderBook
 
 ARRIVED_M = 0.5
 ARRIVED_YAW_DEG = 10.0
-SETTLED = ("rejected", "refused", "cancelled", "unknown", "not carried out", "arrived", "aborted")
 
 
 @dataclass
@@ -69,16 +69,16 @@ class GoToWatch:
         active, self.active = self.active, None
         if active is None:
             return
-        info = self._orders.get(active.order_id)
-        if info is not None and not info["state"].startswith(SETTLED):
-            self._orders.set_state(active.order_id, f"aborted: {why}", t)
+        fate = self._orders.fate(active.order_id)
+        if fate is not None and not fate.ended:
+            self._orders.set_state(active.order_id, Fate.ABORTED, t, why)
 
     def on_reply(self, fix: Fix, t: float) -> None:
         active = self.active
         if active is None:
             return
-        info = self._orders.get(active.order_id)
-        if info is None or info["state"].startswith(SETTLED):
+        fate = self._orders.fate(active.order_id)
+        if fate is None or fate.ended:
             self.active = None
             return
         reply, pose = fix.report, fix.pose
@@ -88,20 +88,20 @@ class GoToWatch:
         if shown != active.shown_m:
             active.shown_m = shown
             self._orders.update(active.order_id, distance_left_m=shown)
-        if not info["state"].startswith("acknowledged"):
+        if fate is not Fate.ACKNOWLEDGED:
             return  # not taken yet (queued, sent): nothing to judge
         if reply.failsafe:
-            self._end("aborted: the ROV went into FAILSAFE (it braked and holds)", t)
+            self._end(Fate.ABORTED, t, "the ROV went into FAILSAFE (it braked and holds)")
         elif not reply.armed:
-            self._end("aborted: the vehicle is disarmed", t)
+            self._end(Fate.ABORTED, t, "the vehicle is disarmed")
         elif left is not None and left <= ARRIVED_M and (
                 not reply.attitude_valid or abs((pose.yaw_deg - yaw + 180) % 360 - 180) <= ARRIVED_YAW_DEG):
-            self._end("arrived", t)
+            self._end(Fate.ARRIVED, t)
         elif reply.mode == Mode.GUIDED:
             active.seen_guided = True
         elif active.seen_guided:
-            self._end(f"aborted: the vehicle left GUIDED for {REPORTED_MODE_NAMES.get(int(reply.mode), 'OTHER')}", t)
+            self._end(Fate.ABORTED, t, f"the vehicle left GUIDED for {REPORTED_MODE_NAMES.get(int(reply.mode), 'OTHER')}")
 
-    def _end(self, state: str, t: float) -> None:
+    def _end(self, fate: Fate, t: float, reason: str = "") -> None:
         active, self.active = self.active, None
-        self._orders.set_state(active.order_id, state, t)
+        self._orders.set_state(active.order_id, fate, t, reason)

@@ -1,10 +1,16 @@
-"""Every order's fate: queued or requested, sent, then acknowledged, followed,
-rejected (with the ROV's reason), refused, cancelled or unknown.
+"""Every order's fate (console/session/fates.py's `Fate`): queued or requested,
+sent, then acknowledged, followed, rejected (with the ROV's reason), cancelled
+or unknown; refused only when the console itself would not send it.
 
-One-shot orders (POSITION, IMAGE, STOP) are settled by the master's events,
-which name them by the master's ids.  ARM/DISARM and MODE are requests the
-link repeats; the vehicle's reported state says whether it followed, within
-REQUEST_FOLLOW_S, else the request is refused.  Every change is recorded,
+One-shot orders (POSITION, IMAGE, STOP) are settled by the link's events,
+which name them by the master's ids.  ARM/DISARM and MODE are requests: the
+vehicle's reported state says whether it followed.  The link repeats a request
+for a while (§2: 3 s from when it first goes out); after that it is
+"waiting", with its age, and still watched, so that a vehicle that follows
+late is shown to have followed (ArduSub may arm seconds after it was asked,
+and at the link's start the request waits for the reference).  A request
+stops being watched when the vehicle follows it, the ROV rejects it or a
+newer request of its kind supersedes it.  Every change is recorded,
 published ("order") and, when it went wrong, an alert in the log.
 """
 
@@ -14,18 +20,15 @@ from typing import Any, Callable
 
 from rovlink.link.radio.messages import REQUESTABLE_MODES
 
+from .fates import Fate, fields, parse_recorded, words
 from .odometry import Fix
 
-REQUEST_FOLLOW_S = 3.0    # an arm/disarm/mode the vehicle does not follow in this time is refused
 ORDERS_KEPT = 200
 ORDERS_LISTED = 50
 
 # The modes a pilot may request: the protocol's own list (1..6).
 MODE_NAMES = {m.name: m for m in REQUESTABLE_MODES}
 REPORTED_MODE_NAMES = {0: "UNKNOWN", **{int(m): m.name for m in MODE_NAMES.values()}, 7: "OTHER"}
-
-# States that went wrong: the pilot is told loudly.
-BAD_STATES = ("rejected", "refused", "not carried out", "unknown")
 
 
 class OrderBook:
@@ -42,12 +45,13 @@ class OrderBook:
 
     # -- new orders -------------------------------------------------------
 
-    def new(self, kind: str, state: str, detail: dict, t: float) -> int:
+    def new(self, kind: str, fate: Fate, detail: dict, t: float) -> int:
         """A console order id and its record."""
+        assert isinstance(fate, Fate), fate
         with self._lock:
             order_id = self._next_id
             self._next_id += 1
-            info = {"id": order_id, "kind": kind, "state": state, "t_queued": t, **detail}
+            info = {"id": order_id, "kind": kind, **fields(fate), "t_queued": t, f"t_{fate.value}": t, **detail}
             self._orders[order_id] = info
             if len(self._orders) > ORDERS_KEPT:
                 for old in sorted(self._orders)[:-ORDERS_KEPT]:
@@ -71,11 +75,8 @@ class OrderBook:
 
     def request(self, what: str, kind: str, detail: dict, t: float) -> int:
         """An arm ("arm") or mode ("mode") request, superseding the one before."""
-        old = self._requests.pop(what, None)
-        if old is not None:
-            self.set_state(old, "cancelled: superseded by a newer request", t)
-        order_id = self.new(kind, "requested", detail, t)
-        self._requests[what] = order_id
+        order_id = self.new(kind, Fate.REQUESTED, detail, t)
+        self.watch(what, order_id, t)
         return order_id
 
     # -- their fate -------------------------------------------------------
@@ -83,19 +84,30 @@ class OrderBook:
     def sent(self, order_id: int | None, t: float) -> None:
         with self._lock:
             info = self._orders.get(order_id) if order_id is not None else None
-            if info is None or info["state"] not in ("queued", "requested"):
+            if info is None or Fate(info["state"]) not in (Fate.QUEUED, Fate.REQUESTED):
                 return
-        self.set_state(order_id, "sent", t)
+        self.set_state(order_id, Fate.SENT, t)
 
     def sent_by_master_id(self, master_id: int, t: float) -> None:
         with self._lock:
             mine = self._by_master_id.get(master_id)
         self.sent(mine, t)
 
+    def watch(self, what: str, order_id: int, t: float) -> None:
+        """An arm ("arm") or mode ("mode") order sent as a one-shot order (the
+        acoustic link's ORDER) is watched as a request: followed when the
+        vehicle's reported state shows it, however late; it supersedes the one
+        before."""
+        old = self._requests.pop(what, None)
+        old_fate = self.fate(old)
+        if old_fate is not None and not old_fate.ended:
+            self.set_state(old, Fate.CANCELLED, t, "superseded by a newer request")
+        self._requests[what] = order_id
+
     def request_sent(self, what: str, t: float) -> None:
         self.sent(self._requests.get(what), t)
 
-    def settled(self, master_id: int, state: str, t: float):
+    def settled(self, master_id: int, fate: Fate, t: float, reason: str = ""):
         """A one-shot order's fate, from the master (its ids).  Returns the
         settings of an IMAGE order the ROV acknowledged (they apply from its next
         picture on), else None."""
@@ -103,27 +115,34 @@ class OrderBook:
             order_id = self._by_master_id.get(master_id)
         if order_id is None:
             return None
-        info = self.set_state(order_id, state, t)
+        info = self.set_state(order_id, fate, t, reason)
         if info is not None and info["kind"] == "IMAGE":
             with self._lock:
                 settings = self._image_settings.pop(order_id, None)
-            if state == "acknowledged":
+            if fate is Fate.ACKNOWLEDGED:
                 return settings
         return None
 
-    def set_state(self, order_id: int, state: str, t: float) -> dict | None:
+    def set_state(self, order_id: int, fate: Fate, t: float, reason: str = "") -> dict | None:
+        assert isinstance(fate, Fate), fate
         with self._lock:
             info = self._orders.get(order_id)
             if info is None:
                 return None
-            info["state"] = state
-            info["t_" + state.split(":")[0]] = t
+            info.update(fields(fate, reason))
+            info["t_" + fate.value] = t
             info = dict(info)
-        self._record({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"], "state": state})
+        self._record({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"],
+                      "state": fate.value, "reason": reason})
         self._publish("order", info)
-        if state.startswith(BAD_STATES):
-            self._note(f"{info['kind']} order {order_id} {state}", "alert")
+        if fate.alert:
+            self._note(f"{info['kind']} order {order_id} {words(fate, reason)}", "alert")
         return info
+
+    def fate(self, order_id: int | None) -> Fate | None:
+        with self._lock:
+            info = self._orders.get(order_id) if order_id is not None else None
+            return None if info is None else Fate(info["state"])
 
     def get(self, order_id: int) -> dict | None:
         with self._lock:
@@ -141,45 +160,55 @@ class OrderBook:
         self._publish("order", info)
 
     def check_requests(self, fix: Fix | None, t: float) -> None:
-        """Arm and mode requests the vehicle followed, or did not in time."""
+        """Arm and mode requests the vehicle's reported state shows followed,
+        however late; those the ROV rejected or that were superseded are no
+        longer watched."""
         if not self._requests:
             return
         reply = None if fix is None else fix.report
         for what, order_id in list(self._requests.items()):
             with self._lock:
                 info = self._orders.get(order_id)
-            if info is None:
-                self._requests.pop(what, None)
+                info = None if info is None else dict(info)
+            fate = None if info is None else Fate(info["state"])
+            if fate is None or (fate.ended and fate is not Fate.UNKNOWN):
+                self._requests.pop(what, None)  # followed, rejected or cancelled: the vehicle said
                 continue
             followed = reply is not None and fix.arrived_at >= info["t_queued"] and (
                 reply.armed == info["armed"] if what == "arm" else int(reply.mode) == int(MODE_NAMES[info["mode"]]))
             if followed:
                 self._requests.pop(what, None)
-                self.set_state(order_id, "followed", t)
-            elif t - info["t_queued"] > REQUEST_FOLLOW_S:
-                self.refuse_request(what, t, f"the vehicle did not follow within {REQUEST_FOLLOW_S:g} s")
+                late = fate in (Fate.WAITING, Fate.UNKNOWN)
+                self.set_state(order_id, Fate.FOLLOWED, t,
+                               f"{t - info['t_queued']:.1f} s after it was asked" if late else "")
+                if late:
+                    self._note(f"{info['kind']} order {order_id} followed after all, "
+                               f"{t - info['t_queued']:.1f} s after it was asked")
 
-    def refuse_request(self, what: str, t: float, why: str) -> None:
-        order_id = self._requests.pop(what, None)
-        if order_id is None:
-            self._note(f"{what} request {why}", "alert")
+    def request_unrepeated(self, what: str, t: float, why: str) -> None:
+        """The link no longer repeats a request the vehicle has not followed yet:
+        it waits, still watched (the vehicle may follow late; it has said nothing)."""
+        order_id = self._requests.get(what)
+        if order_id is None or self.fate(order_id) not in (Fate.REQUESTED, Fate.SENT):
             return
-        self.set_state(order_id, f"refused: {why}", t)
+        info = self.set_state(order_id, Fate.WAITING, t, why)
+        if info is not None:
+            self._note(f"{info['kind']} order {order_id} not followed yet ({why}); still watched", "warn")
 
-    def link_ended(self, t: float, state: str) -> list[int]:
+    def link_ended(self, t: float, reason: str) -> list[int]:
         """The master that held the one-shot orders and the requests is gone (the
-        link process ended): those it had not settled get `state`, but STOPs,
-        whose ids are returned to be sent again.  Its ids mean nothing to the
-        next master."""
+        link process ended): those it had not settled are unknown, with `reason`,
+        but STOPs, whose ids are returned to be sent again.  Its ids mean nothing
+        to the next master.  Requests stay watched: the vehicle may have them."""
         with self._lock:
             open_ids = {mine for mine in self._by_master_id.values()
-                        if self._orders.get(mine, {}).get("state") in ("queued", "sent")}
+                        if mine in self._orders and Fate(self._orders[mine]["state"]) in (Fate.QUEUED, Fate.SENT)}
             self._by_master_id.clear()
             stops = sorted(i for i in open_ids if self._orders[i]["kind"] == "STOP")
-            requests = list(self._requests.values())
-            self._requests.clear()
+            requests = [i for i in self._requests.values()
+                        if i in self._orders and Fate(self._orders[i]["state"]).pending]
         for order_id in sorted(open_ids - set(stops)) + requests:
-            self.set_state(order_id, state, t)
+            self.set_state(order_id, Fate.UNKNOWN, t, reason)
         return stops
 
     # -- a replay ---------------------------------------------------------
@@ -193,10 +222,12 @@ class OrderBook:
         with self._lock:
             if record["k"] == "order":
                 detail = {k: v for k, v in record.items() if k not in ("k", "t", "id", "kind")}
-                self._orders[order_id] = {"id": order_id, "kind": record.get("kind", "?"), "state": "queued",
+                self._orders[order_id] = {"id": order_id, "kind": record.get("kind", "?"), **fields(Fate.QUEUED),
                                           "t_queued": t, **detail}
             elif order_id in self._orders:
-                self._orders[order_id]["state"] = record.get("state", "?")
+                fate, reason = parse_recorded(str(record.get("state", "?")), record.get("reason"))
+                self._orders[order_id].update(fields(fate, reason))
+                self._orders[order_id]["t_" + fate.value] = t
             info = dict(self._orders[order_id]) if order_id in self._orders else None
         if info is not None:
             self._publish("order", info)

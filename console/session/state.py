@@ -17,6 +17,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 # The session's own pose (a frozen dataclass) is the API's too: pydantic takes dataclasses as they are.
+from .fates import Fate
 from .odometry import Pose
 
 
@@ -182,10 +183,15 @@ class OrderInfo(BaseModel):
 
     id: int
     kind: str
-    state: str = Field(description="queued or requested, sent, acknowledged (one-shot) or followed (arm, mode), "
-                                   "'rejected: <reason>', 'refused: <reason>', 'cancelled: <reason>'; a position "
-                                   "order then 'arrived' or 'aborted: <why>', with distance_left_m (from the last "
-                                   "reply; null: no position); each state's time is t_<state>")
+    state: Fate = Field(description="the fate (console/session/fates.py): queued or requested, sent, waiting (the "
+                                    "vehicle has not followed it yet; still watched), acknowledged (one-shot) or "
+                                    "followed (arm, mode), rejected, refused (never sent), cancelled, unknown; a "
+                                    "position order then arrived or aborted, with distance_left_m (from the last "
+                                    "reply; null: no position); each state's time is t_<state>")
+    reason: str = Field("", description="why, in the ROV's or the console's words (empty: nothing to add)")
+    text: str = Field(description="the fate in words, as the pilot reads it")
+    outcome: Literal["pending", "done", "bad", "ended"] = Field(
+        description="pending: the vehicle has not said yet; done; bad: the pilot is alerted; ended: by a choice")
     t_queued: float
 
 

@@ -49,7 +49,8 @@ def fixed_camera(size: int = 200, seed: int = 7) -> Callable[[ac.ThumbRequest], 
 class SimVehicle:
     """Just enough vehicle: local NED position, heading, armed, mode; orders at once."""
 
-    def __init__(self, *, armed: bool = True, position_valid: bool = True, autopilot: bool = True) -> None:
+    def __init__(self, *, armed: bool = True, position_valid: bool = True, autopilot: bool = True,
+                 arm_delay_s: float = 0.0) -> None:
         self.x = self.y = 0.0
         self.z = 5.0
         self.heading = 0.0
@@ -61,6 +62,9 @@ class SimVehicle:
         self.goto_oid: int | None = None
         self.surfacing_oid: int | None = None
         self.battery = 15.8
+        # An ARM taken now and done this long after (a vehicle finishing its checks); 0: at once.
+        self.arm_delay_s = arm_delay_s
+        self.arming: tuple[int, float] | None = None  # (OID, seconds left)
 
     def state(self) -> ac.VehicleState:
         return ac.VehicleState(self.x, self.y, self.z, self.heading, self.armed, self.mode, self.position_valid,
@@ -72,6 +76,12 @@ class SimVehicle:
         self.mode = Mode.POS_HOLD if self.position_valid else Mode.DEPTH_HOLD
 
     def step(self, dt: float, rov: ac.AcousticRov) -> None:
+        if self.arming is not None:
+            oid, left = self.arming
+            self.arming = None if left <= dt else (oid, left - dt)
+            if self.arming is None:
+                self.armed = True
+                rov.order_outcome(oid, ac.R_DONE)
         if self.surfacing_oid is not None:
             self.z = max(0.0, self.z - SURFACE_SPEED * dt)
             if self.z == 0.0:
@@ -112,8 +122,12 @@ class SimVehicle:
             self.mode = Mode.SURFACE
             self.surfacing_oid = event.oid
         elif isinstance(event, ac.ArmWanted):
-            self.armed = True
-            rov.order_outcome(event.oid, ac.R_DONE)
+            if self.arm_delay_s > 0 and not self.armed:
+                self.arming = (event.oid, self.arm_delay_s)
+                rov.order_outcome(event.oid, ac.R_TAKEN)
+            else:
+                self.armed = True
+                rov.order_outcome(event.oid, ac.R_DONE)
         elif isinstance(event, ac.DisarmWanted):
             self.armed = False
             self.brake()

@@ -71,7 +71,7 @@ def _listening_socket() -> socket.socket:
 
 @contextlib.contextmanager
 def running_console(*, scene: bool = False, failsafe_s: float = 1.0, tracker: str | None = None,
-                    start_depth_m: float = 2.0):
+                    start_depth_m: float = 2.0, arm_delay_s: float = 0.0):
     """The stack and the web app (and, with `scene`, the viser scene the
     page embeds, wired as `rovlink demo` wires it) in one event loop on a
     thread; yields the LiveConsole once the ROV has answered."""
@@ -83,7 +83,8 @@ def running_console(*, scene: bool = False, failsafe_s: float = 1.0, tracker: st
     async def main() -> None:
         # No bit errors: a test that waits for one particular reply must get it.
         async with Stack(StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0, failsafe_s=failsafe_s,
-                                     tracker=tracker, start_depth_m=start_depth_m)) as stack:
+                                     tracker=tracker, start_depth_m=start_depth_m,
+                                     arm_delay_s=arm_delay_s)) as stack:
             view = None
             if scene:
                 from rovlink.console.scene.app import ConsoleScene

@@ -113,7 +113,7 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
             # STOP from the second page (which does not hold control): confirmed, on both pages.
             second.click("#stop")
             assert wait_for(lambda: [o for o in get(base + "/api/orders") if o["kind"] == "STOP"
-                                     and o["state"].startswith("acknowledged")], 60)
+                                     and o["state"] == "acknowledged"], 60)
             for page in pages:
                 page.wait_for_function("document.getElementById('log').textContent.includes('STOP confirmed')",
                                        timeout=20000)

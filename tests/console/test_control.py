@@ -14,9 +14,10 @@ import pytest
 from rovlink.console import control
 from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, Replaying
 from rovlink.console.operator import Operator
+from rovlink.console.session.fates import Fate
 from rovlink.console.web.app import create_app
 from rovlink.link.radio.frame import encode_frame
-from rovlink.link.radio.master import PollSent, PoseReceived, ReplyLost
+from rovlink.link.radio.master import PollSent, PoseReceived, ReplyLost, RequestExpired
 from rovlink.link.radio.messages import Mode, Poll, Reply, Velocity
 
 from ..helpers import FakeClock, local_test_client
@@ -149,14 +150,38 @@ def test_arm_and_mode_requests_show_their_fate(operator, clock):
     mode = operator.set_mode("DEPTH_HOLD")
     clock.t += 1.0
     reply_at(operator, clock, armed=True, mode=Mode.MANUAL)  # armed, but the mode did not change
-    states = {o["id"]: o["state"] for o in operator.orders_state()}
-    assert states[armed] == "followed" and states[mode] == "requested"
-    clock.t += 2.5
+    fates = {o["id"]: o for o in operator.orders_state()}
+    assert fates[armed]["state"] == Fate.FOLLOWED and fates[mode]["state"] == Fate.REQUESTED
+    # The link stops repeating the request (§2's 3 s): the mode waits, still watched, never refused.
+    operator.handle_events([RequestExpired("mode")], operator.now())
+    clock.t += 30.0
     reply_at(operator, clock, armed=True, mode=Mode.MANUAL)
-    assert {o["id"]: o["state"] for o in operator.orders_state()}[mode].startswith("refused: the vehicle did not")
+    waiting = {o["id"]: o for o in operator.orders_state()}[mode]
+    assert waiting["state"] == Fate.WAITING and waiting["outcome"] == "pending", waiting
+    assert not any(e["level"] == "alert" for e in operator.log_entries(50)), operator.log_entries(50)
+    # The vehicle follows late: the order says so, and the log.
+    clock.t += 2.0
+    reply_at(operator, clock, armed=True, mode=Mode.DEPTH_HOLD)
+    followed = {o["id"]: o for o in operator.orders_state()}[mode]
+    assert followed["state"] == Fate.FOLLOWED and followed["outcome"] == "done"
+    assert followed["reason"] == "33.0 s after it was asked"
+    assert any("followed after all" in e["text"] for e in operator.log_entries(50))
     operator.close()
-    states = [r["state"] for r in map(json.loads, open(operator.recorder.path)) if r["k"] == "order_state"]
-    assert states[0] == "followed" and states[-1].startswith("refused")
+    recorded = [(r["state"], r["reason"]) for r in map(json.loads, open(operator.recorder.path)) if r["k"] == "order_state"]
+    assert recorded == [("followed", ""), ("waiting", "the link repeated it for its 3 s"),
+                        ("followed", "33.0 s after it was asked")]
+
+
+def test_a_newer_request_cancels_the_one_that_waits(operator, clock):
+    first = operator.set_mode("DEPTH_HOLD")
+    operator.handle_events([RequestExpired("mode")], operator.now())
+    second = operator.set_mode("POS_HOLD")
+    fates = {o["id"]: o for o in operator.orders_state()}
+    assert (fates[first]["state"], fates[first]["reason"]) == (Fate.CANCELLED, "superseded by a newer request")
+    clock.t += 1.0
+    reply_at(operator, clock, mode=Mode.DEPTH_HOLD)  # the first one's mode: no longer watched
+    fates = {o["id"]: o for o in operator.orders_state()}
+    assert fates[first]["state"] == Fate.CANCELLED and fates[second]["state"] == Fate.REQUESTED
 
 
 def test_link_state_comes_from_replies(operator, clock):
@@ -271,7 +296,7 @@ def test_the_recording_holds_stop_as_a_neutral_wish_and_each_orders_outcome(oper
     operator.set_velocity(0.3, 0.0, 0.0, 0.0)
     clock.t += 1.0
     stop = operator.stop()
-    operator._settled(operator.orders.last_master_id(), "acknowledged", operator.now())
+    operator._settled(operator.orders.last_master_id(), Fate.ACKNOWLEDGED, operator.now())
     operator.close()
     s = series(operator.recorder.path)
     # Fig. 5: the commanded surge drops to 0 at STOP (it used to stay at 0.3).

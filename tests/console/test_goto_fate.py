@@ -6,6 +6,7 @@ clock, the operator fed as its link loop feeds it."""
 from __future__ import annotations
 
 from rovlink.console.operator import Operator
+from rovlink.console.session.fates import Fate
 from rovlink.link.radio.master import PoseReceived
 from rovlink.link.radio.messages import Mode, Reply
 
@@ -27,12 +28,14 @@ def _reply(op, clock, dt=0.5, *, x=0.0, y=0.0, z=2.0, yaw=0.0, mode=Mode.GUIDED,
 
 
 def _acknowledge(op, order_id):
-    op._settled(op.orders.last_master_id(), "acknowledged", op.now())
+    op._settled(op.orders.last_master_id(), Fate.ACKNOWLEDGED, op.now())
     assert op.orders.get(order_id)["state"] == "acknowledged"
 
 
 def _state(op, order_id):
-    return op.orders.get(order_id)["state"]
+    """The fate and its reason."""
+    info = op.orders.get(order_id)
+    return Fate(info["state"]), info["reason"]
 
 
 def test_a_goto_says_its_distance_left_and_arrives():
@@ -46,7 +49,7 @@ def test_a_goto_says_its_distance_left_and_arrives():
     info = op.orders.get(order_id)
     assert info["state"] == "acknowledged" and info["distance_left_m"] == 2.5
     _reply(op, clock, x=3.9, y=2.9, yaw=60.0)  # there, but not yet turned
-    assert _state(op, order_id) == "acknowledged"
+    assert _state(op, order_id) == (Fate.ACKNOWLEDGED, "")
     _reply(op, clock, x=3.9, y=2.9, yaw=88.0)
     info = op.orders.get(order_id)
     assert info["state"] == "arrived" and info["t_arrived"] == op.now() and info["distance_left_m"] == 0.1
@@ -65,22 +68,22 @@ def test_a_goto_is_aborted_by_stop_a_newer_order_failsafe_disarm_or_leaving_guid
 
     first = acknowledged_goto()
     op.stop()
-    assert _state(op, first) == "aborted: STOP"
+    assert _state(op, first) == (Fate.ABORTED, "STOP")
 
     second = acknowledged_goto()
     third = op.send_position(0.0, 10.0, 2.0)
-    assert _state(op, second) == f"aborted: replaced by position order #{third}"
+    assert _state(op, second) == (Fate.ABORTED, f"replaced by position order #{third}")
     _acknowledge(op, third)
     _reply(op, clock, x=1.0, failsafe=True)
-    assert _state(op, third).startswith("aborted: the ROV went into FAILSAFE")
+    assert _state(op, third) == (Fate.ABORTED, "the ROV went into FAILSAFE (it braked and holds)")
 
     fourth = acknowledged_goto()
     _reply(op, clock, x=1.5, armed=False)
-    assert _state(op, fourth) == "aborted: the vehicle is disarmed"
+    assert _state(op, fourth) == (Fate.ABORTED, "the vehicle is disarmed")
 
     fifth = acknowledged_goto()  # its replies show GUIDED
     _reply(op, clock, x=2.0, mode=Mode.POS_HOLD)
-    assert _state(op, fifth) == "aborted: the vehicle left GUIDED for POS_HOLD"
+    assert _state(op, fifth) == (Fate.ABORTED, "the vehicle left GUIDED for POS_HOLD")
     # None of these is an alert: the pilot or the ROV's own failsafe (alerted on its own) ended it.
     assert not [e for e in op.log_entries() if e["level"] == "alert" and "POSITION" in e["text"]]
 
@@ -91,7 +94,7 @@ def test_a_relative_goto_goes_from_the_pose_it_was_given_at():
     order_id = op.send_position(2.0, 0.0, 0.0, 0.0, relative=True, body=True)  # 2 m ahead, facing east
     _acknowledge(op, order_id)
     _reply(op, clock, x=5.0, y=7.0, yaw=90.0)
-    assert _state(op, order_id) == "arrived"
+    assert _state(op, order_id) == (Fate.ARRIVED, "")
 
 
 def test_without_a_picture_the_pilot_is_told_why():

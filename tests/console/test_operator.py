@@ -85,7 +85,7 @@ def test_operator_session_end_to_end(tmp_path):
 
             stop_id = op.stop()
             # Protocol 1.1: STOP is confirmed by a reply showing the hold.
-            assert await until(lambda: any(o["id"] == stop_id and o["state"].startswith("acknowledged")
+            assert await until(lambda: any(o["id"] == stop_id and o["state"] == "acknowledged"
                                            for o in op.orders_state()), 15), op.orders_state()[-3:]
             link = op.link_state()
             assert link["polls_sent"] > 20 and link["autopilot"] and not link["failsafe"]

@@ -369,7 +369,7 @@ def test_gizmo_previews_and_only_send_moves_the_vehicle(live):
     assert not scene.preview_node.visible and scene.target is None
     # STOP's fate: the ROV confirms it holds.
     assert wait_for(lambda: [o for o in op.orders_state() if o["id"] == stop_id][0]["state"]
-                    .startswith("acknowledged"), 15), op.orders_state()[-3:]
+                    == "acknowledged", 15), op.orders_state()[-3:]
 
 
 def test_panel_controls_reach_the_operator(live):

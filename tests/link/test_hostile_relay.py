@@ -177,7 +177,7 @@ def test_stop_is_never_shown_done_before_a_stop_poll_got_through(tmp_path):
         client = _post(base + "/api/control/take", {"name": "pilot"})["client_id"]
         # A first STOP passes: the vehicle brakes (POS_HOLD or DEPTH_HOLD) and sets HOLD.
         first = _post(base + "/api/orders/stop", client=client)["id"]
-        assert wait_until_up(lambda: _order(base, first)["state"].startswith("acknowledged"), 30), \
+        assert wait_until_up(lambda: _order(base, first)["state"] == "acknowledged", 30), \
             (_order(base, first), _logs(tmp_path))
         # The stick held forward: HOLD stays up (the ROV ignores it), so every reply, SYNCs
         # included, now shows HOLD, AUTOPILOT and a hold mode: what confirms a STOP.
@@ -194,7 +194,7 @@ def test_stop_is_never_shown_done_before_a_stop_poll_got_through(tmp_path):
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
             state = _order(base, second)["state"]
-            if state.startswith("acknowledged"):
+            if state == "acknowledged":
                 shown_done_at = time.monotonic()
                 break
             time.sleep(0.05)

@@ -73,6 +73,24 @@ def test_in_progress_stops_the_resends_and_a_later_answer_still_counts():
     assert ticket.status == Ticket.ACCEPTED
 
 
+def test_an_arm_in_progress_is_the_autopilots_to_finish_not_refused_at_2_s():
+    """A vehicle that answers ARM "in progress" and arms seconds later is accepted
+    then, by its heartbeat; it is failed only after 30 s without finishing."""
+    tracker = CommandTracker()
+    late, never = Ticket("arm"), Ticket("mode")
+    tracker.arm(late, True, now=0.0)
+    tracker.mode(never, int(SubMode.ALT_HOLD), now=0.0)
+    tracker.due(0.0)
+    tracker.on_ack(ARM, IN_PROGRESS, 0.1)
+    tracker.on_ack(SET_MODE, IN_PROGRESS, 0.1)
+    assert tracker.expire(2.0, reachable=True) == [] and late.status == never.status == Ticket.PENDING
+    tracker.on_state(True, None)  # the heartbeat shows it armed, 4.9 s on
+    assert late.status == Ticket.ACCEPTED
+    assert tracker.expire(29.9, reachable=True) == [] and never.status == Ticket.PENDING
+    tracker.expire(30.0, reachable=True)
+    assert never.status == Ticket.FAILED and "did not finish within 30 s" in never.reason
+
+
 def test_the_heartbeat_accepts_a_request_whose_ack_was_lost_but_only_once_sent():
     tracker = CommandTracker()
     ticket = Ticket("arm")

@@ -10,8 +10,8 @@ Server to client (JSON text messages: "type" and the fields named, flat):
              at `telemetry_hz`; `control.you` says whether this client drives
   image      {image: <image state>}: a new picture was decoded (fetch the PNG)
   log        {entry: {t, text}}
-  order      {order: <order info>}: an order was queued or changed state (sent,
-             acknowledged, followed, rejected: <reason>, refused: <reason>, cancelled: <reason>)
+  order      {order: <order info>}: an order was queued or changed its fate
+             (`state`, a console/session/fates.py Fate, with `reason`, `text`, `outcome`)
   wish       {wish: {vx, vy, vz, vyaw}}: the velocity wish changed (whoever changed it)
   target     {target: {x_m, y_m, z_m, yaw_deg, sent, order_id, points} | null}: the shared target
   control    {control}: the holder changed (also in every telemetry)

@@ -34,7 +34,7 @@ const page = {
   linkState: null,       // "up" | "degraded" | "lost" | "replay" | "starting" | "port down"
   alerts: 0,             // alarm sounds started (the tests read it)
   audio: null,
-  orderStates: {},       // id -> last state shown
+  orders: {},            // id -> the order as last shown (its fate: state, reason, text, outcome)
   wallOffset: null,      // clock time minus session time (from telemetry)
   roiSent: null,         // {id, roi}: the pilot's ROI as sent in IMAGE order id
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
@@ -411,7 +411,7 @@ function render(s) {
             $("stop-fate").dataset.state === "acknowledged" ? "STOP confirmed" : "STOP ended", "bad");
   $("attitude").hidden = !pose.received || pose.attitude_valid !== false;
   $("cancel-stop").hidden = !(pose.stopping && s.orders.some((o) => o.kind === "STOP" &&
-                                                              o.state.startsWith("not carried out")));
+                                                              o.state === "not carried out"));
   if (pose.received) {
     setBadge($("armed"), pose.armed ? "ARMED" : "DISARMED", pose.armed ? "warn" : "");
     setBadge($("mode"), pose.mode, "");
@@ -587,18 +587,26 @@ function renderLog() {
 
 // When an order reached its state: its t_<state> (session seconds) as clock time.
 function orderClock(o) {
-  const t = o[`t_${o.state.split(":")[0]}`] ?? o.t_queued;
+  const t = o[`t_${o.state}`] ?? o.t_queued;
   return page.wallOffset === null || t === undefined ? "" : clockTime(t + page.wallOffset);
 }
 
 function orderText(o) {
   const guided = o.kind === "POSITION" ? " (GUIDED)" : "";
   const left = distanceLeft(o);
-  return `${orderClock(o)} #${o.id} ${o.kind}${guided}: ${o.state}${left}`;
+  return `${orderClock(o)} #${o.id} ${o.kind}${guided}: ${o.text}${left}${waitedFor(o)}`;
+}
+
+// An order the vehicle has not answered shows how long it has waited (the fate is
+// the vehicle's to say: the console never gives up on its behalf).
+function waitedFor(o) {
+  const s = page.lastState;
+  if (o.outcome !== "pending" || !s || typeof s.wall !== "number" || page.wallOffset === null) return "";
+  return `, ${fmt(Math.max(0, s.wall - (o.t_queued + page.wallOffset)), 0)} s`;
 }
 
 function distanceLeft(o) {
-  const open = !/^(arrived|aborted|rejected|refused|cancelled|unknown|not carried out)/.test(o.state);
+  const open = o.outcome === "pending" || o.state === "acknowledged";
   return o.kind === "POSITION" && open && o.distance_left_m !== null && o.distance_left_m !== undefined
     ? `, ${fmt(o.distance_left_m, 1)} m to go` : "";
 }
@@ -607,11 +615,10 @@ function distanceLeft(o) {
 const FATE_OF = { ARM: "arm-fate", DISARM: "arm-fate", MODE: "mode-fate", POSITION: "goto-fate", IMAGE: "image-fate",
                   STOP: "stop-fate" };
 
-function fateClass(state) {
-  if (/^(queued|requested|sent)/.test(state)) return "pending";
-  if (/^(acknowledged|followed|arrived|done)/.test(state)) return "done";
-  if (/^(rejected|refused|not carried out|unknown)/.test(state)) return "bad";
-  return "";  // cancelled, aborted: ended by someone's choice
+// The fate's colour is the server's `outcome` (console/session/fates.py): pending,
+// done, bad; "ended" (cancelled, aborted: by someone's choice) has none.
+function fateClass(o) {
+  return o.outcome === "ended" ? "" : o.outcome;
 }
 
 function renderFate(o) {
@@ -619,43 +626,45 @@ function renderFate(o) {
   if (!el || +(el.dataset.id || 0) > o.id) return;  // late news of an older order
   const what = { ARM: "arm", DISARM: "disarm", MODE: `mode ${o.mode}`, POSITION: `go-to #${o.id}`,
                  IMAGE: `image settings #${o.id}` }[o.kind];
-  let text = `${what}: ${o.state}${distanceLeft(o)} ${orderClock(o)}`;
+  let text = `${what}: ${o.text}${distanceLeft(o)}${waitedFor(o)} ${orderClock(o)}`;
   const thumbnail = document.body.dataset.profile === "acoustic";
   if (o.kind === "IMAGE" && thumbnail) {
     text = `thumbnail #${o.id}: ` + ({ acknowledged: "taken by the ROV, its packets coming", done: "received" }[o.state]
-      || o.state) + ` ${orderClock(o)}`;
+      || o.text) + ` ${orderClock(o)}`;
   } else if (o.kind === "IMAGE" && o.state === "acknowledged") {
     text = `${what}: in force from the next picture ${orderClock(o)}`;
   }
   // In the top bar, short: the whole state is in its tooltip.
-  const pending = /^(requested|sent)/.test(o.state);
+  const pending = o.outcome === "pending";
+  const waiting = o.state === "waiting" ? ` (not yet${waitedFor(o)})` : "";
   if (o.kind === "ARM" || o.kind === "DISARM") {
     const verb = o.kind === "ARM" ? "arm" : "disarm";
-    text = pending ? `${verb}ing…` : o.state === "followed" ? `${verb}ed ✓ ${orderClock(o)}` : `${verb}: ${o.state}`;
+    text = pending ? `${verb}ing…${waiting}` : o.state === "followed" ? `${verb}ed ✓ ${orderClock(o)}`
+      : `${verb}: ${o.text}`;
   } else if (o.kind === "MODE") {
-    text = pending ? `${o.mode}…` : o.state === "followed" ? `${o.mode} ✓ ${orderClock(o)}` : `${o.mode}: ${o.state}`;
+    text = pending ? `${o.mode}…${waiting}` : o.state === "followed" ? `${o.mode} ✓ ${orderClock(o)}`
+      : `${o.mode}: ${o.text}`;
   } else if (o.kind === "STOP") {
-    // "acknowledged: holding in POS_HOLD" -> "STOP ✓ holding in POS_HOLD 07:00:48"
-    const [head, ...rest] = o.state.split(": ");
-    text = /^(queued|sent)/.test(o.state) ? "STOP sent…" : head === "acknowledged"
-      ? `STOP ✓ ${rest.join(": ") || "confirmed"} ${orderClock(o)}` : `STOP ${o.state} ${orderClock(o)}`;
+    // acknowledged, reason "holding in POS_HOLD" -> "STOP ✓ holding in POS_HOLD 07:00:48"
+    text = pending ? "STOP sent…" : o.state === "acknowledged"
+      ? `STOP ✓ ${o.reason || "confirmed"} ${orderClock(o)}` : `STOP ${o.text} ${orderClock(o)}`;
   }
   el.textContent = text;
-  el.title = `#${o.id} ${o.kind}: ${o.state}`;
-  el.className = `fate ${fateClass(o.state)}`;
+  el.title = `#${o.id} ${o.kind}: ${o.text}`;
+  el.className = `fate ${fateClass(o)}`;
   el.dataset.id = o.id;
-  el.dataset.state = o.state.split(":")[0];
+  el.dataset.state = o.state;
 }
 
 // Every order's fate is shown; a refusal or rejection also pops up once.
 function renderOrder(o, quiet) {
   renderFate(o);
-  const before = page.orderStates[o.id];
-  page.orderStates[o.id] = o.state;
+  const before = page.orders[o.id] ? page.orders[o.id].state : undefined;
+  page.orders[o.id] = o;
   if (page.roiSent && page.roiSent.id === o.id && before !== o.state) renderRoiStatus();
   if (page.follow && page.follow.id === o.id && before !== o.state) renderTrack(lastImageState);
-  const bad = /^(rejected|refused|not carried out)/.test(o.state);
-  if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.state}`);
+  const bad = o.outcome === "bad" && o.state !== "unknown";  // unknown: in the log, not a pop-up
+  if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.text}`);
   if (!quiet) {
     const ul = $("orders");
     const li = Object.assign(document.createElement("li"), { textContent: orderText(o) });
@@ -1130,10 +1139,11 @@ function renderRoiStatus() {
     state = "in-force";
     el.textContent = `ROI ${text(roi)}: in force (picture #${lastImageState.serial} on)`;
   } else if (page.roiSent && sameRoi(page.roiSent.roi, roi)) {
-    const st = page.orderStates[page.roiSent.id] || "sent";
-    state = st.startsWith("acknowledged") ? "acknowledged" : /^(rejected|cancelled|unknown)/.test(st) ? "failed" : "sent";
+    const o = page.orders[page.roiSent.id];
+    const outcome = o ? o.outcome : "pending";
+    state = outcome === "done" ? "acknowledged" : outcome === "pending" ? "sent" : "failed";
     el.textContent = state === "acknowledged" ? `ROI ${text(roi)}: acknowledged, in force from the next picture`
-      : state === "failed" ? `ROI ${text(roi)}: order #${page.roiSent.id} ${st}`
+      : state === "failed" ? `ROI ${text(roi)}: order #${page.roiSent.id} ${o.text}`
         : `ROI ${text(roi)}: sent as order #${page.roiSent.id}, waiting for the ROV`;
   } else {
     state = "drafted";
@@ -1229,12 +1239,12 @@ function renderTrack(im) {
     text = `#${im.serial}: ${trackText(im.track)}`;
     state = im.track.state;
   } else if (follow) {
-    const st = page.orderStates[follow.id] || "sent";
-    if (/^(rejected|cancelled|unknown)/.test(st)) {
-      text = `Follow order #${follow.id} ${st}: the ROV does not follow`;
+    const o = page.orders[follow.id];
+    if (o && o.outcome !== "pending" && o.outcome !== "done") {
+      text = `Follow order #${follow.id} ${o.text}: the ROV does not follow`;
       state = "refused";
     } else {
-      text = `Follow sent as order #${follow.id} (${st}), from the next picture`;
+      text = `Follow sent as order #${follow.id} (${o ? o.text : "sent"}), from the next picture`;
       state = "sent";
     }
   }
