@@ -50,7 +50,8 @@ from typing import Literal
 from rovlink.link.radio.messages import MAX_BUDGET, REQUESTABLE_MODES
 from rovlink.rov.vehicle import BlueRovParams
 
-from .operator import Operator, OrderError
+from .session.base import OrderError
+from .session.contract import VehicleSession
 
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
 SCENE_KEY = re.compile(r"[A-Za-z0-9_-]{16,64}")
@@ -298,7 +299,7 @@ def page_config(*, image_budget_max: int = LIMITS["budget_bytes"][1], **extra) -
 
 
 class ControlDesk:
-    def __init__(self, operator: Operator, *, lease_s: float = LEASE_S, deadman_s: float = DEADMAN_S,
+    def __init__(self, operator: VehicleSession, *, lease_s: float = LEASE_S, deadman_s: float = DEADMAN_S,
                  unattended_warn_s: float = UNATTENDED_WARN_S, disarm_unattended_s: float | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         for name, value in (("lease_s", lease_s), ("deadman_s", deadman_s),

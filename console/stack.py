@@ -30,7 +30,7 @@ from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import VehicleState
 
 from .linkthread import LinkThread
-from .operator import Operator
+from .session.radio import Operator
 
 log = logging.getLogger("rovlink.console.stack")
 

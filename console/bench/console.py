@@ -33,7 +33,7 @@ from pathlib import Path
 
 from rovlink import debt
 from rovlink.bench import emit, format_table
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.link.emulators.channel import Channel, LinkParams
 from rovlink.link.radio.master import Master
 from rovlink.link.radio.sim import SimLink

@@ -30,7 +30,7 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 
 def measure_prediction(duration_s: float = 600.0, seed: int = 0, ber: float = 7e-6) -> dict:
-    from rovlink.console.operator import Operator
+    from rovlink.console.session.radio import Operator
     from rovlink.link.emulators.channel import Channel, LinkParams
     from rovlink.link.radio.messages import VELOCITY_FULL, Mode
     from rovlink.link.radio.secure import SecureSlave

@@ -43,7 +43,7 @@ def run(args) -> int:
 
     from rovlink.command import CommandError, check_frame_size, link_key
     from rovlink.console.linkthread import LinkThread
-    from rovlink.console.operator import Operator
+    from rovlink.console.session.radio import Operator
     from rovlink.link.process import STOP_AFTER_PARENT_S, MasterProcess
     from rovlink.link.transports.transport import TransportError
     from rovlink.link.transports.urls import open_transport
@@ -102,8 +102,8 @@ def _run_acoustic(args, endpoint, key) -> int:
     import asyncio
 
     from rovlink.command import CommandError
-    from rovlink.console.acoustic.session import AcousticSession
     from rovlink.console.linkthread import LinkThread
+    from rovlink.console.session.acoustic import AcousticSession
     from rovlink.link.acoustic.process import STOP_AFTER_CONSOLE_S, AcousticLinkProcess
 
     from .serve import default_record_path, serve_operator

@@ -43,7 +43,7 @@ def run(args) -> int:
 
     from rovlink.command import CommandError
     from rovlink.console.linkthread import LinkThread
-    from rovlink.console.operator import Operator
+    from rovlink.console.session.radio import Operator
     from rovlink.console.stack import StackConfig
     from rovlink.console.vehicleside import PORT_TAKEN
     from rovlink.link.process import MasterProcess

@@ -49,15 +49,15 @@ def run_replay(args) -> int:
     import asyncio
 
     from rovlink.command import CommandError
-    from rovlink.console.operator import Operator
     from rovlink.console.recording import RecordingError, is_acoustic
     from rovlink.console.replaycontrol import ReplayController
+    from rovlink.console.session.radio import Operator
 
     from .serve import serve_operator
 
     try:
         if is_acoustic(args.file):
-            from rovlink.console.acoustic.session import AcousticSession
+            from rovlink.console.session.acoustic import AcousticSession
 
             operator = AcousticSession(None, None)  # no link, no key: what was recorded, shown as it was
         else:

@@ -66,7 +66,9 @@ from viser import transforms as tf
 from rovlink.assets import ASSETS_DIR
 from rovlink.console import control
 from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
-from rovlink.console.operator import Operator, OrderError, Pose
+from rovlink.console.session.base import OrderError
+from rovlink.console.session.contract import VehicleSession
+from rovlink.console.session.odometry import Pose
 
 from . import chase, frames
 from .chase import SCREEN_WIDTH_M, ViewerView
@@ -162,7 +164,7 @@ def _show(handle) -> None:
 
 
 class ConsoleScene:
-    def __init__(self, operator: Operator, *, host: str = "127.0.0.1", port: int = 8080,
+    def __init__(self, operator: VehicleSession, *, host: str = "127.0.0.1", port: int = 8080,
                  update_hz: float = 20.0, hfov_deg: float = CAMERA_HFOV_DEG, tilt_deg: float = CAMERA_TILT_DEG,
                  verbose: bool = False) -> None:
         self.operator = operator

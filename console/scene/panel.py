@@ -41,7 +41,6 @@ from viser import uplot
 
 from rovlink.console import control
 from rovlink.console.control import AXES, KEY_GAIN, KEYS, LIMITS, MODES, NotHolder
-from rovlink.console.operator import OrderError
 from rovlink.console.scene import chase
 from rovlink.console.scene.colours import (
     CAPTURE_RGB,
@@ -52,6 +51,7 @@ from rovlink.console.scene.colours import (
     TARGET_RGB,
     UNCERTAINTY_RGB,
 )
+from rovlink.console.session.base import OrderError
 
 log = logging.getLogger("rovlink.console.scene.panel")
 

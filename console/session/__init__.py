@@ -1,6 +1,6 @@
 """The parts of the operator's session, one job each.
 
-`rovlink.console.operator.Operator` is the session: it drives the link master
+`rovlink.console.session.radio.Operator` is the session: it drives the link master
 and hands what happens to these parts, and it is the one place commands enter.
 
 - `recorder`: the JSON-lines recording of a session (frames, orders, wishes, poses).

@@ -1,5 +1,5 @@
-"""The ground both sessions stand on (console/operator.py `Operator`, the radio
-link's, and console/acoustic/session.py `AcousticSession`): what is the same
+"""The ground both sessions stand on (console/session/radio.py `Operator`, the radio
+link's, and console/session/acoustic.py `AcousticSession`): what is the same
 on every link, written once.
 
 Goal: one session clock, one way to tell subscribers, one log with its alerts

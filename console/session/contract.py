@@ -9,9 +9,9 @@ Cockpit's `AbstractVehicle` is the one contract every vehicle implements).
 Two sessions implement it on the same parts (console/session/: the order book,
 the log lines, the link's health with each profile's own lost-after time, the
 odometry, the predictor, the pictures, the recorder):
-- `rovlink.console.operator.Operator`: the radio profile (§1-§8), a poll and a
+- `rovlink.console.session.radio.Operator`: the radio profile (§1-§8), a poll and a
   reply every few hundred milliseconds, the sticks streamed;
-- `rovlink.console.acoustic.session.AcousticSession`: the acoustic profile
+- `rovlink.console.session.acoustic.AcousticSession`: the acoustic profile
   (§9), a status every few seconds, supervisory orders only.
 
 What a link cannot carry is said in `capabilities`, so that a surface leaves

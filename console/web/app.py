@@ -30,7 +30,7 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
 from rovlink.console.control import DEADMAN_S, LEASE_S, UNATTENDED_WARN_S, ControlDesk, page_config
-from rovlink.console.operator import Operator
+from rovlink.console.session.contract import VehicleSession
 
 from . import errors
 from .guard import MAX_BODY_BYTES, MAX_WEBSOCKETS, AccessPolicy, RequestGuard
@@ -43,7 +43,7 @@ log = logging.getLogger("rovlink.console.web")
 STATIC = Path(__file__).with_name("static")
 
 
-def create_app(operator: Operator, *, viser_url: str | None = None, scene=None, telemetry_hz: float = 10.0,
+def create_app(operator: VehicleSession, *, viser_url: str | None = None, scene=None, telemetry_hz: float = 10.0,
                lease_s: float = LEASE_S, velocity_deadman_s: float = DEADMAN_S, max_body_bytes: int = MAX_BODY_BYTES,
                max_websockets: int = MAX_WEBSOCKETS, policy: AccessPolicy | None = None,
                unattended_warn_s: float = UNATTENDED_WARN_S, disarm_unattended_s: float | None = None,

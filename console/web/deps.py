@@ -12,10 +12,10 @@ from fastapi import Depends, Header
 from starlette.requests import HTTPConnection
 
 from rovlink.console.control import ControlDesk
-from rovlink.console.operator import Operator
+from rovlink.console.session.contract import VehicleSession
 
 
-def get_operator(conn: HTTPConnection) -> Operator:
+def get_operator(conn: HTTPConnection) -> VehicleSession:
     return conn.app.state.operator
 
 
@@ -28,7 +28,7 @@ def client_id(x_rovlink_client: Annotated[str | None, Header(
     return x_rovlink_client or None
 
 
-OperatorDep = Annotated[Operator, Depends(get_operator)]
+OperatorDep = Annotated[VehicleSession, Depends(get_operator)]
 DeskDep = Annotated[ControlDesk, Depends(get_desk)]
 ClientIdDep = Annotated[str | None, Depends(client_id)]
 

@@ -17,7 +17,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
 from rovlink.console.control import NotHolder, UnknownClient
-from rovlink.console.operator import NotNow, OrderError
+from rovlink.console.session.base import NotNow, OrderError
 
 
 def describe(errors) -> str:

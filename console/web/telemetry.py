@@ -16,10 +16,10 @@ import threading
 import time
 
 from rovlink.console.control import ControlDesk
-from rovlink.console.operator import Operator
+from rovlink.console.session.contract import VehicleSession
 
 
-def snapshot(operator: Operator, desk: ControlDesk, client_id: str | None, *, orders: int, log: int) -> dict:
+def snapshot(operator: VehicleSession, desk: ControlDesk, client_id: str | None, *, orders: int, log: int) -> dict:
     state = operator.state()
     state["orders"] = state["orders"][-orders:] if orders else []
     state["log"] = state["log"][-log:] if log else []
@@ -40,7 +40,7 @@ def finite(value):
 
 
 class SharedSnapshot:
-    def __init__(self, operator: Operator, desk: ControlDesk, *, max_age_s: float = 0.04) -> None:
+    def __init__(self, operator: VehicleSession, desk: ControlDesk, *, max_age_s: float = 0.04) -> None:
         self.operator = operator
         self.desk = desk
         self.max_age_s = max_age_s

@@ -9,7 +9,7 @@ packet goes to the modem when its queue empties, whatever the console's
 process is doing, and a fault on either side is safe and loud.
 
 Plan: `AcousticLinkProcess` stands in the console for the machine (the calls
-and read-outs `console/acoustic/session.py` uses) and runs the real one in a
+and read-outs `console/session/acoustic.py` uses) and runs the real one in a
 child process started with `multiprocessing`'s spawn.  Two pipes join them:
 - commands, console to link: ("call", method, args) answered at once with
   ("ok", result, status), ("refused", text, status) (the machine's

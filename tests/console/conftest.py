@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.console.stack import Stack, StackConfig
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port

@@ -14,7 +14,7 @@ import urllib.request
 import pytest
 import websockets
 
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.console.web.app import create_app, serve
 from rovlink.console.web.guard import TOKEN_COOKIE, AccessPolicy, guard_viser, host_name
 

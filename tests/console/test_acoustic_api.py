@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from rovlink.console.acoustic.session import AcousticSession
+from rovlink.console.session.acoustic import AcousticSession
 from rovlink.console.session.contract import VehicleSession
 from rovlink.console.web.app import create_app
 

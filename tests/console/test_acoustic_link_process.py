@@ -180,8 +180,8 @@ def test_what_an_acoustic_link_process_held_when_it_ended_is_unknown_but_a_stop_
     are unknown, not sent again; a STOP unconfirmed when its process ended, and one
     pressed while none ran, are pressed again in the next one, under the same order,
     and confirmed there."""
-    from rovlink.console.acoustic.session import AcousticSession
-    from rovlink.console.operator import NotNow
+    from rovlink.console.session.acoustic import AcousticSession
+    from rovlink.console.session.radio import NotNow
     from rovlink.link import acoustic as ac
     from rovlink.link.acoustic.process import AcousticLinkProcess
     from rovlink.link.acoustic.sim import AcousticSim

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from rovlink.console.acoustic.session import AcousticSession
+from rovlink.console.session.acoustic import AcousticSession
 from rovlink.link import acoustic as ac
 
 K = bytes(range(32))

@@ -7,7 +7,7 @@ answer could carry that trunk.  A fake clock; the operator fed as its link loop 
 
 from __future__ import annotations
 
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.link.radio.frame import encode_frame
 from rovlink.link.radio.master import ImageComplete, ImageProgress, PollSent, PoseReceived
 from rovlink.link.radio.messages import Mode, Poll, Reply, Velocity

@@ -13,8 +13,8 @@ import pytest
 
 from rovlink.console import control
 from rovlink.console.control import PERMISSION, Caller, ControlDesk, NotHolder, Replaying
-from rovlink.console.operator import Operator
 from rovlink.console.session.fates import Fate
+from rovlink.console.session.radio import Operator
 from rovlink.console.web.app import create_app
 from rovlink.link.radio.frame import encode_frame
 from rovlink.link.radio.master import PollSent, PoseReceived, ReplyLost, RequestExpired

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import threading
 
-from rovlink.console.operator import Operator
 from rovlink.console.session.images import DaemonWorker
+from rovlink.console.session.radio import Operator
 
 
 def test_wait_idle_waits_for_the_call_in_hand_and_those_queued():

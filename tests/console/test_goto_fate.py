@@ -5,8 +5,8 @@ clock, the operator fed as its link loop feeds it."""
 
 from __future__ import annotations
 
-from rovlink.console.operator import Operator
 from rovlink.console.session.fates import Fate
+from rovlink.console.session.radio import Operator
 from rovlink.link.radio.master import PoseReceived
 from rovlink.link.radio.messages import Mode, Reply
 

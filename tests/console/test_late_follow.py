@@ -72,7 +72,7 @@ def test_an_acoustic_arm_followed_late_is_taken_then_followed_never_rejected():
     """Over the acoustic link the ROV says "taken" at once and "done" when the
     vehicle armed, 20 s on; the console's order is never shown rejected or
     unknown, and is followed when the status shows it armed."""
-    from rovlink.console.acoustic.session import AcousticSession
+    from rovlink.console.session.acoustic import AcousticSession
     from rovlink.link.acoustic.sim import AcousticSim, SimVehicle
 
     fates: list[str] = []

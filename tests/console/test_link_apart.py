@@ -13,7 +13,7 @@ import time
 import pytest
 import websockets
 
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.console.web.app import create_app
 from rovlink.console.web.guard import MAX_BODY_BYTES
 

@@ -161,7 +161,7 @@ def test_what_a_link_process_held_when_it_ended_is_unknown_but_a_stop_goes_again
     """The session's side of a link process's end, on its own: orders the master held
     and had not settled are unknown (not sent again), a request too; a STOP is kept
     for the next master, which confirms it under the same order id."""
-    from rovlink.console.operator import Operator
+    from rovlink.console.session.radio import Operator
     from rovlink.link.radio.master import StopConfirmed
 
     op = Operator(None)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from rovlink import debt
-from rovlink.console.operator import Operator, OrderError
 from rovlink.console.recording import RecordingError, plot, series
 from rovlink.console.replaycontrol import replay
+from rovlink.console.session.radio import Operator, OrderError
 from rovlink.console.stack import Stack, StackConfig
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.link.radio.frame import encode_frame
 from rovlink.link.radio.master import PollSent, PoseReceived
 from rovlink.link.radio.messages import Mode, Poll, Reply, Stop, Velocity

@@ -18,8 +18,8 @@ import time
 
 import pytest
 
-from rovlink.console.operator import Operator
 from rovlink.console.replaycontrol import MAX_SPEED, ReplayController, controller_of
+from rovlink.console.session.radio import Operator
 from rovlink.console.stack import Stack, StackConfig
 from rovlink.link.radio.messages import ImageSettings
 

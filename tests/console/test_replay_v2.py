@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import asyncio
 
-from rovlink.console.operator import Operator
 from rovlink.console.recording import read_records, series
 from rovlink.console.replaycontrol import replay
+from rovlink.console.session.radio import Operator
 from rovlink.console.stack import Stack, StackConfig
 
 from .conftest import wait_for

@@ -21,8 +21,8 @@ import pytest
 
 from rovlink import debt
 from rovlink.console.control import ControlDesk
-from rovlink.console.operator import Operator
 from rovlink.console.scene.app import scene_key_from_path
+from rovlink.console.session.radio import Operator
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, FakeClock, needs_chromium
 from .conftest import running_console, wait_for

@@ -24,10 +24,10 @@ from viser import transforms as tf
 
 from rovlink import debt
 from rovlink.console import control
-from rovlink.console.operator import MAX_SPEED_MPS, Pose
 from rovlink.console.scene import chase, frames
 from rovlink.console.scene.app import CAMERA_IN_BODY_FLU, UNCERTAINTY_SHOWN_AFTER_S, ConsoleScene
 from rovlink.console.scene.roi import roi_from_world
+from rovlink.console.session.radio import MAX_SPEED_MPS, Pose
 from rovlink.console.stack import Stack, StackConfig
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS

@@ -15,8 +15,8 @@ import pytest
 from pydantic import BaseModel
 
 from rovlink import debt
-from rovlink.console.operator import Operator
 from rovlink.console.session import state as types
+from rovlink.console.session.radio import Operator
 from rovlink.link.emulators.channel import Channel, LinkParams
 from rovlink.link.radio.master import Master
 from rovlink.link.radio.sim import SimLink

@@ -21,7 +21,7 @@ from PIL import Image
 from starlette.websockets import WebSocketDisconnect
 
 from rovlink import debt
-from rovlink.console.operator import Operator
+from rovlink.console.session.radio import Operator
 from rovlink.console.web.app import create_app, serve
 
 from ..helpers import local_test_client

@@ -10,7 +10,7 @@ from fastapi import APIRouter, Response
 
 from rovlink.console import control
 from rovlink.console.control import Caller
-from rovlink.console.operator import OrderError
+from rovlink.console.session.base import OrderError
 
 from ..deps import ClientIdDep, DeskDep
 from ..models import (

@@ -42,7 +42,7 @@ from pydantic import ValidationError
 
 from rovlink.console import control
 from rovlink.console.control import Caller, NotHolder
-from rovlink.console.operator import OrderError
+from rovlink.console.session.base import OrderError
 
 from ..deps import DeskDep, OperatorDep
 from ..errors import describe, same_origin

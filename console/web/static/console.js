@@ -887,7 +887,7 @@ function renderSkipped(k) {
 // Kept pictures: the last complete one large, a strip to look back, Save
 // ---------------------------------------------------------------------------
 
-// The capture is known only between two replies (console/operator.py): say so.
+// The capture is known only between two replies (console/session/radio.py): say so.
 function captureText(c) {
   if (!c) return "at an unknown time";
   const age = Math.max(0, nowWall() - c.wall);

@@ -64,20 +64,20 @@ from rovlink.link.report import report_from_reply
 from rovlink.link.transports.transport import Endpoint, port_down_reason
 from rovlink.link.units import position_order, velocity_ints, wish_of
 
-from .session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
-from .session.contract import Capabilities
-from .session.fates import Fate
-from .session.goto import GoToWatch
-from .session.health import LinkHealth
-from .session.images import ImageReceiver
-from .session.odometry import History, Odometry, Pose
-from .session.orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
-from .session.predictor import NEUTRAL_WISH, Predictor
-from .session.recorder import Recorder
+from .base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
+from .contract import Capabilities
+from .fates import Fate
+from .goto import GoToWatch
+from .health import LinkHealth
+from .images import ImageReceiver
+from .odometry import History, Odometry, Pose
+from .orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
+from .predictor import NEUTRAL_WISH, Predictor
+from .recorder import Recorder
 
 __all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "NotNow", "Operator", "OrderError", "Pose"]
 
-log = logging.getLogger("rovlink.console.operator")
+log = logging.getLogger("rovlink.console.session.radio")
 
 
 class Operator(SessionBase):

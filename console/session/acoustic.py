@@ -17,8 +17,8 @@ when the machine asks, for a STOP) the machine's next packet out.  What the
 machine says happened is handed to the session's parts: each STATUS, made SI
 by link/report.py, to the odometry (and the go-to watch, the trail, the
 health: the link is lost after 20 s without an authentic frame); order fates
-to the order book, in the radio session's words (queued, sent, acknowledged,
-arrived, rejected: reason...); thumbnails to the image receiver, as the radio
+to the order book as the same `Fate`s as the radio's (queued, sent, acknowledged,
+arrived, rejected with its reason...; an arm or mode is followed when a status shows it); thumbnails to the image receiver, as the radio
 session's pictures.  Under `rovlink console` the machine, the modem and the
 pacing run in a process of their own (`link=`: link/acoustic/process.py
 AcousticLinkProcess, which stands in for the machine): `run()` then only takes
