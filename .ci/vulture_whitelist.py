@@ -122,3 +122,5 @@ _.next_report_in_s  # response model fields (console/session/state.py), read by 
 link_process_pid  # a field of LinkState (console/session/state.py): which process owns the link port, for a script or a test
 link_process  # a field of LinkState (console/session/state.py): the page reads it
 link_process_reason  # a field of LinkState (console/session/state.py): the page reads it
+reports_lost  # a field of LinkState (console/session/state.py): the page and the scene's panel read it
+bad_frames  # a field of LinkState (console/session/state.py): the page and the scene's panel read it

@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from rovlink.link.radio.messages import MAX_BUDGET, REQUESTABLE_MODES
+from rovlink.link.radio.messages import REQUESTABLE_MODES
 from rovlink.rov.vehicle import BlueRovParams
 
 from .session.base import OrderError
@@ -72,7 +72,8 @@ KEY_GAIN = 0.5            # the fraction a held key asks for (the page's strengt
 DEADMAN_S = 1.0           # a streamed velocity (keys, gamepad) goes neutral when not repeated within it
 LEASE_S = 30.0            # a script holding control and silent this long loses it
 UNATTENDED_WARN_S = 60.0  # armed with nobody in control this long: every page is warned
-LIMITS = {"velocity": (-1.0, 1.0), "shift": (0, 15), "budget_bytes": (0, MAX_BUDGET)}
+# The picture budget's limit is the link's (`Capabilities.image_budget_max`), not one here.
+LIMITS = {"velocity": (-1.0, 1.0), "shift": (0, 15)}
 DEFAULT_ROI_SHIFT = 4     # bit planes an ROI is raised by when none was chosen
 DEFAULT_TARGET = {"x_m": 0.0, "y_m": 0.0, "z_m": 2.0, "yaw_deg": 0.0}
 
@@ -285,11 +286,11 @@ def wish_scale() -> dict:
             "vyaw": {"kind": "rate", "max": round(math.degrees(p.yaw_rate_max_radps), 2), "unit": "deg/s"}}
 
 
-def page_config(*, image_budget_max: int = LIMITS["budget_bytes"][1], **extra) -> dict:
+def page_config(*, image_budget_max: int, **extra) -> dict:
     """What every surface needs to build its controls: modes, keys, limits, defaults
     (`image_budget_max`: the largest picture budget the session's link carries)."""
     limits = {k: list(v) for k, v in LIMITS.items()}
-    limits["budget_bytes"][1] = min(limits["budget_bytes"][1], image_budget_max)
+    limits["budget_bytes"] = [0, image_budget_max]
     return {"modes": list(MODES), "keys": {k: [axis, sign] for k, (axis, sign) in KEYS.items()},
             "wish_scale": wish_scale(),
             "stop_key": STOP_KEY, "stop_key_anywhere": STOP_KEY_ANYWHERE, "key_gain": KEY_GAIN,

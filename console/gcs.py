@@ -407,10 +407,10 @@ class GcsLink:
         # No fence on a ROV: never breached (ground stations alarm on a fence bit going unhealthy).
         health |= m.MAV_SYS_STATUS_GEOFENCE
         link = self.operator.link_state()
-        sent, lost_replies = link.get("polls_sent") or 0, link.get("replies_lost") or 0
-        drop = int(10000 * lost_replies / sent) if sent else 0
+        sent, lost_reports = link.get("sent") or 0, link.get("reports_lost") or 0
+        drop = int(10000 * lost_reports / sent) if sent else 0
         self._send("SYS_STATUS", sensors, sensors, health, 0, 65535, -1, -1, min(10000, drop),
-                   int(link.get("crc_errors") or 0) & 0xFFFF, 0, 0, 0, 0)
+                   int(link.get("bad_frames") or 0) & 0xFFFF, 0, 0, 0, 0)
 
     def _alerts(self, reply, lost: bool) -> None:
         m = ardupilotmega

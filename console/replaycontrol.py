@@ -41,10 +41,6 @@ import weakref
 from pathlib import Path
 from typing import Callable
 
-from rovlink.link.radio.replay import ReplyReplayer
-from rovlink.link.radio.secure import poll_sent_from_frame
-from rovlink.link.units import wish_fractions
-
 from .recording import read_records
 
 log = logging.getLogger("rovlink.console.replay")
@@ -101,12 +97,6 @@ class ReplayController:
             last = max(last, float(t) if isinstance(t, (int, float)) and math.isfinite(t) else last)
             self._times.append(last)
         self.duration = self._times[-1] if self._times else 0.0
-        # Protocol 2 sessions record what the master was given ("reply": authentic,
-        # timely, tag removed); their raw frames ("rx") then count only as traffic.
-        self._authenticated = any(r.get("k") == "reply" for r in self._records)
-        # An acoustic session (docs/PROTOCOL.md §9) records what its session took
-        # (statuses, thumbnails, orders, log lines): fed back as they are.
-        self.profile = "acoustic" if self.meta.get("profile") == "acoustic" else "radio"
         self.operator = operator
         self.on_done = on_done
         self._monotonic = monotonic
@@ -120,7 +110,6 @@ class ReplayController:
         self.seeks = 0  # seeks and restarts so far: a page reloads what a jump rewrote (its log)
         self._closed = False
         self._thread: threading.Thread | None = None
-        self._replayer = self._new_replayer()
         self.counts = _zero_counts()
         self._take(operator)
         _controllers[operator] = weakref.ref(self)
@@ -296,43 +285,12 @@ class ReplayController:
             self._feeding_t = None
 
     def _feed(self, record: dict) -> None:
-        op, counts = self.operator, self.counts
+        """One record to the session, whose driver replays its own profile's records."""
         kind = record.get("k")
-        if self.profile == "acoustic":
-            if kind in counts:
-                counts[kind] += 1
-            elif kind in ("order", "order_state"):
-                counts["orders"] += 1
-            elif kind == "status":
-                counts["replies"] += 1
-            op.replayed(record)
-            return
-        now = op.now()  # the record's own time
-        if kind == "rx":
-            data = bytes.fromhex(record["hex"])
-            counts["rx"] += 1
-            op.bytes_received(data, now)
-            if not self._authenticated:
-                op.handle_events(self._replayer.feed(data, now), now)
-        elif kind == "reply":
-            counts["replies"] += 1
-            events = self._replayer.feed_payload(bytes.fromhex(record["hex"]), now, sync=bool(record.get("sync")))
-            op.handle_events(events, now)
-        elif kind == "tx":
-            counts["tx"] += 1
-            sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=op.link_version,
-                                        poll=bytes.fromhex(record["poll"]) if "poll" in record else None)
-            if sent is not None:
-                # The poll first, then what it did to the picture held (the master's order of things).
-                op.handle_events([sent, *self._replayer.poll_sent(sent.poll, now)], now)
-        elif kind == "wish":
-            counts["wish"] += 1
-            op.replayed_wish(wish_fractions(record["v"]))
-        elif kind in ("order", "order_state"):
-            counts["orders"] += 1
-            op.replayed_order(record)
-        elif kind == "link" and record.get("version") == 2:
-            op.link_version = "2"
+        counted = _COUNTED_AS.get(kind, kind)
+        if counted in self.counts:
+            self.counts[counted] += 1
+        self.operator.replayed(record)
 
     # ------------------------------------------------------------------
     # The Operator
@@ -346,16 +304,15 @@ class ReplayController:
         op.replaying = True
         op.reset()
 
-    def _new_replayer(self) -> ReplyReplayer:
-        return ReplyReplayer(bitrate_bps=float(self.meta.get("bitrate_bps", 1900.0)),
-                             delay_s=float(self.meta.get("delay_s", 0.085)))
-
     def _reset(self) -> None:
         """The Operator's state as a new one's, in place (see the module's docstring)."""
         self.operator.reset()
-        self._replayer = self._new_replayer()
         self._index = 0
         self.counts = _zero_counts()
+
+
+# What each record counts as: a radio reply and an acoustic status are both the vehicle's report.
+_COUNTED_AS = {"reply": "replies", "status": "replies", "order": "orders", "order_state": "orders"}
 
 
 def _zero_counts() -> dict:

@@ -47,7 +47,7 @@ import time
 import numpy as np
 
 from rovlink.link import acoustic as ac
-from rovlink.link.aio import recv_within
+from rovlink.link.acoustic.pump import AcousticPump
 from rovlink.link.radio.messages import Mode
 from rovlink.link.transports.transport import Endpoint
 
@@ -59,7 +59,6 @@ THUMB_SIZE = (80, 60)  # width, height
 FOLLOW_SIZE = (320, 240)  # the camera frames a FOLLOW tracks in: grey, four times the thumbnail
 FOLLOW_HISTORY_S = 180.0  # a ROI drawn on a thumbnail this old still finds its object
 CAMERA_HZ = 5.0  # frames a second the tracker follows (the radio ROV's 10: half the memory, as well held)
-PACKET = 8
 SURFACE_DONE_M = 0.3  # §9.4: a SURFACE order is done when the vehicle is this shallow
 
 
@@ -121,44 +120,28 @@ class AcousticNode:
         self._tickets: dict[int, object] = {}  # oid -> ticket of an arm/mode/hold/surface request
         self._surfacing: int | None = None  # a SURFACE order the autopilot took, the vehicle still rising
         self._surface_orders: set[int] = set()  # SURFACE orders whose mode change is awaited
-        self._last_sent = -math.inf
         self.log: list[str] = []
 
     async def run(self) -> None:
         self._loop = asyncio.get_running_loop()
-        pump = asyncio.create_task(self._pump())
+        # The one pump every acoustic end runs (link/acoustic/pump.py): packets split and
+        # handed to the machine, a packet whenever the modem's queue is empty, flushed first
+        # for a SYNC.  All on this loop's thread: the machine needs no lock of its own.
+        pump = AcousticPump(self.machine, self.endpoint, clock=time.monotonic, pace_s=self.pace_s,
+                            on_received=lambda packet, events, now: self._on_events(events, now),
+                            on_events=self._on_events, before_tick=lambda now: self._before_tick())
         if self.camera is not None:
             self.camera.start()
         try:
-            while True:
-                data = await recv_within(self.endpoint, 0.1)
-                now = time.monotonic()
-                if data:
-                    for i in range(0, len(data) - PACKET + 1, PACKET):
-                        self._on_events(self.machine.receive(bytes(data[i:i + PACKET]), now), now)
+            await pump.run()
         finally:
-            pump.cancel()
             if self.camera is not None:
                 self.camera.close()
             self._worker.shutdown(wait=False, cancel_futures=True)
 
-    async def _pump(self) -> None:
-        while True:
-            now = time.monotonic()
-            self._refresh_status()
-            self._check_tickets()
-            self._on_events(self.machine.tick(now), now)
-            if self.machine.wants_flush:
-                self.machine.wants_flush = False
-                flush = getattr(self.endpoint, "flush", None)
-                if flush is not None:
-                    flush()
-            if ac.modem_idle(self.endpoint, now, self._last_sent, self.pace_s):
-                packet = self.machine.next_packet(now)
-                if packet is not None:
-                    self.endpoint.send(packet)
-                    self._last_sent = now
-            await asyncio.sleep(0.1)
+    def _before_tick(self) -> None:
+        self._refresh_status()
+        self._check_tickets()
 
     # -- the vehicle -----------------------------------------------------------
 

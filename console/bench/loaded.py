@@ -154,8 +154,8 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
             end_child(p)
         for f in logs:
             f.close()
-    polls = after["polls_sent"] - before["polls_sent"]
-    lost = after["replies_lost"] - before["replies_lost"]
+    polls = after["sent"] - before["sent"]
+    lost = after["reports_lost"] - before["reports_lost"]
     alerts = [e for e in log if e["level"] == "alert" and e["wall"] >= started_wall]
     return {
         "minutes": minutes,

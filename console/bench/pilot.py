@@ -140,11 +140,11 @@ def measure_pilot(minutes: float = 10.0) -> dict:
         "page_alarms": alarms,
         "odometry_age_s_median": round(statistics.median(ages), 3) if ages else None,
         "odometry_age_s_p95": round(ages[int(0.95 * (len(ages) - 1))], 3) if ages else None,
-        "polls_sent": link["polls_sent"],
-        "replies_lost": link["replies_lost"],
+        "polls_sent": link["sent"],
+        "replies_lost": link["reports_lost"],
         # A poll or reply the radio lost costs one reply; the rest were late: starved of CPU.
         "channel_losses": channel,
-        "replies_lost_not_by_channel": max(0, link["replies_lost"] - sum(channel.values())),
+        "replies_lost_not_by_channel": max(0, link["reports_lost"] - sum(channel.values())),
         "cpu_count": os.cpu_count(),
     }
 

@@ -153,8 +153,7 @@ class ControlPanel:
         self._build_view()
         self._build_vehicle()
         # What the link cannot carry is left out (the acoustic link has no sticks), never shown to fail.
-        caps = getattr(session, "capabilities", None)
-        self.sticks = caps is None or caps.velocity
+        self.sticks = session.capabilities.velocity
         self.sliders: dict = {}
         if self.sticks:
             self._build_velocity()
@@ -360,23 +359,23 @@ class ControlPanel:
 
     def _build_image(self) -> None:
         settings = self.operator.requested_settings
-        caps = getattr(self.operator, "capabilities", None)
+        caps = self.operator.capabilities
         with self.gui.add_folder("Image"):
             w, h = self.image_px
             self.picture = self.gui.add_image(np.full((h, w, 3), 30, np.uint8), label="Latest image",
                                               format="jpeg", jpeg_quality=90)
             self.progress = self.gui.add_progress_bar(0.0, color="cyan")
             self.image_md = self.gui.add_markdown("*no image yet*")
-            self.budget = self.gui.add_slider("Budget (bytes)", min=200, max=LIMITS["budget_bytes"][1], step=100,
-                                              initial_value=int(min(LIMITS["budget_bytes"][1],
-                                                                    max(200, settings.budget_bytes))))
+            budget_max = caps.image_budget_max  # the link's, not the radio's
+            self.budget = self.gui.add_slider("Budget (bytes)", min=200, max=budget_max, step=100,
+                                              initial_value=int(min(budget_max, max(200, settings.budget_bytes))))
             self.shift_slider = self.gui.add_slider("ROI shift", min=LIMITS["shift"][0], max=LIMITS["shift"][1],
                                                     step=1, initial_value=settings.shift or 4)
             self.mono = self.gui.add_checkbox("Mono", initial_value=settings.mono)
             self.apply_button = self.gui.add_button("Apply image settings")
             self.clear_roi_button = self.gui.add_button("Clear ROI")
-            self.follow_button = self.gui.add_button("Follow ROI", visible=caps is None or caps.follow)
-            self.next_button = self.gui.add_button("Next image", visible=caps is None or caps.next_image)
+            self.follow_button = self.gui.add_button("Follow ROI", visible=caps.follow)
+            self.next_button = self.gui.add_button("Next image", visible=caps.next_image)
             self.gui.add_markdown("Drag a rectangle on the picture in the scene to set the ROI; "
                                   "Follow ROI: the ROV keeps it on what it framed.")
         self.order_widgets += [self.budget, self.shift_slider, self.mono, self.apply_button, self.clear_roi_button,
@@ -410,7 +409,7 @@ class ControlPanel:
         s = self.operator.requested_settings
 
         def show() -> None:
-            budget = int(min(LIMITS["budget_bytes"][1], max(200, s.budget_bytes)))
+            budget = int(min(self.operator.capabilities.image_budget_max, max(200, s.budget_bytes)))
             if self.budget.value != budget:
                 self.budget.value = budget
             if s.shift and self.shift_slider.value != s.shift:
@@ -461,10 +460,11 @@ class ControlPanel:
             f"| replies | {fmt(s['reply_rate_hz'], '.1f', ' Hz')} (polls {fmt(s['poll_rate_hz'], '.1f', ' Hz')}) |\n"
             f"| since reply | {fmt(s['since_reply_s'], '.1f', ' s')} |\n"
             f"| round trip | {fmt(s['round_trip_s'] and s['round_trip_s'] * 1000, '.0f', ' ms')} |\n"
-            f"| replies lost | {s['replies_lost']} of {s['polls_sent']} |\n"
-            f"| bad frames | {s['crc_errors']} |\n"
+            f"| reports lost | {'—' if s['reports_lost'] is None else s['reports_lost']} of {s['sent']} sent |\n"
+            f"| bad frames | {s['bad_frames']} |\n"
             f"| traffic | {fmt(s['bytes_per_s'], '.0f', ' B/s')} |\n"
-            f"| images | {s['images_completed']} done, {s['images_abandoned']} abandoned |\n\n"
+            f"| images | {s['images_completed']} done"
+            + (f", {s['radio']['images_abandoned']} abandoned" if s.get("radio") else "") + " |\n\n"
             + " · ".join(flags))
 
     # ------------------------------------------------------------------

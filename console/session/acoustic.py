@@ -31,26 +31,24 @@ feeds the recorded statuses, thumbnails, orders and log lines back through
 
 from __future__ import annotations
 
-import asyncio
 import logging
-import math
 import time
 from dataclasses import asdict
 from typing import Any, Callable
 
-from rovlink.console.session.base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
+from rovlink.console.session.base import NotNow, OrderError, SessionBase, mode_of
 from rovlink.console.session.contract import Capabilities
 from rovlink.console.session.fates import Fate
 from rovlink.console.session.goto import GoToWatch
 from rovlink.console.session.health import LinkHealth
 from rovlink.console.session.images import ImageReceiver
 from rovlink.console.session.odometry import History, LogLine, Odometry, Pose
-from rovlink.console.session.orders import REPORTED_MODE_NAMES, OrderBook
+from rovlink.console.session.orders import OrderBook
 from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.acoustic.process import AcousticLinkProcess
-from rovlink.link.aio import recv_within
+from rovlink.link.acoustic.pump import AcousticPump
 from rovlink.link.process import LinkProcessDown
 from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.radio.messages import ImageSettings
@@ -92,7 +90,6 @@ class AcousticSession(SessionBase):
         self.failsafe_action = "hold"
         self.link_version = "acoustic"
         self.bitrate_bps, self.delay_s = 64.0, 0.0  # what a replay's meta may carry; unused here
-        self._last_sent = -math.inf
         self.packets_in = self.packets_out = 0
         self.recorder = Recorder(record, {"profile": "acoustic", "pace_s": pace_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
@@ -142,53 +139,20 @@ class AcousticSession(SessionBase):
             return
         if self.op is None or self.endpoint is None:
             raise RuntimeError("no link: this session only replays")
-        pump = asyncio.create_task(self._pump())
         try:
-            while True:
-                data = await recv_within(self.endpoint, 0.1)
-                if not data:
-                    continue
-                t = self.now()
-                now = self._clock()
-                for i in range(0, len(data) - PACKET + 1, PACKET):
-                    packet = bytes(data[i:i + PACKET])
-                    with self._lock:
-                        self.packets_in += 1
-                        self.recorder.write({"k": "rx", "t": round(t, 4), "hex": packet.hex()})
-                        self.health.event(t, "rx", PACKET)
-                        events = self.op.receive(packet, now)
-                        self._heard(t)
-                        self._handle(events, t)
+            await self.pump().run()
         finally:
-            pump.cancel()
             self._decoder.shutdown()
 
-    async def _pump(self) -> None:
-        while True:
-            now, t = self._clock(), self.now()
-            packet = None
-            with self._lock:
-                self._watch_port()
-                self._handle(self.op.tick(now), t)
-                self.health.watch(t)
-                if self.op.wants_flush:
-                    flush = getattr(self.endpoint, "flush", None)
-                    if flush is not None:
-                        flush()
-                ready = self.op.wants_flush or ac.modem_idle(self.endpoint, now, self._last_sent, self.pace_s)
-                packet = self.op.next_packet(now) if ready else None
-                if packet is not None:
-                    self._mark_sending()
-            if packet is not None:
-                self.endpoint.send(packet)
-                self._last_sent = now
-                self.packets_out += 1
-                self.recorder.write({"k": "tx", "t": round(t, 4), "hex": packet.hex()})
-                self.health.event(t, "tx", PACKET)
-            await asyncio.sleep(0.1)
+    def pump(self) -> AcousticPump:
+        """The machine kept here (the tests' stacks): the one pump of link/acoustic/pump.py, on
+        the session's clock; what it tells comes in by the same doors as a link process's news."""
+        return AcousticPump(self.op, self.endpoint, lock=self._lock, clock=self._clock, pace_s=self.pace_s,
+                            on_received=self._packet_in, on_sent=self._packet_out, on_events=self._events_in,
+                            before_tick=lambda now: self._turn())
 
-    # -- the link in a process of its own (link/acoustic/process.py) -----------
-    # Times handed here are the machine's clock (CLOCK_MONOTONIC), the session's too.
+    # -- what the link process (link/acoustic/process.py) or the pump tells -------
+    # Times handed here are the machine's clock (the session's, CLOCK_MONOTONIC in a link process).
 
     def _packet_in(self, packet: bytes, events: list, now: float) -> None:
         t = now - self._t0
@@ -658,34 +622,12 @@ class AcousticSession(SessionBase):
         px, py, pz = points[-1]
         return Pose(px, py, pz, pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
 
-    def uncertainty_m(self) -> float | None:
-        """How far the vehicle may be from where it is shown: the report's age at
-        the most it can move while it may move (armed and not holding, or the link
-        lost), else the drift its reports show."""
-        age, fix = self.odometry_age_s(), self.odometry.fix
-        if age is None or fix is None:
-            return None
-        r = fix.report
-        may_move = (r.armed and not r.hold) or self.link_condition()[0] == "lost"
-        speed = MAX_SPEED_MPS if may_move else math.hypot(*fix.velocity[:3])
-        return round(speed * max(0.0, age), 3)
+    def _may_move(self, report: VehicleReport) -> bool:
+        return report.armed and not report.hold  # supervised: holding, it stays where it was
 
-    def pose_state(self) -> dict:
-        fix = self.odometry.fix
-        out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
-        if fix is not None:
-            r = fix.report
-            out["received"] = fix.pose.as_dict()
-            out.update(armed=r.armed, mode=REPORTED_MODE_NAMES.get(r.mode, "OTHER"), failsafe=r.failsafe,
-                       autopilot=r.autopilot, position_valid=r.position_valid, hold=r.hold,
-                       attitude_valid=r.attitude_valid, tilt_valid=r.tilt_valid, going=r.going,
-                       battery_v=r.battery_v, stopping=self.stopping(), odometry_age_s=self.odometry_age_s(),
-                       stale=self.link_condition()[0] == "lost", uncertainty_m=self.uncertainty_m(),
-                       next_report_in_s=self._next_status_in())
-            predicted = self.predicted_pose()
-            out["predicted"] = predicted.as_dict() if predicted else None
-            out["velocity"] = self.measured_velocity()
-        return out
+    def _pose_extra(self, report: VehicleReport) -> dict:
+        return {"tilt_valid": report.tilt_valid, "going": report.going, "battery_v": report.battery_v,
+                "next_report_in_s": self._next_status_in()}
 
     def _next_status_in(self) -> float | None:
         if self.op is None:
@@ -718,31 +660,18 @@ class AcousticSession(SessionBase):
                    f"after the next status, about a packet a second"
         return "no thumbnail yet: ask for one (pictures on the acoustic link come on request)"
 
-    def link_state(self) -> dict:
-        t = self.now()
-        r = self.vehicle()
-        statuses = self.odometry.fixes
+    def _link_counts(self) -> dict:
         return {
-            **self.health.state(t, self.rov_failsafe_s),
-            "last_round_trip_s": None,
-            "polls_sent": self.packets_out,
-            "replies": statuses,
-            "replies_lost": 0,
-            "crc_errors": 0,
+            "sent": self.packets_out,
+            "reports": self.odometry.fixes,
+            "reports_lost": None,  # a status never asked for is not missed: nothing to count
+            "bad_frames": self.health.inauthentic_frames,
             "protocol_errors": 0 if self.op is None else int(getattr(self.op.counters, "malformed", 0)),
             "bytes_sent": self.packets_out * PACKET,
             "bytes_received": self.packets_in * PACKET,
-            "odometry_age_s": self.odometry_age_s(),
-            "failsafe": bool(r and r.failsafe),
-            "autopilot": bool(r and r.autopilot),
-            "estimated_ber": None,
             "images_completed": self.images.view.images_completed,
-            "images_abandoned": 0,
-            "version": self.link_version,
-            "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             "port_error": port_down_reason(self.endpoint) if self._port_up is False else None,
-            "profile": "acoustic",
-            "synced": self.op is not None and not self.op.resyncing,
             **self._link_process_state(self.op),
-            "next_report_in_s": self._next_status_in(),
+            "acoustic": {"synced": self.op is not None and not self.op.resyncing,
+                         "next_report_in_s": self._next_status_in()},
         }

@@ -38,7 +38,7 @@ from rovlink.link.units import wrap_deg
 from .goto import resolve_target
 from .images import DaemonWorker, ImageView
 from .odometry import LOG_KEPT, LogLine, Pose
-from .orders import MODE_NAMES
+from .orders import MODE_NAMES, REPORTED_MODE_NAMES
 from .predictor import preview_path
 
 MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
@@ -222,6 +222,28 @@ class SessionBase:
             self.note(news)
             self.clear_alerts("port")
 
+    def _link_counts(self) -> dict:
+        """The driver's own counters, in the neutral words (sent, reports, reports_lost,
+        bad_frames, protocol_errors, bytes, images_completed, port_error, the link process)
+        and, under its profile's name, what only its link has."""
+        raise NotImplementedError
+
+    def link_state(self) -> dict:
+        """The link as the pilot is told it (console/session/state.py's LinkState): the
+        health's judgement, the neutral counters, each profile's own apart."""
+        t = self.now()
+        r = self.vehicle()
+        return {
+            **self.health.state(t, self.rov_failsafe_s),
+            **self._link_counts(),
+            "odometry_age_s": self.odometry_age_s(),
+            "failsafe": bool(r and r.failsafe),
+            "autopilot": bool(r and r.autopilot),
+            "version": self.link_version,  # "2": every frame authenticated; "1.1": INSECURE; "acoustic"
+            "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
+            "profile": self.capabilities.profile,
+        }
+
     @staticmethod
     def _link_process_state(link: Any) -> dict:
         """The link state's `link_process` fields: None for a link in this process (or none)."""
@@ -290,6 +312,46 @@ class SessionBase:
         forward and right, down, and yaw rate; None before two reports."""
         with self._lock:
             return self.odometry.measured_velocity()
+
+    def _may_move(self, report: VehicleReport) -> bool:
+        """Whether the vehicle may be moving on its own accord at full speed (each
+        driver says it for its link: armed on the radio's sticks; armed and not
+        holding on the acoustic link's go-tos)."""
+        return report.armed
+
+    def uncertainty_m(self) -> float | None:
+        """How far the vehicle may be from where it is shown: the odometry's age at
+        the most it can move while it may move (or while the link is lost: anything
+        may have happened), else only the drift its reports show (a parked vehicle
+        wears no ring)."""
+        age, fix = self.odometry_age_s(), self.odometry.fix
+        if age is None or fix is None:
+            return None
+        may_move = self._may_move(fix.report) or self.link_condition()[0] == "lost"
+        speed = MAX_SPEED_MPS if may_move else math.hypot(*fix.velocity[:3])
+        return round(speed * max(0.0, age), 3)
+
+    def _pose_extra(self, report: VehicleReport) -> dict:
+        """What a driver's link says of the vehicle beyond the common pose state."""
+        return {}
+
+    def pose_state(self) -> dict:
+        """The received pose with what the report says, its age and uncertainty, and the
+        predicted pose (console/session/state.py's PoseState)."""
+        fix = self.odometry.fix
+        out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
+        if fix is not None:
+            r = fix.report
+            out["received"] = fix.pose.as_dict()
+            out.update(armed=r.armed, mode=REPORTED_MODE_NAMES.get(r.mode, "OTHER"), failsafe=r.failsafe,
+                       autopilot=r.autopilot, position_valid=r.position_valid, hold=r.hold,
+                       attitude_valid=r.attitude_valid, stopping=self.stopping(),
+                       odometry_age_s=self.odometry_age_s(), stale=self.link_condition()[0] == "lost",
+                       uncertainty_m=self.uncertainty_m(), **self._pose_extra(r))
+            predicted = self.predicted_pose()
+            out["predicted"] = predicted.as_dict() if predicted else None
+            out["velocity"] = self.measured_velocity()
+        return out
 
     def link_condition(self, t: float | None = None) -> tuple[str, float | None]:
         """("up" | "degraded" | "lost" | "replay" | "starting", seconds since the last report):

@@ -26,7 +26,7 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Callable, Iterator
 
 from rovlink.link.aio import run_master
 from rovlink.link.process import LinkProcessDown, MasterProcess
@@ -59,10 +59,11 @@ from rovlink.link.radio.messages import (
     Stop,
     Velocity,
 )
-from rovlink.link.radio.secure import InauthenticFrame, LateReply, SecureMaster, Synced
+from rovlink.link.radio.replay import ReplyReplayer
+from rovlink.link.radio.secure import InauthenticFrame, LateReply, SecureMaster, Synced, poll_sent_from_frame
 from rovlink.link.report import report_from_reply
 from rovlink.link.transports.transport import Endpoint, port_down_reason
-from rovlink.link.units import position_order, velocity_ints, wish_of
+from rovlink.link.units import position_order, velocity_ints, wish_fractions, wish_of
 
 from .base import MAX_SPEED_MPS, NotNow, OrderError, SessionBase, mode_of
 from .contract import Capabilities
@@ -122,6 +123,7 @@ class Operator(SessionBase):
         self.recorder = Recorder(record, {"bitrate_bps": bitrate_bps, "delay_s": delay_s,
                                           "started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                           "wall0": round(self.wall0, 3)})
+        self._replayer = None  # a replay's: link/radio/replay.py ReplyReplayer, made at its first record
         self._new_parts(replaying=False, lost_after_s=None)
 
     def _new_parts(self, *, replaying: bool, lost_after_s: float | None) -> None:
@@ -151,6 +153,7 @@ class Operator(SessionBase):
         """`reset`'s: the parts made anew, a replay's switches kept (lock held)."""
         self._new_parts(replaying=self.health.replaying, lost_after_s=self.health.lost_after_s)
         self.link_version = "1.1"
+        self._replayer = None  # a replay's reassembly starts again with the recording
 
     def _publish_settled(self) -> None:
         super()._publish_settled()
@@ -540,6 +543,35 @@ class Operator(SessionBase):
 
     # -- a replay shows what was, and sends nothing -----------------------
 
+    def replayed(self, record: dict) -> None:
+        """One record of a radio recording, fed back by the master's own rules
+        (link/radio/replay.py): frames both ways, replies, wishes, orders."""
+        now, kind = self.now(), record.get("k")  # the record's own time
+        if self._replayer is None:
+            self._replayer = ReplyReplayer(bitrate_bps=float(self.bitrate_bps), delay_s=float(self.delay_s))
+        if kind == "rx":
+            data = bytes.fromhex(record["hex"])
+            self.bytes_received(data, now)
+            # Protocol 2 sessions record what the master was given ("reply": authentic,
+            # timely, tag removed); their raw frames then count only as traffic.
+            if self.link_version != "2":
+                self.handle_events(self._replayer.feed(data, now), now)
+        elif kind == "reply":
+            events = self._replayer.feed_payload(bytes.fromhex(record["hex"]), now, sync=bool(record.get("sync")))
+            self.handle_events(events, now)
+        elif kind == "tx":
+            sent = poll_sent_from_frame(bytes.fromhex(record["hex"]), now, version=self.link_version,
+                                        poll=bytes.fromhex(record["poll"]) if "poll" in record else None)
+            if sent is not None:
+                # The poll first, then what it did to the picture held (the master's order of things).
+                self.handle_events([sent, *self._replayer.poll_sent(sent.poll, now)], now)
+        elif kind == "wish":
+            self.replayed_wish(wish_fractions(record["v"]))
+        elif kind in ("order", "order_state"):
+            self.replayed_order(record)
+        elif kind == "link" and record.get("version") == 2:
+            self.link_version = "2"  # written before the first frame (authenticate comes before run)
+
     def replayed_wish(self, values: tuple[float, ...]) -> None:
         """A recorded wish change, shown as it was."""
         with self._lock:
@@ -570,36 +602,6 @@ class Operator(SessionBase):
         with self._lock:
             return self.predictor.predict(self.odometry.fix, self.now() if at is None else at, self.rov_failsafe_s)
 
-    def uncertainty_m(self) -> float | None:
-        """How far the vehicle may be from the prediction: the odometry's age at the
-        most it can move.  Full speed while it is armed, or while the link is lost
-        (anything may have happened); disarmed with replies coming, only the drift
-        its poses show (a parked vehicle wears no ring)."""
-        age, fix = self.odometry_age_s(), self.odometry.fix
-        if age is None or fix is None:
-            return None
-        may_drive = fix.report.armed or self.link_condition()[0] == "lost"
-        speed = MAX_SPEED_MPS if may_drive else math.hypot(*fix.velocity[:3])
-        return round(speed * max(0.0, age), 3)
-
-    def pose_state(self) -> dict:
-        fix = self.odometry.fix
-        out: dict[str, Any] = {"t": self.now(), "received": None, "predicted": None}
-        if fix is not None:
-            reply = fix.report
-            out["received"] = fix.pose.as_dict()
-            age = self.odometry_age_s()
-            out.update(armed=reply.armed, mode=REPORTED_MODE_NAMES.get(reply.mode, "OTHER"), failsafe=reply.failsafe,
-                       autopilot=reply.autopilot, position_valid=reply.position_valid,
-                       hold=reply.hold, attitude_valid=reply.attitude_valid,
-                       stopping=self.stopping(),
-                       odometry_age_s=age, stale=self.link_condition()[0] == "lost",
-                       uncertainty_m=self.uncertainty_m())
-            predicted = self.predicted_pose()
-            out["predicted"] = predicted.as_dict() if predicted else None
-            out["velocity"] = self.measured_velocity()
-        return out
-
     def image_state(self) -> dict:
         return {**self.images.state(), "waiting": self.picture_wait()}
 
@@ -628,33 +630,23 @@ class Operator(SessionBase):
         return ("the ROV is preparing its first picture (its picture coder starts up: up to a minute on a "
                 "first run); it shows here as it arrives")
 
-    def link_state(self) -> dict:
-        t = self.now()
+    def _link_counts(self) -> dict:
         with self._lock:
             m = self.master.stats
             crc_errors = self.master.decoder.crc_errors
             ber = self.master.estimated_ber()
-        reply = self.vehicle()
         return {
-            **self.health.state(t, self.rov_failsafe_s),
-            "last_round_trip_s": m.last_round_trip_s,
-            "polls_sent": m.polls_sent,
-            "replies": m.replies,
-            "replies_lost": m.replies_lost,
-            "crc_errors": crc_errors,
+            "sent": m.polls_sent,
+            "reports": m.replies,
+            "reports_lost": m.replies_lost,
+            "bad_frames": crc_errors,
             "protocol_errors": m.protocol_errors,
             "bytes_sent": m.bytes_sent,
             "bytes_received": m.bytes_received,
-            "odometry_age_s": self.odometry_age_s(),
-            "failsafe": bool(reply and reply.failsafe),
-            "autopilot": bool(reply and reply.autopilot),
-            "estimated_ber": ber,
             "images_completed": m.images_completed,
-            "images_abandoned": m.images_abandoned,
-            "version": self.link_version,  # "2": every frame authenticated; "1.1": INSECURE
-            "transport_up": self.endpoint.is_up if self.endpoint is not None else False,
             # Why this console's own modem port is down (None while it is up, or for a replay).
             "port_error": port_down_reason(self.endpoint),
             **self._link_process_state(self.master),
-            "profile": "radio",
+            "radio": {"last_round_trip_s": m.last_round_trip_s, "estimated_ber": ber,
+                      "images_abandoned": m.images_abandoned},
         }

@@ -119,6 +119,17 @@ class ImageState(BaseModel):
     track: FollowTrack | None = Field(None, description="a followed picture's track (its settings' ROI: the one it was coded with)")
 
 
+class RadioCounters(BaseModel):
+    last_round_trip_s: float | None
+    estimated_ber: float | None = Field(description="the bit error rate the CRC failures suggest (1.1)")
+    images_abandoned: int
+
+
+class AcousticCounters(BaseModel):
+    synced: bool = Field(description="the acoustic link's session is synchronised")
+    next_report_in_s: float | None = Field(description="when the next status is due at the latest")
+
+
 class LinkState(BaseModel):
     state: Literal["starting", "up", "degraded", "lost", "replay"] = Field(
         description="from replies: lost after lost_after_s without one, degraded while a figure of the last 10 s "
@@ -135,11 +146,11 @@ class LinkState(BaseModel):
     poll_rate_hz: float
     reply_rate_hz: float
     round_trip_s: float | None = Field(description="median of recent round trips")
-    last_round_trip_s: float | None
-    polls_sent: int
-    replies: int
-    replies_lost: int
-    crc_errors: int
+    sent: int = Field(description="frames sent to the ROV: polls (radio), packets (acoustic)")
+    reports: int = Field(description="reports of the vehicle received: replies (radio), statuses (acoustic)")
+    reports_lost: int | None = Field(description="reports asked for and not received (radio: replies lost); "
+                                                 "null where none is asked for (acoustic)")
+    bad_frames: int = Field(description="frames that failed their check: CRC (radio 1.1), tag (version 2, acoustic)")
     protocol_errors: int
     bytes_per_s: float = Field(description="both directions, last 10 s")
     bytes_sent: int
@@ -147,9 +158,9 @@ class LinkState(BaseModel):
     odometry_age_s: float | None
     failsafe: bool
     autopilot: bool
-    estimated_ber: float | None
     images_completed: int
-    images_abandoned: int
+    radio: RadioCounters | None = Field(None, description="what only the radio link has")
+    acoustic: AcousticCounters | None = Field(None, description="what only the acoustic link has")
     version: str = Field("1.1", description='"2": every frame authenticated; "1.1": INSECURE, nothing authenticated; '
                                              '"acoustic": the acoustic profile, every packet authenticated')
     inauthentic_frames: int = Field(0, description="frames whose tag did not hold, dropped (protocol 2: noise or forgery)")
@@ -165,8 +176,6 @@ class LinkState(BaseModel):
     link_process_reason: str | None = Field(None, description="while down: why it ended")
     link_process_pid: int | None = Field(None, description="the link process's pid while it runs")
     profile: Literal["radio", "acoustic"] = Field("radio", description="the link's profile (docs/PROTOCOL.md §9: acoustic)")
-    synced: bool | None = Field(None, description="the acoustic link's session is synchronised")
-    next_report_in_s: float | None = Field(None, description="the acoustic link: when the next status is due at the latest")
 
 
 class VelocityWish(BaseModel):

@@ -28,7 +28,6 @@ from rovlink.console.session.state import (
     PoseState,
     VelocityWish,
 )
-from rovlink.link.radio.messages import MAX_BUDGET
 
 # The one mode list (the protocol's), as a type for the schema.
 ModeName = Literal[tuple(MODES)]  # type: ignore[valid-type]
@@ -97,7 +96,8 @@ class ImageSettingsOrder(Request):
         None, strict=False, description="region of interest (x0, y0, x1, y1) in pixels, x0 < x1, y0 < y1; null for none")
     shift: int | None = Field(None, ge=0, le=15, description="bit planes the ROI is raised by, 0..15")
     mono: bool | None = Field(None, description="grey instead of colour")
-    budget_bytes: int | None = Field(None, ge=0, le=MAX_BUDGET, description=f"image size, bytes, 0..{MAX_BUDGET}")
+    budget_bytes: int | None = Field(None, ge=0, description="image size, bytes, 0 up to the link's image_budget_max "
+                                                            "(GET /api/config; more is refused, 422, by the session)")
 
 
 class FollowOrder(Request):

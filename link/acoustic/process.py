@@ -39,8 +39,6 @@ Faults, safe and loud:
 
 from __future__ import annotations
 
-import asyncio
-import math
 import threading
 import time
 from typing import Any, Callable
@@ -53,13 +51,13 @@ from ..process import (
     serve_until_console_gone,
     until_set,
 )
-from .operator import AcousticOperator, modem_idle
+from .operator import AcousticOperator
+from .pump import AcousticPump
 from .wire import PACKET_BYTES, OrderRefused
 
 # The console gone: STOP is sent until the ROV takes it, this long at most (§9.5: confirmed
 # within 5 s at p95 on a clean channel, 12.6 s with 30 % of packets lost), then nothing more.
 STOP_AFTER_CONSOLE_S = 15.0
-PUMP_S = 0.1  # how often the modem's queue is looked at (a packet a second at the most)
 
 CALLS = ("send_order", "stop", "cancel_stop")
 
@@ -91,62 +89,38 @@ def acoustic_child_main(commands, events, spec: dict) -> None:
 
 
 async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) -> int:
-    from ..aio import recv_within
     from ..transports.transport import port_change, port_down_reason
     from .events import StopImpossible, StopTaken
 
     op = AcousticOperator(spec["key"])
     lock = threading.Lock()
     stop_settled = threading.Event()  # the ROV took the STOP (or cannot hold): the console gone, the child may end
-    pace_s = float(spec["pace_s"])
+    port_seen = [None]
 
-    def told(batch: list, now: float, kind: str = "events", packet: bytes | None = None) -> None:
+    def status() -> dict:
+        with lock:
+            return _status(op)
+
+    def told(batch: list, now: float) -> None:
         if any(isinstance(e, (StopTaken, StopImpossible)) for e in batch):
             stop_settled.set()
-        with lock:
-            status = _status(op)
-        if kind == "rx":
-            send(("rx", packet, batch, now, status))
-        elif batch:
-            send(("events", batch, now, status))
+        send(("events", batch, now, status()))
 
-    async def receiving() -> None:
-        while True:
-            data = await recv_within(endpoint, 0.1)
-            if not data:
-                continue
-            now = time.monotonic()
-            for i in range(0, len(data) - PACKET_BYTES + 1, PACKET_BYTES):
-                packet = bytes(data[i:i + PACKET_BYTES])
-                with lock:
-                    batch = op.receive(packet, now)
-                told(batch, now, "rx", packet)
+    def received(packet: bytes, batch: list, now: float) -> None:
+        if any(isinstance(e, (StopTaken, StopImpossible)) for e in batch):
+            stop_settled.set()
+        send(("rx", packet, batch, now, status()))
 
-    async def pumping() -> None:
-        last_sent = -math.inf
-        port_seen = None
-        while True:
-            now = time.monotonic()
-            port_seen, news = port_change(endpoint, port_seen)
-            if news is not None:
-                send(("port", port_seen, news, port_down_reason(endpoint)))
-            with lock:
-                batch = op.tick(now)
-                if op.wants_flush:
-                    flush = getattr(endpoint, "flush", None)
-                    if flush is not None:
-                        flush()
-                ready = op.wants_flush or modem_idle(endpoint, now, last_sent, pace_s)
-                packet = op.next_packet(now) if ready else None
-                status = _status(op)
-            told(batch, now)
-            if packet is not None:
-                endpoint.send(packet)
-                last_sent = now
-                send(("tx", packet, now, status))
-            await asyncio.sleep(PUMP_S)
+    def port(now: float) -> None:
+        port_seen[0], news = port_change(endpoint, port_seen[0])
+        if news is not None:
+            send(("port", port_seen[0], news, port_down_reason(endpoint)))
 
-    tasks = await serve_until_console_gone(commands, send, endpoint, [receiving(), pumping()], what="acoustic link",
+    pump = AcousticPump(op, endpoint, lock=lock, clock=time.monotonic, pace_s=float(spec["pace_s"]),
+                        on_received=received, on_events=told,
+                        on_sent=lambda packet, now: send(("tx", packet, now, status())), before_tick=port)
+    tasks = await serve_until_console_gone(commands, send, endpoint, [pump.receiving(), pump.pumping()],
+                                           what="acoustic link",
                                            calls=CALLS, machine=op, lock=lock, status=lambda: _status(op),
                                            refused=(OrderRefused,))
     if tasks is None:

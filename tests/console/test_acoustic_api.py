@@ -129,7 +129,7 @@ def test_the_consoles_own_modem_port_going_down_is_said_at_once_and_its_return_t
     session = AcousticSession(port, KEY)
 
     async def scenario():
-        pump = asyncio.create_task(session._pump())
+        pump = asyncio.create_task(session.pump().pumping())
         await asyncio.sleep(0.3)
         assert session.link_state()["port_error"] is None
         port.is_up, port.stats.last_error = False, "no serial port /dev/ttyUSB0 (is the modem's USB serial adapter plugged in?)"

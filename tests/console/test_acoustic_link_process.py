@@ -144,7 +144,7 @@ def test_the_acoustic_link_process_killed_is_said_at_once_started_again_and_noth
     assert down_lines and down_lines[0]["level"] == "alert" and down_lines[0]["cause"] == "process", log
     assert down_lines[0]["cleared_wall"] is not None  # the alert cleared once it runs again
     assert any(re.fullmatch(rf"link process started again \(pid {second}\)", e["text"]) for e in log), log
-    assert rig.link()["state"] == "up" and rig.link()["polls_sent"] > 0
+    assert rig.link()["state"] == "up" and rig.link()["sent"] > 0
 
     # The console ended as a pilot ends it (SIGTERM): its link process, the second, sends STOP first.
     rig.console.terminate()

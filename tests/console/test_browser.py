@@ -217,7 +217,7 @@ def test_gamepad_sticks_drive_and_button_b_stops(open_page, live):
 def test_a_dropped_link_shows_in_link_health_and_the_failsafe_stays_visible(open_page, live):
     page = open_page()
     page.wait_for_function("document.getElementById('link-odo-age').textContent.endsWith(' s')")
-    lost_before = live.operator.link_state()["replies_lost"]
+    lost_before = live.operator.link_state()["reports_lost"]
     live.set_link_loss(1.0)
     try:
         # Polls go unanswered: the page counts lost replies and ageing odometry.

@@ -60,7 +60,7 @@ def test_console_and_rov_as_two_programs_over_udp_then_replay_and_plot(tmp_path)
         with urllib.request.urlopen(base + "/api/image/latest.debt", timeout=10) as r:
             assert len(r.read()) <= 800  # the ROV's --budget
         link = get(base + "/api/link")
-        assert link["polls_sent"] > 10 and link["replies"] > 10
+        assert link["sent"] > 10 and link["reports"] > 10
     finally:
         console_rc, _, console_err = stop(console)
         rov_rc, _, rov_err = stop(rov)

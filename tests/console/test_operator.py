@@ -88,7 +88,7 @@ def test_operator_session_end_to_end(tmp_path):
             assert await until(lambda: any(o["id"] == stop_id and o["state"] == "acknowledged"
                                            for o in op.orders_state()), 15), op.orders_state()[-3:]
             link = op.link_state()
-            assert link["polls_sent"] > 20 and link["autopilot"] and not link["failsafe"]
+            assert link["sent"] > 20 and link["autopilot"] and not link["failsafe"]
             assert {"pose", "image", "order"} <= set(seen)
             return op
 
@@ -142,7 +142,7 @@ def test_failsafe_is_shown_when_the_link_drops(tmp_path):
             stack.channel.params["a"] = type(stack.channel.params["a"])(  # the channel goes deaf
                 bitrate_bps=19200, delay_s=0.02, loss=1.0)
             assert await until(lambda: stack.node.slave.failsafe, 10)
-            assert op.link_state()["replies_lost"] > 0
+            assert op.link_state()["reports_lost"] > 0
             flagged = []
             op.subscribe(lambda topic, p: flagged.append(p["failsafe"]) if topic == "pose" else None)
             stack.channel.params["a"] = type(stack.channel.params["a"])(bitrate_bps=19200, delay_s=0.02)

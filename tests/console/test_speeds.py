@@ -76,7 +76,7 @@ def test_on_a_fast_link_the_turn_rate_shown_agrees_with_the_received_yaw(tmp_pat
         link0 = get_json(base + "/api/link")
         time.sleep(3.0)  # the turn settles to its steady rate
         link1 = get_json(base + "/api/link")
-        assert link1["replies"] - link0["replies"] > 3.0 / 0.06, (link0, link1)
+        assert link1["reports"] - link0["reports"] > 3.0 / 0.06, (link0, link1)
         samples = []  # (this test's clock, received yaw, shown yaw rate)
         for _ in range(30):
             p = procs.pose()

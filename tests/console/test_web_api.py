@@ -98,20 +98,20 @@ def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
                                 "you": False, "lease_s": 30.0, "unattended_s": None, "unattended_warning": False,
                                 "disarm_unattended_s": None, "centre_to_drive": False}
     assert state["pose"]["received"] is None  # no link, no odometry
-    assert client.get("/api/link").json()["polls_sent"] == 0
+    assert client.get("/api/link").json()["sent"] == 0
     assert client.get("/api/image").json()["received_bytes"] == 0
 
 
 def test_estimates_that_are_not_finite_are_sent_as_null(client, operator, monkeypatch):
     monkeypatch.setattr(operator.master, "estimated_ber", lambda: math.inf)
-    assert client.get("/api/link").json()["estimated_ber"] is None
-    assert client.get("/api/state").json()["link"]["estimated_ber"] is None
+    assert client.get("/api/link").json()["radio"]["estimated_ber"] is None
+    assert client.get("/api/state").json()["link"]["radio"]["estimated_ber"] is None
     with client.websocket_connect("/ws") as ws:
         # Browsers' JSON.parse refuses NaN and Infinity, so a strict parser here too.
         ws.receive_json()
         text = ws.receive_text()
         telemetry = json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in telemetry"))
-        assert telemetry["link"]["estimated_ber"] is None
+        assert telemetry["link"]["radio"]["estimated_ber"] is None
 
 
 def test_no_picture_yet_is_404_with_a_message(client):
@@ -279,7 +279,7 @@ def test_other_sites_pages_cannot_order_through_the_pilots_browser(client, opera
     ("/api/orders/mode", {"mode": "ACRO"}, "body.mode: Input should be 'MANUAL'"),
     ("/api/image/settings", {"roi": [100, 100, 10, 10]}, "IMAGE ROI needs X0 < X1 and Y0 < Y1"),
     ("/api/image/settings", {"roi": [1, 2, 3]}, "body.roi.3: Field required"),
-    ("/api/image/settings", {"budget_bytes": 100000}, "body.budget_bytes: Input should be less than or equal to"),
+    ("/api/image/settings", {"budget_bytes": 100000}, "IMAGE BUDGET must be in 0..8189, got 100000"),  # the link's limit
     ("/api/image/settings", {"shift": -1}, "body.shift: Input should be greater than or equal to 0"),
 ])
 def test_invalid_orders_get_422_saying_what_is_wrong(client, operator, path, body, says):
@@ -475,7 +475,7 @@ def test_live_websocket_streams_link_health_and_pictures(live):
                 images.append(message["image"])
         assert len(telemetry) >= 5 and images, "telemetry or image events missing"
         first, last = telemetry[0]["link"], telemetry[-1]["link"]
-        assert last["polls_sent"] > first["polls_sent"] and last["link_up"]
+        assert last["sent"] > first["sent"] and last["link_up"]
         assert math.isfinite(last["poll_rate_hz"]) and last["poll_rate_hz"] > 0
         assert telemetry[-1]["pose"]["received"] is not None and telemetry[-1]["pose"]["predicted"] is not None
         assert images[-1]["decoded_bytes"] > 0

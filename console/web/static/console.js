@@ -425,8 +425,8 @@ function render(s) {
   $("link-reply-rate").textContent = `${fmt(l.reply_rate_hz, 1)} Hz`;
   $("link-poll-rate").textContent = `${fmt(l.poll_rate_hz, 1)} Hz`;
   $("link-rtt").textContent = l.round_trip_s === null ? "—" : `${fmt(l.round_trip_s * 1000, 0)} ms`;
-  $("link-lost").textContent = `${l.replies} / ${l.replies_lost}`;
-  $("link-crc").textContent = `${l.crc_errors}`;
+  $("link-lost").textContent = `${l.reports} / ${l.reports_lost === null ? "—" : l.reports_lost}`;
+  $("link-crc").textContent = `${l.bad_frames}`;
   const secure = l.version === "2" || l.version === "acoustic";
   $("link-version").textContent = l.version === "acoustic" ? "acoustic (Modem-M64), authenticated"
     : secure ? "2, authenticated" : "1.1, INSECURE (no key)";
