@@ -47,7 +47,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from rovlink.link.radio.messages import REQUESTABLE_MODES
+from rovlink.link.vocabulary import REQUESTABLE_MODES
 from rovlink.rov.vehicle import BlueRovParams
 
 from .session.base import OrderError

@@ -49,19 +49,19 @@ from rovlink.console.session.recorder import Recorder
 from rovlink.link import acoustic as ac
 from rovlink.link.acoustic.process import AcousticLinkProcess
 from rovlink.link.acoustic.pump import AcousticPump
+from rovlink.link.pictures import ImageAbandoned, ImageComplete, ImageProgress
 from rovlink.link.process import LinkProcessDown
-from rovlink.link.radio.master import ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.radio.messages import ImageSettings
 from rovlink.link.report import VehicleReport, report_from_status
 from rovlink.link.transports.transport import port_down_reason
 from rovlink.link.units import acoustic_goto
+from rovlink.link.vocabulary import PictureRequest
 
 log = logging.getLogger("rovlink.console.acoustic")
 
 PACKET = ac.PACKET_BYTES
 LOST_AFTER_S = ac.SILENCE_RESYNC_S  # no authentic frame this long: the link is lost (the operator says HELLO again)
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
-DEFAULT_THUMB = ImageSettings(roi=None, shift=4, mono=True, budget_bytes=198)
+DEFAULT_THUMB = PictureRequest(roi=None, shift=4, mono=True, budget_bytes=198)
 
 
 class AcousticSession(SessionBase):
@@ -386,10 +386,10 @@ class AcousticSession(SessionBase):
                 self.note(f"STOP confirmed: {reason}")
 
     def _thumbnail(self, oid: int, obj: bytes, verified: bool, t: float, *, complete: bool) -> None:
-        if len(obj) < 2:
+        parts = ac.thumbnail_object(obj)  # the object's bytes read in link/, its track too (link/pictures.py)
+        if parts is None:
             return
-        total = int.from_bytes(obj[:2], "big")
-        stream = bytes(obj[2:])
+        total, stream = parts
         self._verified[oid] = bool(verified)
         self.recorder.write({"k": "thumb", "t": round(t, 4), "oid": oid, "hex": bytes(obj).hex(),
                              "verified": bool(verified), "complete": complete})
@@ -532,10 +532,7 @@ class AcousticSession(SessionBase):
         bad = request.invalid()
         if bad:
             raise OrderError(f"thumbnail: {bad}")
-        try:
-            settings = ImageSettings(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget)
-        except ValueError as exc:
-            raise OrderError(str(exc)) from None
+        settings = PictureRequest(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget)
         detail = {"roi": list(roi) if roi else None, "shift": settings.shift, "mono": True, "budget_bytes": budget}
         if follow is not None:
             detail.update(follow=True, keep=keep, drawn_on=drawn_on)

@@ -30,10 +30,10 @@ import numpy as np
 
 from rovlink import debt
 from rovlink.link.process import LinkProcess
-from rovlink.link.radio.messages import Mode
 from rovlink.link.report import VehicleReport
 from rovlink.link.transports.transport import port_change
 from rovlink.link.units import wrap_deg
+from rovlink.link.vocabulary import Mode
 
 from .goto import resolve_target
 from .images import DaemonWorker, ImageView

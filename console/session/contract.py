@@ -32,8 +32,8 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from rovlink.link.radio.messages import ImageSettings
 from rovlink.link.report import VehicleReport
+from rovlink.link.vocabulary import PictureRequest
 
 from .odometry import History, Pose
 
@@ -61,7 +61,7 @@ class VehicleSession(Protocol):
     capabilities: Capabilities
     history: History
     rov_failsafe_s: float
-    requested_settings: ImageSettings
+    requested_settings: PictureRequest
 
     # -- time, subscribers, the log -----------------------------------------
     def now(self) -> float: ...

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from rovlink.link.radio.messages import Mode
+from rovlink.link.vocabulary import Mode
 
 from .fates import Fate
 from .odometry import Fix

@@ -36,8 +36,8 @@ from typing import Any, Callable
 import numpy as np
 
 from rovlink import debt
-from rovlink.link.radio.events import PILOT_SKIPPED, ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.radio.messages import ImageSettings
+from rovlink.link.pictures import PILOT_SKIPPED, ImageAbandoned, ImageComplete, ImageProgress
+from rovlink.link.vocabulary import PictureRequest
 
 from .follow import coded_settings, read_picture
 from .odometry import Fix, Pose
@@ -58,7 +58,7 @@ class ImageView:
     decoded_bytes: int = 0
     decoded_at: float | None = None
     started_at: float | None = None
-    settings: ImageSettings | None = None
+    settings: PictureRequest | None = None
     images_completed: int = 0
     serial: int = 0                   # counts images, never wraps (IMG wraps at 8)
     capture: dict | None = None       # when and where the ROV captured it (ImageReceiver._capture_stamp)
@@ -66,7 +66,7 @@ class ImageView:
     coded_roi: tuple | None = None    # a followed picture's ROI, from its DEBT header
 
 
-def settings_dict(s: ImageSettings | None) -> dict | None:
+def settings_dict(s: PictureRequest | None) -> dict | None:
     return None if s is None else {"roi": list(s.roi) if s.roi else None, "shift": s.shift, "mono": s.mono,
                                    "budget_bytes": s.budget_bytes}
 
@@ -135,7 +135,7 @@ class ImageReceiver:
     def __init__(self, *, lock, now: Callable[[], float], wall: Callable[[float], float],
                  fix: Callable[[], Fix | None], record: Callable[[dict], None],
                  publish: Callable[[str, Any], None], note: Callable[..., None], decoder: DaemonWorker,
-                 settings: ImageSettings | None) -> None:
+                 settings: PictureRequest | None) -> None:
         self._lock, self._now, self._wall, self._fix = lock, now, wall, fix
         self._record, self._publish, self._note = record, publish, note
         self._decoder = decoder
@@ -179,7 +179,7 @@ class ImageReceiver:
                 view.capture = self._capture_stamp(t)
             view.received_bytes = event.received_bytes
             view.total_bytes = event.total_bytes
-            view.track, view.coded_roi, view.stream = read_picture(event.prefix)
+            view.track, view.coded_roi, view.stream = read_picture(event.track, event.stream)
             stream = view.stream
         self._publish("image_progress", self.state())
         self._decode_later(event.img, stream)
@@ -188,7 +188,7 @@ class ImageReceiver:
         with self._lock:
             self.view.complete = True
             self.view.images_completed += 1
-            self.view.track, self.view.coded_roi, self.view.stream = read_picture(event.data)
+            self.view.track, self.view.coded_roi, self.view.stream = read_picture(event.track, event.stream)
             self._keep(t, partial=False)
             self._mark_capture_window(t, "prefetch", img=event.img, total=2 + len(event.data),
                                       since=event.started_at)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-from rovlink.link.radio.messages import REQUESTABLE_MODES
+from rovlink.link.vocabulary import REQUESTABLE_MODES
 
 from .fates import Fate, fields, parse_recorded, words
 from .odometry import Fix

@@ -4,7 +4,7 @@ The last odometry, from its sample time, flown forward with
 `rov.vehicle.VehicleModel` under the wishes as they were sent, each from when it
 reached the ROV (never today's wish over yesterday's pose), as the ROV applies
 them: a STOP brakes, HOLD ignores non-zero wishes until a neutral one arrives,
-a wish lapses after VELOCITY_LAPSE_S without another.  The same model previews
+a wish lapses after the link's velocity lapse (radio §5: 1.5 s) without another.  The same model previews
 the path of a position order before it is sent.
 """
 
@@ -13,7 +13,6 @@ from __future__ import annotations
 import collections
 import math
 
-from rovlink.link.radio.messages import FAILSAFE_S, VELOCITY_LAPSE_S
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB
 from rovlink.rov.vehicle import (
     Controls,
@@ -34,9 +33,10 @@ class Predictor:
     """The wishes as they went out, and the poses they lead to.  Not thread-safe
     on its own: the session calls it under its lock (`wishes` is copied)."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, velocity_lapse_s: float) -> None:
         # (arrival at the ROV, (vx, vy, vz, vyaw) fractions | STOP_WISH)
         self.sent: collections.deque = collections.deque(maxlen=256)
+        self.velocity_lapse_s = velocity_lapse_s  # the link's rule (radio §5): a wish lapses without another
 
     def wish_sent(self, arrival: float, wish: tuple[float, float, float, float]) -> None:
         self.sent.append((arrival, tuple(wish)))
@@ -44,7 +44,7 @@ class Predictor:
     def stop_sent(self, arrival: float) -> None:
         self.sent.append((arrival, STOP_WISH))
 
-    def predict(self, fix: Fix | None, at: float, failsafe_s: float = FAILSAFE_S) -> Pose | None:
+    def predict(self, fix: Fix | None, at: float, failsafe_s: float) -> Pose | None:
         """Dead reckoning from `fix` to session time `at`, no further than the
         ROV's failsafe time past its sample (by then, with no poll heard, it has
         stopped; beyond it the uncertainty grows instead)."""
@@ -64,7 +64,7 @@ class Predictor:
         t = sampled
         for arrival, sent in list(self.sent):
             if arrival > t:
-                t = _fly(model, t, min(arrival, end), wish, wish_at, hold, mode, reply.armed)
+                t = _fly(model, t, min(arrival, end), wish, wish_at + self.velocity_lapse_s, hold, mode, reply.armed)
                 if t >= end:
                     break
             if sent is STOP_WISH:
@@ -74,15 +74,14 @@ class Predictor:
                 if hold and not any(sent):
                     hold = False  # the re-centring reached the ROV
         if t < end:
-            _fly(model, t, end, wish, wish_at, hold, mode, reply.armed)
+            _fly(model, t, end, wish, wish_at + self.velocity_lapse_s, hold, mode, reply.armed)
         s = model.state
         return Pose(s.x_m, s.y_m, s.z_m, pose.roll_deg, pose.pitch_deg, math.degrees(s.yaw_rad))
 
 
-def _fly(model: VehicleModel, t: float, until: float, wish: tuple, wish_at: float, hold: bool, mode,
+def _fly(model: VehicleModel, t: float, until: float, wish: tuple, lapse_at: float, hold: bool, mode,
          armed: bool) -> float:
-    """Step the model from t to `until` under `wish` as the ROV applies it."""
-    lapse_at = wish_at + VELOCITY_LAPSE_S
+    """Step the model from t to `until` under `wish` as the ROV applies it, neutral from `lapse_at`."""
     for t0, t1, applied in ((t, min(until, lapse_at), wish), (max(t, lapse_at), until, NEUTRAL_WISH)):
         if t1 > t0:
             if hold:

@@ -52,6 +52,7 @@ from rovlink.link.radio.messages import (
     FAILSAFE_S,
     MAX_BUDGET,
     NO_IMAGE_DATA,
+    VELOCITY_LAPSE_S,
     FollowSettings,
     ImageSettings,
     ProtocolError,
@@ -135,7 +136,7 @@ class Operator(SessionBase):
             self.health.lost_after_s = lost_after_s
         self.odometry = Odometry()
         self._last_reply: Reply | None = None
-        self.predictor = Predictor()
+        self.predictor = Predictor(velocity_lapse_s=VELOCITY_LAPSE_S)
         self.images = ImageReceiver(lock=self._lock, now=self.now, wall=self.wall, fix=lambda: self.odometry.fix,
                                     record=self.recorder.write, publish=self._publish, note=self.note,
                                     decoder=self._decoder, settings=self._initial_settings)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from ..radio.messages import Mode
+from ..vocabulary import Mode
 from .wire import BITMAP_BITS, FAILSAFE_HOLD, FAILSAFE_S, MAX_BUDGET, MAX_SLOTS, MIN_BUDGET, OP_MODE, OP_NAMES, THUMB_H, THUMB_W
 
 # ---------------------------------------------------------------------------
@@ -261,3 +261,11 @@ class ThumbEnd:
     @classmethod
     def decode(cls, body: bytes) -> ThumbEnd:
         return cls(body[0], bytes(body[1:4]))
+
+
+def thumbnail_object(obj: bytes) -> tuple[int, bytes] | None:
+    """A thumbnail object as it came (§9.3: `[N:2]` then N bytes of its stream, a TRACK
+    record first under FOLLOW): (N, the stream so far), or None before N is in."""
+    if len(obj) < 2:
+        return None
+    return int.from_bytes(obj[:2], "big"), bytes(obj[2:])

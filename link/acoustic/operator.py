@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 from ..radio.auth import mac
-from ..radio.messages import Mode
+from ..vocabulary import Mode
 from .bodies import GoToBody, OrderBody, PollBody, StatusBody, StopBody, SyncBody, ThumbEnd, ThumbRequest, renewed_body
 from .events import (
     InauthenticPacket,

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..radio.auth import mac
-from ..radio.messages import Mode
+from ..vocabulary import Mode
 from .bodies import GoToBody, OrderBody, PollBody, StatusBody, StopBody, SyncBody, ThumbEnd, ThumbRequest, same_body, steady_bytes
 from .events import (
     ArmWanted,

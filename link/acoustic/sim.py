@@ -26,7 +26,7 @@ from typing import Callable
 
 from .. import acoustic as ac
 from ..emulators.m64 import M64Channel, M64Loss, M64Params
-from ..radio.messages import Mode
+from ..vocabulary import Mode
 
 GOTO_SPEED = 0.5  # m/s
 SURFACE_SPEED = 0.25  # m/s up

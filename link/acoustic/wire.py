@@ -3,7 +3,7 @@ ORDER ops, STATUS RESULTs, the timers both ends keep."""
 
 from __future__ import annotations
 
-from ..radio.messages import Mode
+from ..vocabulary import Mode
 
 PACKET_BYTES = 8
 TAG_BYTES = 3

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# The picture events are both profiles' (link/pictures.py): the master hands them on.
+from ..pictures import PILOT_SKIPPED, ImageAbandoned, ImageComplete, ImageProgress  # noqa: F401
 from ..report import VehicleReport
 from .messages import REASON_TEXT, ImageSettings, Mode, Poll, Position, Reason, Reply, Velocity
 
@@ -106,30 +108,6 @@ class StopNotCarriedOut(RadioEvent):
     at: float
 
 
-@dataclass(frozen=True)
-class ImageProgress(RadioEvent):
-    img: int
-    received_bytes: int  # contiguous bytes of the object held
-    total_bytes: int | None  # object size, once its first two bytes are in
-    prefix: bytes  # the DEBT stream prefix held (object without its length)
-
-
-@dataclass(frozen=True)
-class ImageComplete(RadioEvent):
-    img: int
-    data: bytes  # the whole DEBT stream
-    started_at: float
-    at: float
-
-
-@dataclass(frozen=True)
-class ImageAbandoned(RadioEvent):
-    img: int
-    received_bytes: int
-    reason: str
-
-
-PILOT_SKIPPED = "skipped by the pilot"  # ImageAbandoned's reason for Next image (`Master.abandon_image`)
 
 
 @dataclass(frozen=True)

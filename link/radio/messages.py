@@ -45,6 +45,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import ClassVar, Union
 
+from ..vocabulary import REQUESTABLE_MODES, Mode, PictureRequest, TrackState  # noqa: F401 (the radio names them here too)
 from .frame import MAX_PAYLOAD, OVERHEAD
 
 NO_IMAGE_DATA = 8191  # OFFSET that asks for no image data
@@ -88,28 +89,6 @@ class Arm(enum.IntEnum):
     NONE = 0
     ARM = 1
     DISARM = 2
-
-
-class Mode(enum.IntEnum):
-    """Flight modes as the protocol numbers them (requested and reported).
-
-    In a request 0 means "keep"; in a reply 0 means "unknown" and 7 "other".
-    """
-
-    KEEP = 0
-    MANUAL = 1
-    STABILIZE = 2
-    DEPTH_HOLD = 3
-    POS_HOLD = 4
-    GUIDED = 5
-    SURFACE = 6
-    OTHER = 7
-
-    UNKNOWN = 0  # alias of KEEP, for replies
-
-
-# What a VELOCITY's MODE may ask for (KEEP is no request; OTHER only a reply says).
-REQUESTABLE_MODES = (Mode.MANUAL, Mode.STABILIZE, Mode.DEPTH_HOLD, Mode.POS_HOLD, Mode.GUIDED, Mode.SURFACE)
 
 
 class OrderCode(enum.IntEnum):
@@ -244,13 +223,9 @@ class Position:
 
 
 @dataclass(frozen=True)
-class ImageSettings:
-    """One-shot DEBT settings: ROI (x0, y0, x1, y1) or None, SHIFT, MONO, BUDGET."""
-
-    roi: tuple[int, int, int, int] | None = None
-    shift: int = 0
-    mono: bool = False
-    budget_bytes: int = 2000
+class ImageSettings(PictureRequest):
+    """The IMAGE order: a picture request (link/vocabulary.py) as the radio carries it,
+    one-shot DEBT settings: ROI (x0, y0, x1, y1) or None, SHIFT, MONO, BUDGET."""
 
     code: ClassVar[int] = OrderCode.IMAGE
     one_shot: ClassVar[bool] = True
@@ -344,15 +319,6 @@ class FollowSettings(ImageSettings):
                        keep=bool(body[8] & 0x80), drawn_on=body[8] & 0x07)
         except ProtocolError as exc:  # no ROI
             return InvalidOrder(cls.code, bytes(body), str(exc))
-
-
-class TrackState(enum.IntEnum):
-    """STATE of a picture's TRACK record (§10)."""
-
-    HOLDS = 0  # the ROI is where the object is in this picture
-    LOST = 1  # not found in this picture; the ROV still looks for it
-    DROPPED = 2  # the ROV no longer looks for it
-    UNKNOWN = 3  # reserved: shown as unknown
 
 
 TRACK_MAGIC = 0b0110  # a stream's first four bits: a TRACK record, not a DEBT header (1010)
