@@ -48,6 +48,7 @@ from .wire import (
     MAX_COMBINATIONS,
     MAX_OBJECT,
     MAX_SLOTS,
+    NEVER_TAKEN,
     R_TAKEN,
     RESULT_STATE,
     SAME_REACH,
@@ -393,7 +394,7 @@ class AcousticOperator(_End):
             if st.result != self._watch[oid]:
                 state, reason = RESULT_STATE.get(st.result, ("unknown", ""))
                 events.append(OrderFate(oid, state, reason))
-                if state in ("rejected", "cancelled") and self.thumb is not None and self.thumb.oid == oid:
+                if st.result in NEVER_TAKEN and self.thumb is not None and self.thumb.oid == oid:
                     self.thumb = None
             self._watch[oid] = st.result
             if st.result != R_TAKEN:

@@ -47,6 +47,9 @@ RESULT_STATE = {
     R_ABORTED: ("aborted", "aborted"),
 }
 
+# The results that say the ROV never took the order (its fate: rejected or cancelled).
+NEVER_TAKEN = (R_INVALID, R_IMPOSSIBLE, R_REFUSED, R_CANCELLED)
+
 FAILSAFE_HOLD, FAILSAFE_SURFACE = 0, 1
 FAILSAFE_S = 60
 HELLO_EVERY_S = 8.0  # the operator's re-HELLO while no SYNC comes
