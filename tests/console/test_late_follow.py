@@ -24,6 +24,14 @@ M = mavutil.mavlink
 K = bytes(range(32))
 
 
+def _shots(tmp_path):
+    """Where the screenshots go: ROVLINK_SHOTS, to look at them, else the test's own folder."""
+    import os
+    from pathlib import Path
+
+    return Path(os.environ.get("ROVLINK_SHOTS", str(tmp_path)))
+
+
 def _order(operator, order_id: int) -> dict:
     return next(o for o in operator.orders_state() if o["id"] == order_id)
 
@@ -108,3 +116,37 @@ def test_an_acoustic_arm_followed_late_is_taken_then_followed_never_rejected():
         assert Fate.ACKNOWLEDGED in fates, fates  # the ROV said it took it, before it was done
     finally:
         session.close()
+
+
+@pytest.mark.browser
+def test_the_page_shows_an_arm_the_vehicle_follows_late_waiting_then_armed(browser, tmp_path):
+    """Beside Arm, at 1366x768: "arming…" with its age, "not yet" once the link stops
+    repeating it, then "armed ✓" when the vehicle reports it armed, 12 s on; never refused,
+    and no pop-up of an error."""
+    with running_console(arm_delay_s=12.0) as live:
+        context = browser.new_context(viewport={"width": 1366, "height": 768})
+        errors: list[str] = []
+        try:
+            page = context.new_page()
+            page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
+            page.goto(live.url)
+            page.wait_for_function("document.body.dataset.clientId !== undefined")
+            page.click("#take")
+            page.wait_for_function("document.getElementById('control-text').textContent.includes('You have control')")
+            page.click("#arm")
+            page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'waiting'", timeout=20000)
+            waiting = page.text_content("#arm-fate")
+            assert waiting.startswith("arming… (not yet, ") and waiting.endswith(" s)"), waiting
+            assert "pending" in page.get_attribute("#arm-fate", "class")
+            assert page.is_visible("#arm-fate")
+            page.screenshot(path=str(_shots(tmp_path) / "arm-waiting.png"))
+            page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=30000)
+            assert page.text_content("#arm-fate").startswith("armed ✓ "), page.text_content("#arm-fate")
+            assert page.text_content("#armed") == "ARMED"
+            shown = page.evaluate("Array.from(document.querySelectorAll('#orders li')).map(li => li.textContent)")
+            arm_lines = [line for line in shown if " ARM" in line]
+            assert arm_lines and "followed: " in arm_lines[0] and "after it was asked" in arm_lines[0], shown
+            assert page.is_hidden("#error"), page.text_content("#error")  # nothing refused was popped up
+        finally:
+            context.close()
+        assert not errors, errors
