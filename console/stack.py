@@ -26,6 +26,7 @@ from rovlink.link.transports.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera
 from rovlink.rov.node import RovNode
+from rovlink.rov.seabed import Seabed
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import VehicleState
 
@@ -53,6 +54,8 @@ class StackConfig:
     # The ROV's tracker for FOLLOW (docs/PROTOCOL.md §10, rov/follow.py): None, the
     # ROV refuses FOLLOW (and runs no camera thread: the tests' default).
     tracker: str | None = None
+    # The simulated seabed's PNG (its JSON beside it); None: the committed one.
+    seabed: str | None = None
 
 
 class VehicleSide:
@@ -77,9 +80,11 @@ class VehicleSide:
 
     async def start(self) -> None:
         c = self.config
-        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m)).start()
+        seabed = Seabed.from_png(c.seabed) if c.seabed else Seabed.load()
+        self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m),
+                                    floor_depth_m=seabed.depth_m).start()
         self.bridge = AutopilotBridge(self.sim.bridge_url).start()
-        self.camera = open_camera(c.camera)
+        self.camera = open_camera(c.camera, seabed=seabed)
         chan_b, rov_end = inproc_pair("rov")
         self._endpoints = [self.console_end, chan_b, rov_end]
         for ep in self._endpoints:

@@ -35,6 +35,7 @@ BENCH = "bench"
 COMMANDS = {
     "rov": "rovlink.rov.cli",
     "sim": "rovlink.rov.cli",
+    "seabed": "rovlink.rov.cli",
     "channel": "rovlink.link.cli",
     "keygen": "rovlink.link.cli",
     "debt": "rovlink.debt.cli",
