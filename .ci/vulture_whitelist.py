@@ -122,3 +122,5 @@ _.next_report_in_s  # response model fields (console/session/state.py), read by 
 link_process_pid  # a field of LinkState (console/session/state.py): which process owns the link port, for a script or a test
 link_process  # a field of LinkState (console/session/state.py): the page reads it
 link_process_reason  # a field of LinkState (console/session/state.py): the page reads it
+record_bytes  # §11's object events (link/radio/events.py, link/acoustic/events.py): the console shows bytes per object
+record_hex  # §11's events of a record out of range: the console's log line shows it

@@ -161,6 +161,9 @@ class RovNode:
         # What the link drives: the slave itself (version 1.1), or, with a key,
         # version 2 in front of it (docs/PROTOCOL.md §8).
         self.link_end = self.slave if key is None else SecureSlave(self.slave, key)
+        # What the ROV tells of its scene (docs/PROTOCOL.md §11): the altitude, and the objects
+        # its detector puts; None on version 1.1, whose replies have no annex.
+        self.scene = None if key is None else self.link_end.scene
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-encoder")
         # DEBT's coder compiles on first use (tens of seconds when its cache
         # is cold): do it now, while the link comes up, not at the first image,
@@ -242,6 +245,8 @@ class RovNode:
                 attitude_valid=snap.attitude_valid,
             )
         )
+        if self.scene is not None:  # §11.1: told in the replies' annex (version 2 only)
+            self.scene.altitude_m = snap.altitude_m
 
     # ------------------------------------------------------------------
     # Slave events -> bridge

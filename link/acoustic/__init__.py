@@ -82,6 +82,10 @@ from .events import (
     ModeWanted,
     OrderFate,
     Resyncing,
+    SceneAltitude,
+    SceneObjectRemoved,
+    SceneObjectReported,
+    SceneRecordIgnored,
     SessionStarted,
     SessionSynced,
     StatusReceived,
@@ -102,6 +106,7 @@ from .wire import (
     BITMAP_BITS,
     BRAKE_SHOWN_S,
     DOWN_PACKETS,
+    DOWN_SCENE,
     DOWN_STATUS,
     DOWN_STATUS_SAME,
     DOWN_THUMB_END,
@@ -144,7 +149,8 @@ from .wire import (
 
 __all__ = [
     "AcousticEvent", "AcousticOperator", "AcousticRov", "ArmWanted", "BITMAP_BITS", "BRAKE_SHOWN_S", "DOWN_PACKETS",
-    "DOWN_STATUS", "DOWN_STATUS_SAME", "DOWN_THUMB_END", "DisarmWanted", "FAILSAFE_HOLD", "FAILSAFE_S",
+    "DOWN_SCENE", "DOWN_STATUS", "DOWN_STATUS_SAME", "SceneAltitude", "SceneObjectRemoved", "SceneObjectReported",
+    "SceneRecordIgnored", "DOWN_THUMB_END", "DisarmWanted", "FAILSAFE_HOLD", "FAILSAFE_S",
     "FAILSAFE_SURFACE", "FailsafeEnded", "FailsafeStarted", "GoToBody", "GoToWanted", "HoldWanted",
     "InauthenticPacket", "LABEL_DOWN", "LABEL_UP", "LONG_BODY", "MAX_BUDGET", "MAX_OBJECT", "MAX_SLOTS",
     "MIN_BUDGET", "ModeWanted", "OP_ARM", "OP_DISARM", "OP_HOLD", "OP_MODE", "OP_SURFACE", "OrderBody", "OrderFate",
