@@ -101,6 +101,9 @@ def _add_rov(subparsers) -> None:
     p.add_argument("--camera-hz", type=positive, default=None, metavar="HZ",
                    help="camera frames a second the tracker follows (default 10; acoustic: 5)")
     p.add_argument("--seabed", metavar="PNG", help=SEABED_HELP + "; with --camera sim and no --mavlink")
+    p.add_argument("--no-objects", action="store_true",
+                   help="recognise no objects on the seabed (default: 2 looks a second, OpenCV from the "
+                        "'tracking' extra; told to the operator as docs/PROTOCOL.md §11 records, link version 2)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     add_key_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
@@ -169,6 +172,12 @@ def run_rov(args) -> int:
             sim.stop()
         raise CommandError(f"--mavlink: {exc}") from None
 
+    geometry = None
+    if not args.no_objects:
+        from rovlink.rov.objects import CameraGeometry
+
+        geometry = CameraGeometry.of(camera)
+
     async def main() -> None:
         try:
             await endpoint.start()
@@ -179,13 +188,14 @@ def run_rov(args) -> int:
 
             follower, follow = _follower(args, camera)
             node = AcousticNode(endpoint, bridge, camera.capture, key, failsafe_s=failsafe,
-                                failsafe_action=args.failsafe_action, follower=follower, camera_hz=args.camera_hz)
+                                failsafe_action=args.failsafe_action, follower=follower, camera_hz=args.camera_hz,
+                                objects=geometry)
             version = ("acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: "
                        + ("hold position" if args.failsafe_action == "hold" else "surface") + f"; {follow}")
         else:
             follower, follow = _follower(args, camera)
             node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key,
-                           follower=follower, camera_hz=args.camera_hz)
+                           follower=follower, camera_hz=args.camera_hz, objects=geometry)
             version = ("link version 2, every frame authenticated" if key is not None else
                        "INSECURE: link version 1.1, frames not authenticated") + f"; {follow}"
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
