@@ -53,6 +53,7 @@ BENCHMARKS = {
     "debt": "rovlink.debt.bench",
     "camera": "rovlink.rov.camerabench",
     "roi": "rovlink.rov.roibench",
+    "objects": "rovlink.rov.objectbench",
 }
 
 
