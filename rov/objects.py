@@ -21,9 +21,10 @@ Plan
 - Class from the measured shape (fill of its rectangle, length, slenderness): a frame that
   fills little of its rectangle is a ladder; long and slender, a pipe; short and stout, an
   amphora; the rest box-like timber; nothing fits: unknown.
-- `ObjectMap.add(detections, now)`: a detection within reach of a mapped object's centre (and
-  along its axis for long ones) is a sighting of it: the map keeps a running median of its
-  measurements.  An object becomes NEW after MIN_SIGHTINGS sightings; CHANGED when its centre
+- `ObjectMap.add(detections, now)`: a detection within reach of a mapped object's centre (half
+  its length, at least 0.5 m) is a sighting of it: the map keeps a median of its last 15
+  measurements.  Two objects that come within that reach of each other are one: the one seen
+  more keeps its id, the other is told REMOVED.  An object becomes NEW after MIN_SIGHTINGS sightings; CHANGED when its centre
   moved 10 cm, its size 5 %, its heading 3 degrees or its class or confidence changed; a
   candidate seen once and not again within 5 s is forgotten (never told).
 
@@ -54,9 +55,10 @@ DETECT_HZ = 2.0
 MIN_AREA_PX = 50  # an object's own pixels: fewer, a pebble, or too far to measure
 MIN_LENGTH_M = 0.5
 GROUP_PX = 13  # pieces this close are one object
+PIPE_MIN_M = 2.8
 EDGE_MARGIN_PX = 2
 MAX_RANGE_M = 9.0  # beyond, a pixel covers more than ~5 cm: no measurement
-MIN_SIGHTINGS = 2
+MIN_SIGHTINGS = 3
 FORGET_CANDIDATE_S = 5.0
 CHROMA_T, BRIGHT_T, DARK_T = 0.08, 0.10, -0.15
 
@@ -113,11 +115,13 @@ def _classify(length: float, width: float, fill: float) -> tuple[str, float]:
     slender = length / max(width, 1e-3)
     if fill < 0.5 and width >= 0.3 and 1.2 <= length <= 3.5:
         return "ladder", min(1.0, 0.6 + (0.5 - fill))
-    if length > 2.9 and slender >= 7:
+    # Lengths part pipes from timber midway between the vocabulary's sizes (rov/seabed.py:
+    # timber up to 2.6 m, pipes from 3 m).
+    if length > PIPE_MIN_M and slender >= 7:
         return "pipe", min(1.0, 0.6 + (slender - 7) / 20)
     if length <= 1.15 and width <= 0.5:
         return "amphora", 0.85 if slender < 4.5 else 0.6
-    if 1.15 < length <= 2.9 and slender >= 2.5:
+    if 1.15 < length <= PIPE_MIN_M and slender >= 2.5:
         return "timber", 0.75
     return "unknown", 0.4
 
@@ -260,6 +264,7 @@ class ObjectMap:
             obj.sightings.append(d)
             obj.last_s = now
         self._forget_candidates(now)
+        self._merge()
         self._tell()
 
     def _take_id(self) -> int:
@@ -278,6 +283,26 @@ class ObjectMap:
                 del self.objects[obj.object_id]
                 if obj.told is not None and self.outbox is not None:
                     self.outbox.put(ObjectRecord(OP_REMOVED, obj.object_id))
+
+    def _merge(self) -> None:
+        """Two mapped objects that turned out to be one (a long one first seen in parts, far
+        away): the one with more sightings keeps its id, the other is removed (told REMOVED)."""
+        objs = sorted(self.objects.values(), key=lambda o: -len(o.sightings))
+        for i, keep in enumerate(objs):
+            if keep.object_id not in self.objects:
+                continue
+            k = keep.estimate()
+            for other in objs[i + 1:]:
+                if other.object_id not in self.objects:
+                    continue
+                o = other.estimate()
+                reach = max(0.5, 0.5 * max(k.length_m, o.length_m))
+                if math.hypot(k.north_m - o.north_m, k.east_m - o.east_m) < reach:
+                    keep.sightings.extend(other.sightings)
+                    keep.last_s = max(keep.last_s, other.last_s)
+                    del self.objects[other.object_id]
+                    if other.told is not None and self.outbox is not None:
+                        self.outbox.put(ObjectRecord(OP_REMOVED, other.object_id))
 
     def _tell(self) -> None:
         for obj in self.objects.values():
