@@ -54,11 +54,11 @@ def run(args) -> int:
 
     from .serve import check_ports, default_record_path, serve_operator
 
-    check_ports(args)  # before any banner, recording or link
     if args.seabed:
         from rovlink.rov.cli import load_seabed
 
         load_seabed(args.seabed)  # a bad PNG or JSON: one line, before anything starts
+    check_ports(args)  # before any banner, recording or link
     # Both ends run here: a throwaway key for this session (docs/PROTOCOL.md §8).
     key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,

@@ -66,8 +66,11 @@ def _edit(path, change) -> None:
     path.write_text(json.dumps(meta))
 
 
-@pytest.mark.parametrize("command", [["sim"], ["rov", "--link", "udp://127.0.0.1:9?peer=127.0.0.1:9", "--insecure"]])
-def test_rov_and_sim_say_a_malformed_seabed_in_one_line_with_status_2(tmp_path, capsys, command):
+@pytest.mark.parametrize("command", [["sim"], ["rov", "--link", "udp://127.0.0.1:9?peer=127.0.0.1:9", "--insecure"],
+                                     ["demo"]])
+def test_rov_sim_and_demo_say_a_malformed_seabed_in_one_line_with_status_2(tmp_path, capsys, command):
+    if command == ["demo"]:
+        pytest.importorskip("fastapi")  # the console extra
     png = tmp_path / "scene.png"
     save(generate(size=64, seed=3), png)
     (tmp_path / "scene.json").write_text("[1, 2")
