@@ -124,3 +124,5 @@ link_process  # a field of LinkState (console/session/state.py): the page reads 
 link_process_reason  # a field of LinkState (console/session/state.py): the page reads it
 reports_lost  # a field of LinkState (console/session/state.py): the page and the scene's panel read it
 bad_frames  # a field of LinkState (console/session/state.py): the page and the scene's panel read it
+record_bytes  # §11's object events (link/radio/events.py, link/acoustic/events.py): the console shows bytes per object
+record_hex  # §11's events of a record out of range: the console's log line shows it

@@ -67,7 +67,7 @@ from pymavlink.dialects.v20 import ardupilotmega
 
 from rovlink.console.control import Arm, Caller, Drive, GoTo, SetMode, Stop
 from rovlink.console.session.fates import Fate, words
-from rovlink.link.radio.messages import Mode
+from rovlink.link.vocabulary import Mode
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SUB_TO_PROTOCOL, mode_name
 from rovlink.rov.mavurl import bound_port, open_mavlink, parse_mavlink_url
 

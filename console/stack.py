@@ -26,6 +26,7 @@ from rovlink.link.transports.transport import Endpoint, inproc_pair
 from rovlink.rov.autopilot import AutopilotBridge
 from rovlink.rov.camera import open_camera
 from rovlink.rov.node import RovNode
+from rovlink.rov.seabed import Seabed
 from rovlink.rov.simulator import SimulatedVehicle
 from rovlink.rov.vehicle import VehicleState
 
@@ -56,6 +57,8 @@ class StackConfig:
     # The simulated vehicle arms this long after it is asked (ARM answered IN_PROGRESS
     # meanwhile), as a vehicle finishing its checks does: 0, at once, as ArduSub.
     arm_delay_s: float = 0.0
+    # The simulated seabed's PNG (its JSON beside it); None: the committed one.
+    seabed: str | None = None
 
 
 class VehicleSide:
@@ -80,10 +83,11 @@ class VehicleSide:
 
     async def start(self) -> None:
         c = self.config
+        seabed = Seabed.from_png(c.seabed) if c.seabed else Seabed.load()
         self.sim = SimulatedVehicle("udpin:127.0.0.1:0", initial_state=VehicleState(z_m=c.start_depth_m),
-                                    arm_delay_s=c.arm_delay_s).start()
+                                    floor_depth_m=seabed.depth_m, arm_delay_s=c.arm_delay_s).start()
         self.bridge = AutopilotBridge(self.sim.bridge_url).start()
-        self.camera = open_camera(c.camera)
+        self.camera = open_camera(c.camera, seabed=seabed)
         chan_b, rov_end = inproc_pair("rov")
         self._endpoints = [self.console_end, chan_b, rov_end]
         for ep in self._endpoints:

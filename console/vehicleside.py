@@ -46,6 +46,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--ber", type=float, default=7e-6)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--camera", default="sim")
+    p.add_argument("--seabed", default=None)
     p.add_argument("--failsafe", type=float, default=3.0)
     p.add_argument("--start-depth", type=float, default=2.0)
     p.add_argument("--channel-log", default=None)
@@ -78,7 +79,7 @@ async def _run(args: argparse.Namespace, key: bytes | None) -> None:
     except TransportError as exc:
         raise SystemExit(f"vehicle side: {exc}") from None
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
-                         failsafe_s=args.failsafe, camera=args.camera, channel_log=args.channel_log,
+                         failsafe_s=args.failsafe, camera=args.camera, seabed=args.seabed, channel_log=args.channel_log,
                          start_depth_m=args.start_depth, key=key, tracker="klt")
     vehicle = VehicleSide(config, endpoint)
     try:

@@ -39,6 +39,14 @@ class VehicleReport:
     going: bool | None = None  # a go-to in progress (the acoustic STATUS says it; a radio reply does not)
     battery_v: float | None = None  # acoustic STATUS only
     tilt_valid: bool = True  # roll and pitch measured (an acoustic STATUS carries a heading only)
+    # Above the seabed (docs/PROTOCOL.md §11): the last ALT the link told (a radio reply's annex,
+    # an acoustic SCENE), None: unknown (no rangefinder, beyond 37 m, nothing told yet).
+    altitude_m: float | None = None
+
+    @property
+    def seabed_depth_m(self) -> float | None:
+        """Where the seabed lies (NED z, down): the depth plus the altitude; None with no altitude."""
+        return None if self.altitude_m is None else self.z_m + self.altitude_m
 
     def pose(self) -> tuple[float, float, float, float, float, float]:
         return (self.x_m, self.y_m, self.z_m, self.roll_deg, self.pitch_deg, self.yaw_deg)
@@ -49,7 +57,8 @@ def air_time_s(frame_bytes: int, bitrate_bps: float) -> float:
 
 
 def report_from_reply(reply: Reply, *, arrived_at: float, frame_bytes: int | None, bitrate_bps: float,
-                      delay_s: float, round_trip_s: float | None = None) -> VehicleReport:
+                      delay_s: float, round_trip_s: float | None = None,
+                      altitude_m: float | None = None) -> VehicleReport:
     """A radio reply (§5) in SI.  The ROV samples its odometry when the poll
     arrives and answers at once, so the pose is as old as the reply's own air
     time plus the intrinsic delay.  `frame_bytes`: the frame that arrived (a
@@ -58,7 +67,8 @@ def report_from_reply(reply: Reply, *, arrived_at: float, frame_bytes: int | Non
     earlier than that (a link faster than its stated bitrate and delay, such as
     loopback UDP with no emulator, would otherwise date a long reply hundreds
     of milliseconds before its own poll, and a short one not: the speeds
-    differenced from such dates were wrong)."""
+    differenced from such dates were wrong).  `altitude_m`: the last ALT the replies' annex
+    told (`AltitudeReported`, §11.1; a reply without ALT leaves it as it was)."""
     if frame_bytes is None:
         frame_bytes = len(reply.encode()) + OVERHEAD
     sampled = arrived_at - air_time_s(frame_bytes, bitrate_bps) - delay_s
@@ -69,10 +79,11 @@ def report_from_reply(reply: Reply, *, arrived_at: float, frame_bytes: int | Non
         roll_deg=reply.roll_cdeg / 100, pitch_deg=reply.pitch_cdeg / 100, yaw_deg=reply.yaw_cdeg / 100,
         armed=reply.armed, mode=int(reply.mode), failsafe=reply.failsafe, hold=reply.hold,
         autopilot=reply.autopilot, position_valid=reply.position_valid, attitude_valid=reply.attitude_valid,
-        sampled_at=sampled, arrived_at=arrived_at)
+        sampled_at=sampled, arrived_at=arrived_at, altitude_m=altitude_m)
 
 
-def report_from_status(status, *, sampled_at: float, arrived_at: float) -> VehicleReport:
+def report_from_status(status, *, sampled_at: float, arrived_at: float,
+                       altitude_m: float | None = None) -> VehicleReport:
     """An acoustic STATUS (§9.4, `link.acoustic.Status`) in SI: decimetres,
     a heading of 0..359.99 degrees (as a yaw of -180..180), no roll or pitch
     (the STATUS carries none: reported 0 with `tilt_valid` False; its
@@ -86,4 +97,4 @@ def report_from_status(status, *, sampled_at: float, arrived_at: float) -> Vehic
         failsafe=status.failsafe, hold=status.hold, autopilot=status.autopilot,
         position_valid=status.position_valid, attitude_valid=status.attitude_valid, sampled_at=sampled_at,
         arrived_at=arrived_at, going=status.going, battery_v=status.battery_dv / 10 if status.battery_dv else None,
-        tilt_valid=False)
+        tilt_valid=False, altitude_m=altitude_m)

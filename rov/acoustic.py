@@ -94,8 +94,11 @@ def _scaled(roi, factor: float) -> tuple[int, int, int, int] | None:
 class AcousticNode:
     def __init__(self, endpoint: Endpoint, bridge, grab, key: bytes, *, failsafe_s: float = 60.0,
                  failsafe_action: str = "hold", encode=None, pace_s: float = 1.0, follower=None,
-                 camera_hz: float = CAMERA_HZ, history_s: float = FOLLOW_HISTORY_S) -> None:
+                 camera_hz: float = CAMERA_HZ, history_s: float = FOLLOW_HISTORY_S, objects=None) -> None:
         self.endpoint = endpoint
+        # rov/objects.py's geometry: objects recognised in a thread of their own, told in SCENE frames.
+        self._objects_geometry = objects
+        self.objects = None
         self.bridge = bridge
         self.grab = grab
         self.pace_s = pace_s
@@ -132,11 +135,14 @@ class AcousticNode:
                             on_events=self._on_events, before_tick=lambda now: self._before_tick())
         if self.camera is not None:
             self.camera.start()
+        self._start_objects(self.machine.scene)
         try:
             await pump.run()
         finally:
             if self.camera is not None:
                 self.camera.close()
+            if self.objects is not None:
+                self.objects.stop()
             self._worker.shutdown(wait=False, cancel_futures=True)
 
     def _before_tick(self) -> None:
@@ -152,6 +158,7 @@ class AcousticNode:
             armed=s.armed, mode=s.mode, autopilot=s.autopilot_alive, position_valid=s.position_valid,
             attitude_valid=s.attitude_valid, battery_v=s.battery_v or 0.0,
             going=self._goto is not None))
+        self.machine.scene.altitude_m = s.altitude_m  # told in SCENE frames (docs/PROTOCOL.md §11.2)
 
     def _check_tickets(self) -> None:
         if self._goto is not None:
@@ -290,3 +297,14 @@ class AcousticNode:
         log.info("%s", text)
         self.log.append(text)
         del self.log[:-200]
+
+    def _start_objects(self, outbox) -> None:
+        if self._objects_geometry is None or outbox is None:
+            return
+        from rovlink.rov.objects import ObjectWatcher
+
+        def grab():
+            snap = self.bridge.snapshot()
+            return self.grab(snap), snap, snap.altitude_m
+
+        self.objects = ObjectWatcher(grab, outbox, geometry=self._objects_geometry).start()  # a failure: one warning

@@ -369,6 +369,15 @@ class AutopilotBridge:
             with self._lock:
                 self._telemetry.on_position(float(msg.x), float(msg.y), float(msg.z),
                                             float(msg.vx), float(msg.vy), float(msg.vz), now)
+        elif kind == "RANGEFINDER":  # ArduPilot's own: metres, the first downward rangefinder
+            with self._lock:
+                self._telemetry.on_range(float(msg.distance), now)
+        elif kind == "DISTANCE_SENSOR":
+            if msg.orientation == mavlink.MAV_SENSOR_ROTATION_PITCH_270:  # facing down; others are not altitude
+                cm = int(msg.current_distance)
+                valid = msg.min_distance <= cm <= msg.max_distance
+                with self._lock:
+                    self._telemetry.on_range(cm / 100.0 if valid else math.nan, now)
         elif kind == "SYS_STATUS":
             volts = None if msg.voltage_battery in (0, 0xFFFF) else msg.voltage_battery / 1000.0
             with self._lock:

@@ -384,12 +384,13 @@ class OpenCVCamera:
         self._capture.release()
 
 
-def open_camera(spec: str = "sim", width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1]) -> CameraSource:
+def open_camera(spec: str = "sim", width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1],
+                seabed: Seabed | None = None) -> CameraSource:
     """A camera source from a short spec: "sim", "folder:PATH" (or a directory),
-    "opencv:INDEX_OR_URL"."""
+    "opencv:INDEX_OR_URL".  `seabed`: what "sim" sees (default: the committed one)."""
     spec = (spec or "sim").strip()
     if spec == "sim":
-        return SimulatedCamera(width, height)
+        return SimulatedCamera(width, height, seabed=seabed)
     if spec.startswith("folder:"):
         return FolderCamera(spec[len("folder:"):], width, height)
     if spec.startswith("opencv:"):

@@ -46,6 +46,24 @@ def handle_stop_signals() -> None:
 def add_parser(subparsers) -> None:
     _add_rov(subparsers)
     _add_sim(subparsers)
+    _add_seabed(subparsers)
+
+
+SEABED_HELP = ("the simulated seabed: a PNG with its JSON of objects (the truth) beside it, as "
+               "'rovlink seabed' writes them (default: the committed assets/seabed.png)")
+
+
+def load_seabed(path):
+    """--seabed PATH as a Seabed (None: the committed one); a bad PNG or JSON is one line, exit 2."""
+    from rovlink.command import UsageError
+    from rovlink.rov.seabed import Seabed, SeabedError
+
+    if path is None:
+        return Seabed.load()
+    try:
+        return Seabed.from_png(path)
+    except SeabedError as exc:
+        raise UsageError(f"--seabed: {exc}") from None
 
 
 def _add_rov(subparsers) -> None:
@@ -82,6 +100,10 @@ def _add_rov(subparsers) -> None:
                         "needs the 'tracking' extra); none: FOLLOW is refused (default klt)")
     p.add_argument("--camera-hz", type=positive, default=None, metavar="HZ",
                    help="camera frames a second the tracker follows (default 10; acoustic: 5)")
+    p.add_argument("--seabed", metavar="PNG", help=SEABED_HELP + "; with --camera sim and no --mavlink")
+    p.add_argument("--no-objects", action="store_true",
+                   help="recognise no objects on the seabed (default: 2 looks a second, OpenCV from the "
+                        "'tracking' extra; told to the operator as docs/PROTOCOL.md §11 records, link version 2)")
     p.add_argument("--duration", type=positive, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     add_key_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log every order and failsafe")
@@ -130,8 +152,9 @@ def run_rov(args) -> int:
     failsafe = args.failsafe if args.failsafe is not None else (60.0 if acoustic else 3.0)
     if args.camera_hz is None:
         args.camera_hz = 5.0 if acoustic else 10.0
+    seabed = load_seabed(args.seabed)
     try:
-        camera = open_camera(args.camera)
+        camera = open_camera(args.camera, seabed=seabed)
     except (CameraError, ValueError) as exc:
         raise CommandError(f"--camera: {exc}") from None
 
@@ -140,7 +163,7 @@ def run_rov(args) -> int:
     if mavlink is None:
         from rovlink.rov.simulator import SimulatedVehicle
 
-        sim = SimulatedVehicle("udpin:127.0.0.1:0").start()
+        sim = SimulatedVehicle("udpin:127.0.0.1:0", floor_depth_m=seabed.depth_m).start()
         mavlink = sim.bridge_url
     try:
         bridge = AutopilotBridge(mavlink, gcs_system_id=args.system_id)
@@ -148,6 +171,12 @@ def run_rov(args) -> int:
         if sim:
             sim.stop()
         raise CommandError(f"--mavlink: {exc}") from None
+
+    geometry = None
+    if not args.no_objects:
+        from rovlink.rov.objects import CameraGeometry
+
+        geometry = CameraGeometry.of(camera)
 
     async def main() -> None:
         try:
@@ -159,13 +188,14 @@ def run_rov(args) -> int:
 
             follower, follow = _follower(args, camera)
             node = AcousticNode(endpoint, bridge, camera.capture, key, failsafe_s=failsafe,
-                                failsafe_action=args.failsafe_action, follower=follower, camera_hz=args.camera_hz)
+                                failsafe_action=args.failsafe_action, follower=follower, camera_hz=args.camera_hz,
+                                objects=geometry)
             version = ("acoustic profile (docs/PROTOCOL.md §9), every packet authenticated; failsafe: "
                        + ("hold position" if args.failsafe_action == "hold" else "surface") + f"; {follow}")
         else:
             follower, follow = _follower(args, camera)
             node = RovNode(endpoint, bridge, camera.capture, failsafe_s=failsafe, default_settings=settings, key=key,
-                           follower=follower, camera_hz=args.camera_hz)
+                           follower=follower, camera_hz=args.camera_hz, objects=geometry)
             version = ("link version 2, every frame authenticated" if key is not None else
                        "INSECURE: link version 1.1, frames not authenticated") + f"; {follow}"
         print(f"rov: link {args.link}, autopilot {args.mavlink or 'simulated (' + mavlink + ')'}, "
@@ -249,6 +279,7 @@ def _add_sim(subparsers) -> None:
     p.add_argument("--system-id", type=int, default=1, metavar="N", help="the vehicle's MAVLink system id (default 1)")
     p.add_argument("--depth", type=float, default=None, metavar="M",
                    help="starting depth in metres (default: 2 m above the simulated seabed)")
+    p.add_argument("--seabed", metavar="PNG", help=SEABED_HELP + "; its depth is the vehicle's floor")
     p.add_argument("--no-position", action="store_true",
                    help="no position estimate (no DVL/GPS): GUIDED and POSHOLD are refused, no LOCAL_POSITION_NED")
     p.add_argument("--position-after", type=float, default=0.0, metavar="S",
@@ -268,8 +299,7 @@ def run_sim(args) -> int:
     import time
 
     from rovlink.rov.mavurl import parse_mavlink_url
-    from rovlink.rov.seabed import SEABED_DEPTH_M
-    from rovlink.rov.simulator import START_STATE, SimulatedVehicle
+    from rovlink.rov.simulator import SimulatedVehicle
     from rovlink.rov.vehicle import SubMode, VehicleState
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -286,16 +316,18 @@ def run_sim(args) -> int:
         raise CommandError("--position-after must be 0 or more seconds")
     if args.pilot_timeout <= 0 or not math.isfinite(args.pilot_timeout):
         raise CommandError("--pilot-timeout must be a positive number of seconds")
-    state = START_STATE
+    seabed = load_seabed(args.seabed)
+    state = VehicleState(z_m=max(0.0, seabed.depth_m - 2.0))
     if args.depth is not None:
-        if not 0.0 <= args.depth < SEABED_DEPTH_M:
-            raise CommandError(f"--depth must be within 0..{SEABED_DEPTH_M:g} m (the seabed)")
+        if not 0.0 <= args.depth < seabed.depth_m:
+            raise CommandError(f"--depth must be within 0..{seabed.depth_m:g} m (the seabed)")
         state = VehicleState(z_m=args.depth)
 
     sim = SimulatedVehicle(
         args.mavlink,
         system_id=args.system_id,
         initial_state=state,
+        floor_depth_m=seabed.depth_m,
         has_position=not args.no_position,
         position_after_s=args.position_after,
         pilot_timeout_s=args.pilot_timeout,
@@ -323,3 +355,33 @@ def run_sim(args) -> int:
                 time.sleep(3600)
     finally:  # only Ctrl-C (KeyboardInterrupt, which the dispatcher reports) ends the loop above
         sim.stop()
+
+
+def _add_seabed(subparsers) -> None:
+    p = subparsers.add_parser(
+        "seabed",
+        help="generate a simulated seabed from a seed: a PNG and its JSON of objects (the truth)",
+        description=("Generate a seabed for the simulator: a PNG texture and, beside it, a JSON listing "
+                     "its objects (class, centre north/east, length, width, heading of the long axis). "
+                     "Any seed but the default lays isolated objects at random. Use it with "
+                     "'rovlink rov/sim/demo --seabed PNG'."),
+    )
+    p.add_argument("--seed", type=int, required=True, metavar="N", help="the layout's seed")
+    p.add_argument("--out", required=True, metavar="PNG", help="where to write the PNG (its JSON goes beside it)")
+    p.set_defaults(func=run_seabed)
+
+
+def run_seabed(args) -> int:
+    from pathlib import Path
+
+    from rovlink.rov.seabed import generate, save
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        raise CommandError("--out must name a .png file (its .json goes beside it)")
+    if not out.parent.is_dir():
+        raise CommandError(f"--out: no such folder {out.parent}")
+    seabed = generate(seed=args.seed)
+    meta = save(seabed, out)
+    print(f"wrote {out} and {meta}: {len(seabed.objects)} objects (seed {args.seed})")
+    return 0

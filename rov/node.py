@@ -137,10 +137,15 @@ class RovNode:
         follower=None,
         camera_hz: float = 10.0,
         history_s: float = 15.0,
+        objects=None,
     ) -> None:
         self.endpoint = endpoint
         self.bridge = bridge
         self.grab = grab
+        # rov/objects.py's geometry (a CameraGeometry): objects recognised in a thread of their own
+        # and told in the replies' annex (§11.1); None: none (nor on version 1.1).
+        self._objects_geometry = objects
+        self.objects = None
         self.prefetch = prefetch
         self.prefetch_max_age_s = prefetch_max_age_s
         self.stats = NodeStats()
@@ -161,6 +166,9 @@ class RovNode:
         # What the link drives: the slave itself (version 1.1), or, with a key,
         # version 2 in front of it (docs/PROTOCOL.md §8).
         self.link_end = self.slave if key is None else SecureSlave(self.slave, key)
+        # What the ROV tells of its scene (docs/PROTOCOL.md §11): the altitude, and the objects
+        # its detector puts; None on version 1.1, whose replies have no annex.
+        self.scene = None if key is None else self.link_end.scene
         self._worker = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="debt-encoder")
         # DEBT's coder compiles on first use (tens of seconds when its cache
         # is cold): do it now, while the link comes up, not at the first image,
@@ -192,12 +200,15 @@ class RovNode:
         status_task = asyncio.create_task(self._status_loop())
         if self.camera is not None:
             self.camera.start()
+        self._start_objects(self.scene)
         try:
             await run_slave(self.link_end, self.endpoint, self._on_events)
         finally:
             status_task.cancel()
             if self.camera is not None:
                 self.camera.close()
+            if self.objects is not None:
+                self.objects.stop()
             self._worker.shutdown(wait=False, cancel_futures=True)
 
     async def _status_loop(self) -> None:
@@ -242,6 +253,8 @@ class RovNode:
                 attitude_valid=snap.attitude_valid,
             )
         )
+        if self.scene is not None:  # §11.1: told in the replies' annex (version 2 only)
+            self.scene.altitude_m = snap.altitude_m
 
     # ------------------------------------------------------------------
     # Slave events -> bridge
@@ -438,3 +451,14 @@ class RovNode:
         self.stats.last_encode_s = elapsed
         self.stats.worst_encode_s = max(self.stats.worst_encode_s, elapsed)
         return stream
+
+    def _start_objects(self, outbox) -> None:
+        if self._objects_geometry is None or outbox is None:
+            return
+        from rovlink.rov.objects import ObjectWatcher
+
+        def grab():
+            snap = self.bridge.snapshot()
+            return self.grab(snap), snap, snap.altitude_m
+
+        self.objects = ObjectWatcher(grab, outbox, geometry=self._objects_geometry).start()  # a failure: one warning

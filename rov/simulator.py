@@ -87,6 +87,8 @@ PILOT_TIMEOUT_S = 3.0  # ArduSub's FS_PILOT_TIMEOUT default
 START_STATE = VehicleState(z_m=SEABED_DEPTH_M - 2.0)
 TICK_S = 0.02
 HEARTBEAT_INTERVAL_S = 1.0  # ArduSub's default stream rate
+RANGE_INTERVAL_S = 1 / 3  # RANGEFINDER and DISTANCE_SENSOR: ArduSub streams them at 3 Hz unasked
+RANGE_MAX_CM = 5000  # a Ping2's range: 50 m
 STREAMABLE = (MSG_SYS_STATUS, MSG_ATTITUDE, MSG_LOCAL_POSITION_NED)
 
 
@@ -111,6 +113,7 @@ class SimulatedVehicle:
         initial_state: VehicleState | None = None,
         floor_depth_m: float | None = SEABED_DEPTH_M,
         has_position: bool = True,
+        has_rangefinder: bool = True,
         position_after_s: float | None = 0.0,
         pilot_timeout_s: float = PILOT_TIMEOUT_S,
         mode: int = SubMode.MANUAL,
@@ -122,6 +125,9 @@ class SimulatedVehicle:
         # When the position estimate comes (seconds after start), None: never.
         self.position_after_s = position_after_s if has_position else None
         self._position_override: bool | None = None
+        # A downward echosounder (a Ping2) over the seabed at floor_depth_m: the altitude.
+        self.has_rangefinder = has_rangefinder and floor_depth_m is not None
+        self.floor_depth_m = floor_depth_m
         self.pilot_timeout_s = pilot_timeout_s
         # A vehicle that arms late (its checks or its motors take this long): ARM is
         # answered IN_PROGRESS at once, ACCEPTED when it is armed.  0: at once, as ArduSub.
@@ -222,6 +228,7 @@ class SimulatedVehicle:
         last_step = self._now()
         next_tick = last_step
         next_heartbeat = last_step
+        next_range = last_step
         try:
             while not self._stop.is_set():
                 now = self._now()
@@ -249,6 +256,9 @@ class SimulatedVehicle:
                 if now >= next_heartbeat:
                     next_heartbeat = now + self._heartbeat_interval_s
                     self._send_heartbeat()
+                if self.has_rangefinder and now >= next_range:
+                    next_range = now + RANGE_INTERVAL_S
+                    self._send_range()
                 self._send_streams(now)
         finally:
             try:
@@ -459,6 +469,21 @@ class SimulatedVehicle:
                 # Keep the cadence but never try to catch up on missed slots.
                 self._next_send_s[msg_id] = max(self._next_send_s.get(msg_id, now) + interval, now)
                 self._send_message(msg_id)
+
+    def slant_range_m(self) -> float:
+        """What the downward echosounder measures: along the body's down axis to the seabed."""
+        with self._lock:
+            s = self._model.state
+        cos_tilt = math.cos(s.roll_rad) * math.cos(s.pitch_rad)
+        return max(0.0, self.floor_depth_m - s.z_m) / max(cos_tilt, 0.2)
+
+    def _send_range(self) -> None:
+        """RANGEFINDER and DISTANCE_SENSOR, as ArduSub sends them for its first rangefinder."""
+        range_m = self.slant_range_m()
+        mav = self._conn.mav
+        mav.rangefinder_send(range_m, 0.0)
+        mav.distance_sensor_send(self._time_boot_ms(), 20, RANGE_MAX_CM, min(int(round(range_m * 100)), 65535),
+                                 mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND, 0, mavlink.MAV_SENSOR_ROTATION_PITCH_270, 0)
 
     def _send_message(self, msg_id: int) -> None:
         with self._lock:

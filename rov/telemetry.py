@@ -29,6 +29,9 @@ from rovlink.rov.ardusub import PROTOCOL_MODE_UNKNOWN, protocol_mode
 HEARTBEAT_TIMEOUT_S = 3.0
 POSITION_TIMEOUT_S = 1.0
 ATTITUDE_TIMEOUT_S = 1.0
+# ArduSub streams RANGEFINDER and DISTANCE_SENSOR at 3 Hz unasked (docs: shared ARDUSUB.md):
+# three missed in a row and the altitude is unknown.
+RANGE_TIMEOUT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,9 @@ class AutopilotSnapshot:
     connected: bool = False  # the MAVLink connection is open
     failsafe: bool = False  # failsafe(True) in force
     battery_v: float | None = None
+    # Above the seabed, from a downward rangefinder (an echosounder such as a Ping2) less than
+    # RANGE_TIMEOUT_S old, tilt-compensated with the attitude; None: no rangefinder reports.
+    altitude_m: float | None = None
     updated_s: float = 0.0  # time.monotonic() of the last telemetry received
     status_text: str = ""  # the autopilot's last STATUSTEXT
 
@@ -67,6 +73,8 @@ class Telemetry:
         self.last_attitude_s = -math.inf
         self.last_position_s = -math.inf
         self.last_text_s = -math.inf
+        self.last_range_s = -math.inf
+        self.range_m: float | None = None
         self.system: int | None = None
 
     def alive(self, now: float) -> bool:
@@ -101,6 +109,14 @@ class Telemetry:
             self.last_position_s = now
             self._set(x_m=x, y_m=y, z_m=z, vx_mps=vx, vy_mps=vy, vz_mps=vz, updated_s=now)
 
+    def on_range(self, range_m: float, now: float) -> None:
+        """A downward rangefinder's range (RANGEFINDER or DISTANCE_SENSOR facing down); a
+        reading out of the sensor's own bounds is passed as NaN: no altitude."""
+        if math.isfinite(range_m) and range_m >= 0:
+            self.range_m, self.last_range_s = float(range_m), now
+        else:
+            self.range_m, self.last_range_s = None, -math.inf
+
     def on_battery(self, volts: float | None, now: float) -> None:
         self._set(battery_v=volts, updated_s=now)
 
@@ -120,6 +136,8 @@ class Telemetry:
         """The autopilot is gone (or another one appeared): nothing old stays valid."""
         self.last_attitude_s = -math.inf
         self.last_position_s = -math.inf
+        self.last_range_s = -math.inf
+        self.range_m = None
 
     def _set(self, **fields) -> None:
         self.values = dataclasses.replace(self.values, **fields)
@@ -129,7 +147,12 @@ class Telemetry:
         alive = self.alive(now)
         attitude_age = now - self.last_attitude_s if math.isfinite(self.last_attitude_s) else None
         position_age = now - self.last_position_s if math.isfinite(self.last_position_s) else None
+        altitude = None
+        if alive and self.range_m is not None and now - self.last_range_s < RANGE_TIMEOUT_S:
+            # The sounder looks along the body's down axis: a tilted vehicle measures a slant.
+            altitude = self.range_m * max(0.0, math.cos(snap.roll_rad) * math.cos(snap.pitch_rad))
         common = dict(
+            altitude_m=altitude,
             connected=connected,
             failsafe=failsafe,
             attitude_age_s=attitude_age,

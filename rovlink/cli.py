@@ -35,6 +35,7 @@ BENCH = "bench"
 COMMANDS = {
     "rov": "rovlink.rov.cli",
     "sim": "rovlink.rov.cli",
+    "seabed": "rovlink.rov.cli",
     "channel": "rovlink.link.cli",
     "keygen": "rovlink.link.cli",
     "debt": "rovlink.debt.cli",
@@ -52,6 +53,7 @@ BENCHMARKS = {
     "debt": "rovlink.debt.bench",
     "camera": "rovlink.rov.camerabench",
     "roi": "rovlink.rov.roibench",
+    "objects": "rovlink.rov.objectbench",
 }
 
 

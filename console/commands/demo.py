@@ -26,6 +26,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--ber", type=probability, default=7e-6, help="bit error rate (default 7e-6, the paper's 0.0007 %%)")
     p.add_argument("--seed", type=int, default=0, help="channel random seed (default 0)")
     p.add_argument("--camera", default="sim", metavar="SPEC", help="camera on the ROV: sim (default), DIR, opencv:N")
+    p.add_argument("--seabed", metavar="PNG", help="the simulated seabed: a PNG with its JSON of objects beside it "
+                   "('rovlink seabed' writes them; default: the committed one)")
     p.add_argument("--insecure", action="store_true",
                    help="run the link's version 1.1, unauthenticated (default: version 2 with a throwaway key)")
     p.add_argument("--record", metavar="FILE", help="session recording (default runs/session-TIME.jsonl)")
@@ -52,11 +54,15 @@ def run(args) -> int:
 
     from .serve import check_ports, default_record_path, serve_operator
 
+    if args.seabed:
+        from rovlink.rov.cli import load_seabed
+
+        load_seabed(args.seabed)  # a bad PNG or JSON: one line, before anything starts
     check_ports(args)  # before any banner, recording or link
     # Both ends run here: a throwaway key for this session (docs/PROTOCOL.md §8).
     key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
-                         camera=args.camera, key=key)
+                         camera=args.camera, key=key, seabed=args.seabed)
     args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
     compile_codec()
     record = None if args.no_record else (args.record or default_record_path())
@@ -169,6 +175,7 @@ class VehicleProcess:
     def ready(self, channel_log: str | None, timeout_s: float = 120.0) -> None:
         import subprocess
         import sys
+        from pathlib import Path
 
         from rovlink.command import CommandError
 
@@ -179,6 +186,8 @@ class VehicleProcess:
                 "--start-depth", repr(c.start_depth_m)]
         if channel_log:
             argv += ["--channel-log", channel_log]
+        if c.seabed:
+            argv += ["--seabed", str(Path(c.seabed).resolve())]
         self.proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         self.proc.stdin.write(("insecure" if c.key is None else c.key.hex()) + "\n")
         self.proc.stdin.flush()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..scene import SeenObject
 from .bodies import GoToBody, StatusBody, ThumbRequest
 
 
@@ -137,3 +138,39 @@ class InauthenticPacket(AcousticEvent):
 @dataclass(frozen=True)
 class Resyncing(AcousticEvent):
     why: str
+
+
+# -- the operator's end: the scene (§11.2) -------------------------------------
+
+
+@dataclass(frozen=True)
+class SceneAltitude(AcousticEvent):
+    """A SCENE's ALT: the vehicle's altitude above the seabed when the SCENE was made
+    (`made`, dated as a STATUS is); None: unknown or beyond 37 m."""
+
+    altitude_m: float | None
+    made: float
+    code: int
+
+
+@dataclass(frozen=True)
+class SceneObjectReported(AcousticEvent):
+    """An object the ROV recognised, new or changed (`obj.new`); a CHANGED for an id not
+    held is shown as new (the ROV tells every object again every 30 s)."""
+
+    obj: SeenObject
+    made: float
+    record_bytes: int
+
+
+@dataclass(frozen=True)
+class SceneObjectRemoved(AcousticEvent):
+    object_id: int
+    made: float
+
+
+@dataclass(frozen=True)
+class SceneRecordIgnored(AcousticEvent):
+    """A record out of range (a reserved class, a size of 0): counted and ignored."""
+
+    record_hex: str

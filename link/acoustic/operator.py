@@ -11,12 +11,17 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 from ..radio.auth import mac
+from ..scene import OP_REMOVED, SeenObject, altitude_from_code, decode_records
 from ..vocabulary import Mode
 from .bodies import GoToBody, OrderBody, PollBody, StatusBody, StopBody, SyncBody, ThumbEnd, ThumbRequest, renewed_body
 from .events import (
     InauthenticPacket,
     OrderFate,
     Resyncing,
+    SceneAltitude,
+    SceneObjectRemoved,
+    SceneObjectReported,
+    SceneRecordIgnored,
     SessionSynced,
     StatusReceived,
     StopImpossible,
@@ -36,6 +41,7 @@ from .wire import (
     CHALLENGE_BYTES,
     CTR_WINDOW,
     DOWN_PACKETS,
+    DOWN_SCENE,
     DOWN_STATUS,
     DOWN_STATUS_SAME,
     DOWN_THUMB_END,
@@ -353,12 +359,29 @@ class AcousticOperator(_End):
                 return
             self.counters.statuses_same += 1
             self._status(StatusBody.decode(renewed_body(full, body)), ctr, now - SAME_TRANSIT_S, now, events)
+        elif kind == DOWN_SCENE:
+            self._scene(body, now - STATUS_TRANSIT_S, events)
         elif kind == DOWN_THUMB_END:
             end = ThumbEnd.decode(body)
             w = self.thumb
             if w is not None and w.oid == end.oid and not w.verified:
                 w.end = (end.object_mac, self.session)
                 self._try_verify(w, events)
+
+    def _scene(self, body: bytes, made: float, events: list) -> None:
+        """§11.2: ALT, then records up to the zero padding."""
+        self.counters.scenes += 1
+        events.append(SceneAltitude(altitude_from_code(body[0]), made, body[0]))
+        try:
+            records, dropped = decode_records(body[1:], padded=True)
+        except ValueError:
+            records, dropped = [], 1  # a record cut short by the body's end: authentic, but nothing to show
+        for r in records:
+            events.append(SceneObjectRemoved(r.object_id, made) if r.op == OP_REMOVED
+                          else SceneObjectReported(SeenObject.from_record(r), made, len(r.encode())))
+        if dropped:
+            self.counters.records_ignored += dropped
+            events.append(SceneRecordIgnored(bytes(body[1:]).hex(" ")))
 
     def _status(self, st: StatusBody, ctr: int, made: float, now: float, events: list) -> None:
         self.last_status = st

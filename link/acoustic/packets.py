@@ -50,6 +50,8 @@ class Counters:
     thumbnails_verified: int = 0
     thumbnail_mismatches: int = 0
     statuses_same: int = 0  # STATUS_SAME sent (ROV) or taken (operator)
+    scenes: int = 0  # SCENE frames sent (ROV) or taken (operator), §11.2
+    records_ignored: int = 0  # (operator) §11 object records out of range: counted and ignored
     same_unmatched: int = 0  # a STATUS_SAME naming a full STATUS the operator does not hold
     fulls_flushed: int = 0  # (ROV) full STATUSes a flush may have cut short: never named by a STATUS_SAME
     orders_taken: int = 0

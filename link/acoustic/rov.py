@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..radio.auth import mac
+from ..scene import SceneOutbox, altitude_code
 from ..vocabulary import Mode
 from .bodies import GoToBody, OrderBody, PollBody, StatusBody, StopBody, SyncBody, ThumbEnd, ThumbRequest, same_body, steady_bytes
 from .events import (
@@ -33,6 +34,7 @@ from .wire import (
     CHALLENGES_SEEN,
     CTR_WINDOW,
     DATA_BYTES,
+    DOWN_SCENE,
     DOWN_STATUS,
     DOWN_STATUS_SAME,
     DOWN_THUMB_END,
@@ -44,6 +46,7 @@ from .wire import (
     LABEL_DOWN,
     LABEL_HELLO,
     LABEL_UP,
+    LONG_BODY,
     MAX_OBJECT,
     MAX_SLOTS,
     NONCE_BYTES,
@@ -60,6 +63,10 @@ from .wire import (
     R_NONE,
     R_TAKEN,
     SAME_REACH,
+    SCENE_ALT_REPEAT_S,
+    SCENE_ALT_STEPS,
+    SCENE_REFRESH_GAP_S,
+    SCENE_REFRESH_S,
     STATUS_REPEAT_S,
     STATUS_THUMB_S,
     TAG_BYTES,
@@ -162,6 +169,9 @@ class AcousticRov(_End):
         self._full_leaving: int | None = None
         self._operator_holds: tuple[int, float] | None = None  # the last POLL's HELD (with HAVE_STATUS), when taken
         self.thumb: _Thumb | None = None
+        # §11.2: what the ROV tells of its scene (altitude, objects) in SCENE frames.
+        self.scene = SceneOutbox()
+        self._status_since_scene = False  # a SCENE goes only after a STATUS: they alternate at most
         self.follows = False  # the node has a tracker: a THUMB with FOLLOW can be taken
         self._events: list = []
 
@@ -243,6 +253,8 @@ class AcousticRov(_End):
         self.challenge = challenge
         self._session_at = now
         self._new_session(challenge + self.boot + nonce)
+        self.scene.forget_operator()  # a new session's operator holds none of the scene
+        self._status_since_scene = False
         self.status_sent = {}  # counters start again
         self._fulls = {}
         self._full_leaving = None
@@ -378,11 +390,36 @@ class AcousticRov(_End):
             return None
         th = self.thumb
         sending = th is not None and th.obj is not None and not th.done
+        if not self._status_asap and self._status_since_scene:
+            scene = self._scene_packet(now)  # after STOP and the status, ahead of thumbnail data
+            if scene is not None:
+                return scene
         if sending and not self._status_asap and now - self._status_at < self.status_thumb_s:
             packet = self._data_packet(now)
             if packet is not None:
                 return packet
         return self._status_packet(now)  # due, asked for, or a free slot (the turns pass anyway)
+
+    def _scene_packet(self, now: float) -> bytes | None:
+        """A SCENE frame (§11.2) when there are records to tell or the altitude moved; its
+        records count as told once handed (nothing acknowledges them: SCENE_REFRESH_S mends)."""
+        self.scene.refresh(now, SCENE_REFRESH_S, SCENE_REFRESH_GAP_S)
+        alt = self.scene.altitude_due(now, SCENE_ALT_REPEAT_S, SCENE_ALT_STEPS)
+        if not self.scene.pending() and alt is None:
+            return None
+        code = alt if alt is not None else altitude_code(self.scene.altitude_m)
+        records = b""
+        while True:
+            record = self.scene.next_record(LONG_BODY - 1 - len(records))
+            if record is None:
+                break
+            records += record.encode()
+            self.scene.delivered(record, now)
+        self.scene.altitude_delivered(code, now)
+        self._status_since_scene = False
+        body = bytes((code,)) + records + bytes(LONG_BODY - 1 - len(records))
+        self.counters.scenes += 1
+        return self._emit_frame(self._seal(DOWN_SCENE, body)[1], "scene")
 
     def _awaiting_brake(self, now: float) -> bool:
         """Whether the STATUS due after a STOP or the failsafe waits (nothing is handed)
@@ -399,6 +436,7 @@ class AcousticRov(_End):
 
     def _status_packet(self, now: float) -> bytes:
         self._status_asap = False
+        self._status_since_scene = True
         self._status_at = now
         status = self.status(now)
         if self._failsafe_unreported and not self.failsafe:

@@ -26,9 +26,17 @@ LABEL_HELLO, LABEL_SYNC, LABEL_UP, LABEL_DOWN, LABEL_THUMB = b"AH", b"AS", b"AU"
 
 # KINDs by direction, and how many packets each frame takes.
 UP_HELLO, UP_POLL, UP_STOP, UP_ORDER, UP_GOTO, UP_THUMB = 0, 1, 2, 3, 4, 5
-DOWN_SYNC, DOWN_STATUS, DOWN_THUMB_END, DOWN_STATUS_SAME = 0, 1, 2, 3
+DOWN_SYNC, DOWN_STATUS, DOWN_THUMB_END, DOWN_STATUS_SAME, DOWN_SCENE = 0, 1, 2, 3, 4
 UP_PACKETS = {UP_HELLO: 1, UP_POLL: 1, UP_STOP: 1, UP_ORDER: 1, UP_GOTO: 2, UP_THUMB: 2}
-DOWN_PACKETS = {DOWN_SYNC: 2, DOWN_STATUS: 2, DOWN_THUMB_END: 1, DOWN_STATUS_SAME: 1}
+DOWN_PACKETS = {DOWN_SYNC: 2, DOWN_STATUS: 2, DOWN_THUMB_END: 1, DOWN_STATUS_SAME: 1, DOWN_SCENE: 2}
+# §11.2: a SCENE (ALT and object records) goes between STATUSes, ahead of thumbnail data;
+# an altitude alone is told when it moved 0.25 m (5 ALT steps near the seabed) or 20 s passed.
+SCENE_ALT_STEPS = 5
+SCENE_ALT_REPEAT_S = 20.0
+# No acknowledgement: a told object is told again (CHANGED) when it was last told this long ago,
+# one at a time and at most one every SCENE_REFRESH_GAP_S, so that mending takes a sliver of the downlink.
+SCENE_REFRESH_S = 120.0
+SCENE_REFRESH_GAP_S = 20.0
 
 # ORDER ops.
 OP_HOLD, OP_SURFACE, OP_ARM, OP_DISARM, OP_MODE = 1, 2, 3, 4, 5

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 # The picture events are both profiles' (link/pictures.py): the master hands them on.
 from ..pictures import PILOT_SKIPPED, ImageAbandoned, ImageComplete, ImageProgress  # noqa: F401
 from ..report import VehicleReport
+from ..scene import SeenObject
 from .messages import REASON_TEXT, ImageSettings, Mode, Poll, Position, Reason, Reply, Velocity
 
 
@@ -35,6 +36,44 @@ class PollSent(RadioEvent):
     @property
     def hello(self) -> bool:
         return self.poll is None
+
+
+@dataclass(frozen=True)
+class AltitudeReported(RadioEvent):
+    """A reply's ALT (§11.1): the vehicle's altitude above the seabed when it answered;
+    None: unknown (no rangefinder reports) or beyond 37 m.  Replies that leave it out
+    leave it as it was (the ROV tells it again within 2 s)."""
+
+    at: float
+    altitude_m: float | None
+    code: int  # the ALT byte as carried
+
+
+@dataclass(frozen=True)
+class ObjectReported(RadioEvent):
+    """An object the ROV recognised, new or changed (§11): `obj.new` tells which; a
+    CHANGED for an id not held is shown as new."""
+
+    at: float
+    obj: SeenObject
+    record_bytes: int
+
+
+@dataclass(frozen=True)
+class ObjectRemoved(RadioEvent):
+    """The ROV no longer holds object `object_id` (merged into another, or a false one)."""
+
+    at: float
+    object_id: int
+
+
+@dataclass(frozen=True)
+class ObjectRecordIgnored(RadioEvent):
+    """An object record whose values are out of range (a reserved class, a size of 0):
+    counted and ignored (`SecureStats.records_ignored`)."""
+
+    at: float
+    record_hex: str
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from ..scene import OP_REMOVED, ObjectRecord, SceneOutbox, SeenObject, altitude_from_code, decode_records
 from .auth import (
     CHALLENGE_BYTES,
     HELLO_PAYLOAD,
@@ -52,8 +53,12 @@ from .auth import (
     RovChain,
 )
 from .events import (
+    AltitudeReported,
     InauthenticFrame,
     LateReply,
+    ObjectRecordIgnored,
+    ObjectRemoved,
+    ObjectReported,
     Synced,
 )
 from .frame import frame_contents
@@ -62,6 +67,9 @@ from .messages import (
     FAILSAFE_S,
     HELLO_BIT,
     MAX_POLL_PAYLOAD,
+    NO_IMAGE_DATA,
+    REPLY_HEADER,
+    REPLY_STATUS_BYTE,
     ImageSettings,
     Mode,
     Poll,
@@ -73,13 +81,17 @@ from .messages import (
 )
 from .slave import Slave, SlaveOutput
 from .wire2 import (
+    ANNEX_MAX,
     MIN_POLL_FRAME,
     NO_CONTINUATION,
     POSE_BYTES,
+    RECORD_EVERY,
+    REJECTED_BIT,
     V2_MAX_FRAME,
     V2_OVERHEAD,
     V2_REPLY_STATUS,
     Pose,
+    annex_bytes,
     continuation_of,
     frame2_contents,
     poll_from_wire,
@@ -87,7 +99,7 @@ from .wire2 import (
     pose_of,
     pose_wire_bytes,
     reply_frame_cap,
-    reply_from_wire,
+    reply_from_wire_annex,
     reply_to_wire,
     request_of,
     trunk_room,
@@ -113,7 +125,7 @@ class FrameSizes2(FrameSizes):
         return reply_frame_cap(size, self.max_frame)
 
     def reply_without_image(self) -> int:
-        return V2_OVERHEAD + V2_REPLY_STATUS + POSE_BYTES + TAG_BYTES
+        return V2_OVERHEAD + V2_REPLY_STATUS + POSE_BYTES + ANNEX_MAX + TAG_BYTES
 
     def trunk(self, size: int) -> int:
         return trunk_room(size, self.max_frame, POSE_BYTES, TAG_BYTES, self.velocity_poll())
@@ -141,17 +153,18 @@ def poll_sent_from_frame(frame: bytes, at: float, *, version: str, poll: bytes |
         return None
 
 
-def parse_reply(payload: bytes, poll11: bytes | None, reference: Pose | None) -> tuple[bytes, tuple[int, int], Pose]:
-    """A timely reply's version 1.1 payload (a SYNC's when `poll11` is None), and
-    what it leaves for the next poll (§8.1).  Every structural fault (§1) raises
-    ProtocolError here, before the chain moves: a reply the master would refuse
-    is never chained to."""
+def parse_reply(payload: bytes, poll11: bytes | None,
+                reference: Pose | None) -> tuple[bytes, tuple[int, int], Pose, int | None, bytes]:
+    """A timely reply's version 1.1 payload (a SYNC's when `poll11` is None), what
+    it leaves for the next poll (§8.1), and its annex (§11.1: the ALT byte or None,
+    an object record's bytes).  Every structural fault (§1) raises ProtocolError
+    here, before the chain moves: a reply the master would refuse is never chained to."""
     if poll11 is None:
         Reply.decode(payload, allow_sync=True)
-        return payload, NO_CONTINUATION, pose_of(payload)
-    reply, pose = reply_from_wire(payload, request_of(poll11), reference)
+        return payload, NO_CONTINUATION, pose_of(payload), None, b""
+    reply, pose, alt, record = reply_from_wire_annex(payload, request_of(poll11), reference)
     Reply.decode(reply)
-    return reply, continuation_of(reply, poll11), pose
+    return reply, continuation_of(reply, poll11), pose, alt, record
 
 
 @dataclass
@@ -161,6 +174,7 @@ class SecureStats:
     inauthentic: int = 0
     late: int = 0
     restarts_seen: int = 0
+    records_ignored: int = 0  # §11 object records out of range
 
 
 class SecureSlave:
@@ -180,6 +194,9 @@ class SecureSlave:
                                                    self._poll_frame)
         self.chain = RovChain(key, failsafe_s=slave.failsafe_s, boot=boot)
         self.decoder = AuthFrameDecoder(self.chain.is_authentic, max_len=MAX_POLL_LEN)
+        # §11.1: the altitude and the objects, in the replies' annex.
+        self.scene = SceneOutbox()
+        self._picture_replies = 0  # replies carrying picture data since the last record in one
 
     # -- what the drivers call besides receive_bytes ------------------------
 
@@ -192,6 +209,23 @@ class SecureSlave:
     @property
     def failsafe_at(self) -> float | None:
         return self.slave.failsafe_at
+
+    def _annex(self, poll11: bytes, now: float) -> tuple[int | None, ObjectRecord | None]:
+        """What this reply tells of the scene (§11.1): the ALT byte when due, and the next
+        object record, which in a reply carrying picture data waits for every
+        RECORD_EVERY-th one (pictures give objects at most one record in that many)."""
+        alt = self.scene.altitude_due(now)
+        record = None
+        asks_picture = request_of(poll11)[1] != NO_IMAGE_DATA
+        if self.scene.pending() and (not asks_picture or self._picture_replies + 1 >= RECORD_EVERY):
+            record = self.scene.next_record()
+        return alt, record
+
+    def _told(self, alt: int | None, record: ObjectRecord | None, at: float) -> None:
+        if alt is not None:
+            self.scene.altitude_delivered(alt, at)
+        if record is not None:
+            self.scene.delivered(record)
 
     def _sync_payload(self) -> bytes:
         status = self.slave.status
@@ -211,26 +245,38 @@ class SecureSlave:
                 self.slave.stats.protocol_errors += 1  # a HELLO with an order: authentic, not answered
             elif isinstance(got, HelloIn):
                 sync = self._sync_payload()
-                replies.append(self.chain.seal_sync(sync, got, now, info=(NO_CONTINUATION, pose_of(sync), None)))
+                self.scene.forget_operator()  # a new chain: the operator holds none of the scene
+                replies.append(self.chain.seal_sync(sync, got, now, info=(NO_CONTINUATION, pose_of(sync), None, None)))
             elif isinstance(got, PollIn):
-                continuation, reference, wish = got.info if got.info is not None else (NO_CONTINUATION, None, None)
+                continuation, reference, wish, told = (got.info if got.info is not None
+                                                       else (NO_CONTINUATION, None, None, None))
                 try:
                     poll = poll_from_wire(got.payload, continuation, wish)
                 except ProtocolError:
                     self.slave.stats.protocol_errors += 1  # authentic, no layout: never answered, not taken
                     continue
+                if told is not None:  # the reply this poll is chained to arrived: what it told is held
+                    self._told(*told)
                 s = self.slave.status
                 self._poll_frame = V2_OVERHEAD + len(contents)
+                alt, record = self._annex(poll, now)
                 self._pose_bytes = pose_wire_bytes(
-                    (s.x_cm, s.y_cm, s.z_cm, s.roll_cdeg, s.pitch_cdeg, s.yaw_cdeg), reference)
+                    (s.x_cm, s.y_cm, s.z_cm, s.roll_cdeg, s.pitch_cdeg, s.yaw_cdeg), reference
+                ) + annex_bytes(alt, record.encode() if record else b"")
                 one = self.slave.receive(poll, now)
                 out.events.extend(one.events)
                 if one.reply:  # it parsed: the poll is taken
                     self.chain.take(got, now)
                     reply = frame_contents(one.reply)
+                    if reply[REPLY_STATUS_BYTE] & REJECTED_BIT:
+                        alt, record = None, None  # no annex in a REJECTED reply: told in the next
+                    if len(reply) > REPLY_HEADER and record is not None:
+                        self._picture_replies = 0
+                    elif len(reply) > REPLY_HEADER:
+                        self._picture_replies += 1
                     replies.append(self.chain.seal_reply(
-                        reply_to_wire(reply, reference), got, now,
-                        info=(continuation_of(reply, poll), pose_of(reply), wish_of(poll))))
+                        reply_to_wire(reply, reference, alt, record.encode() if record else b""), got, now,
+                        info=(continuation_of(reply, poll), pose_of(reply), wish_of(poll), (alt, record, now))))
             else:
                 out.events.append(InauthenticFrame("poll"))
         out.events.extend(InauthenticFrame("poll") for _ in range(self.decoder.counters.inauthentic - before))
@@ -384,7 +430,7 @@ class SecureMaster:
 
     # -- receiving ---------------------------------------------------------
 
-    def _parse(self, payload: bytes, sync: bool, answers: int) -> tuple[bytes, tuple[int, int], Pose]:
+    def _parse(self, payload: bytes, sync: bool, answers: int):
         if sync:
             return parse_reply(payload, None, None)
         sent = self._sent.get(answers)
@@ -418,20 +464,38 @@ class SecureMaster:
         if got.malformed:
             self.master.stats.protocol_errors += 1  # authentic, but no reply: counted, its poll unanswered
             return self.master.take_events()
-        payload, self._continuation, self._reference = got.parsed  # type: ignore[misc]
+        payload, self._continuation, self._reference, alt, record = got.parsed  # type: ignore[misc]
         if self.on_reply is not None:
             self.on_reply(payload, got.sync, now)
         frame_bytes = V2_OVERHEAD + len(contents)  # what arrived, not the 1.1 payload rebuilt from it
         if not got.sync:
-            return self.master.receive(payload, now, frame_bytes)
+            return self.master.receive(payload, now, frame_bytes) + self._scene_events(alt, record, now)
         self._hello_deadline = None  # the HELLO is answered: the token is ours
         first = self.stats2.syncs == 0
         restarted = not first and got.boot != self._boot
         self._boot = got.boot
         self.stats2.syncs += 1
         self.stats2.restarts_seen += restarted
-        events: list[object] = [Synced(got.boot, restarted, first)]
+        # A new chain: the ROV tells its altitude afresh (§11.1), unknown until then.
+        events: list[object] = [Synced(got.boot, restarted, first), AltitudeReported(now, None, 0)]
         events.extend(self.master.on_sync(got.payload, restarted, now, now - got.sent_at, frame_bytes))
+        return events
+
+
+    def _scene_events(self, alt: int | None, record: bytes, now: float) -> list[object]:
+        """§11.1's annex as events: the altitude, an object new, changed or removed, or a
+        record out of range (counted and ignored)."""
+        events: list[object] = []
+        if alt is not None:
+            events.append(AltitudeReported(now, altitude_from_code(alt), alt))
+        if record:
+            records, dropped = decode_records(record)
+            for r in records:
+                events.append(ObjectRemoved(now, r.object_id) if r.op == OP_REMOVED
+                              else ObjectReported(now, SeenObject.from_record(r), len(record)))
+            if dropped:
+                self.stats2.records_ignored += dropped
+                events.append(ObjectRecordIgnored(now, record.hex(" ")))
         return events
 
 

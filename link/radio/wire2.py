@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import struct
 
+from ..scene import RECORD_BYTES, record_length
 from .frame import START
 from .messages import (
     MAX_TRUNK,
@@ -59,6 +60,13 @@ V2_REPLY_STATUS = 2  # byte 0 and the status byte
 POSE_BYTES = 12
 MAX_VARINT = 3  # bytes of one difference: |d| < 2^20
 FIRST_BIT, LAST_BIT = 0x80, 0x40  # reply byte 0
+# §11.1: in a reply that is not REJECTED, REASON's two bits say what the annex after the
+# pose holds (a REASON without REJECTED had no meaning): ALT, an object record, or both.
+REJECTED_BIT, ANNEX_ALT, ANNEX_RECORD = 0x08, 0x02, 0x04
+# (decided) A record rides in at most one of every RECORD_EVERY replies carrying picture data,
+# so objects take at most 9 / (4 x 45) = 5 % of a SIZE 0 picture's bytes (less above).
+RECORD_EVERY = 4
+ANNEX_MAX = 1 + RECORD_BYTES  # ALT and one record
 NO_CONTINUATION = (0, NO_IMAGE_DATA)  # what a SYNC leaves: no image data
 
 _BODY = {OrderCode.NONE: (0,), OrderCode.VELOCITY: (4, 5), OrderCode.POSITION: (9,), OrderCode.IMAGE: (8,),
@@ -178,21 +186,45 @@ def pose_wire_bytes(pose: Pose, reference: Pose | None) -> int:
     return len(encode_pose(pose, reference)[0])
 
 
-def reply_to_wire(reply11: bytes, reference: Pose | None) -> bytes:
+def reply_to_wire(reply11: bytes, reference: Pose | None, alt: int | None = None, record: bytes = b"") -> bytes:
     """A version 1.1 reply payload as version 2 sends it: no IMG/OFFSET, the pose
-    as differences from `reference` when shorter."""
+    as differences from `reference` when shorter; its annex (§11.1): the ALT byte
+    `alt` and one object `record` when given (never in a REJECTED reply: the caller
+    keeps them for the next)."""
     if len(reply11) < REPLY_HEADER:
         raise ValueError("a reply payload is at least 14 bytes")
     pose, delta = encode_pose(pose_of(reply11), reference)
     status = (reply11[REPLY_STATUS_BYTE] & ~SYNC_BIT & 0xFF) | (DELTA_BIT if delta else 0)
+    annex = b""
+    if not status & REJECTED_BIT:
+        # A REASON without REJECTED meant nothing in 1.1 (shown unknown); here its bits are the annex's.
+        status &= ~(ANNEX_ALT | ANNEX_RECORD) & 0xFF
+        if alt is not None:
+            status |= ANNEX_ALT
+            annex += bytes((alt,))
+        if record:
+            status |= ANNEX_RECORD
+            annex += bytes(record)
     trunk = reply11[REPLY_IMAGE_HEADER:] if len(reply11) > REPLY_HEADER else b""
-    return bytes((reply11[0], status)) + pose + bytes(trunk)
+    return bytes((reply11[0], status)) + pose + annex + bytes(trunk)
+
+
+def annex_bytes(alt: int | None, record: bytes = b"") -> int:
+    return (alt is not None) + len(record)
 
 
 def reply_from_wire(wire: bytes, request: tuple[int, int], reference: Pose | None) -> tuple[bytes, Pose]:
     """(the version 1.1 reply payload, the pose as carried) of a version 2 reply
     that answers a poll asking for `request`, chained to a reply or SYNC of
     pose `reference` (ProtocolError for a structural fault)."""
+    reply, pose, _, _ = reply_from_wire_annex(wire, request, reference)
+    return reply, pose
+
+
+def reply_from_wire_annex(wire: bytes, request: tuple[int, int],
+                          reference: Pose | None) -> tuple[bytes, Pose, int | None, bytes]:
+    """As `reply_from_wire`, with the annex (§11.1): the ALT byte (None: not in this
+    reply) and the object record's bytes (empty: none)."""
     if len(wire) < V2_REPLY_STATUS:
         raise ProtocolError(f"a version 2 reply is at least {V2_REPLY_STATUS} bytes")
     head, status = wire[0], wire[1]
@@ -211,6 +243,18 @@ def reply_from_wire(wire: bytes, request: tuple[int, int], reference: Pose | Non
         if len(wire) < i:
             raise ProtocolError("a version 2 reply's pose is cut short")
         pose = struct.unpack(">hhhhhh", wire[V2_REPLY_STATUS:i])  # type: ignore[assignment]
+    alt, record = None, b""
+    if not status & REJECTED_BIT and status & (ANNEX_ALT | ANNEX_RECORD):
+        if status & ANNEX_ALT:
+            if i >= len(wire):
+                raise ProtocolError("a reply's ALT byte is missing")
+            alt, i = wire[i], i + 1
+        if status & ANNEX_RECORD:
+            n = record_length(wire[i]) if i < len(wire) else 0
+            if n == 0 or i + n > len(wire):
+                raise ProtocolError("a reply's object record is missing or cut short")
+            record, i = bytes(wire[i:i + n]), i + n
+        status &= ~(ANNEX_ALT | ANNEX_RECORD) & 0xFF  # the 1.1 payload: no REASON without REJECTED
     trunk = bytes(wire[i:])
     out = bytes((head,)) + struct.pack(">hhhhhh", *pose) + bytes((status & ~DELTA_BIT & 0xFF,))
     if trunk:
@@ -224,7 +268,7 @@ def reply_from_wire(wire: bytes, request: tuple[int, int], reference: Pose | Non
         out += ((img << 13) | offset).to_bytes(2, "big") + trunk
     elif head & (FIRST_BIT | LAST_BIT):
         raise ProtocolError("a reply's FIRST/LAST need a trunk")  # §1: never chained to
-    return out, pose
+    return out, pose, alt, record
 
 
 def wish_of(poll11: bytes) -> bytes | None:

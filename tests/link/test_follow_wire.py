@@ -50,7 +50,8 @@ V2_CHAINS = ["ab236632299f94ab97319529d12adcb5cb99e202157e471cca4097c40347db58",
 
 def _section_10_rows() -> list[list[str]]:
     text = DOC.read_text(encoding="utf-8")
-    section = text[text.index("\n## 10."):]
+    start = text.index("\n## 10.")
+    section = text[start:text.find("\n## ", start + 1)]
     rows = []
     for line in section.splitlines():
         cells = [c.strip().strip("`") for c in line.strip().strip("|").split("|")]
