@@ -126,3 +126,9 @@ reports_lost  # a field of LinkState (console/session/state.py): the page and th
 bad_frames  # a field of LinkState (console/session/state.py): the page and the scene's panel read it
 record_bytes  # §11's object events (link/radio/events.py, link/acoustic/events.py): the console shows bytes per object
 record_hex  # §11's events of a record out of range: the console's log line shows it
+class_  # WorldState's object fields (console/session/state.py): the page and GET /api/world read them
+first_t  # the same
+updated_t  # the same
+altitude_age_s  # the same
+altitude_stale  # the same
+seabed_unknown_why  # the same

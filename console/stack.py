@@ -59,6 +59,9 @@ class StackConfig:
     arm_delay_s: float = 0.0
     # The simulated seabed's PNG (its JSON beside it); None: the committed one.
     seabed: str | None = None
+    # The ROV recognises objects on the seabed (rov/objects.py, docs/PROTOCOL.md §11; told over
+    # version 2 only): as `rovlink rov` does by default.  Off in the tests' default stack.
+    objects: bool = False
 
 
 class VehicleSide:
@@ -97,8 +100,14 @@ class VehicleSide:
             self._channel_log = open(c.channel_log, "w", buffering=1)
         self.channel = Channel(LinkParams(bitrate_bps=c.bitrate_bps, delay_s=c.delay_s, ber=c.ber), seed=c.seed,
                                log=self._channel_log)
+        geometry = None
+        if c.objects:
+            from rovlink.rov.objects import CameraGeometry
+
+            geometry = CameraGeometry.of(self.camera)
         self.node = RovNode(rov_end, self.bridge, self.camera.capture, failsafe_s=c.failsafe_s,
-                            default_settings=c.image_settings, key=c.key, follower=_follower(c.tracker))
+                            default_settings=c.image_settings, key=c.key, follower=_follower(c.tracker),
+                            objects=geometry)
         loop = asyncio.get_running_loop()
         self.tasks = [
             loop.create_task(run_channel(self.channel, self.console_end, chan_b), name="channel"),

@@ -62,7 +62,7 @@ def run(args) -> int:
     # Both ends run here: a throwaway key for this session (docs/PROTOCOL.md §8).
     key = None if args.insecure else os.urandom(32)
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
-                         camera=args.camera, key=key, seabed=args.seabed)
+                         camera=args.camera, key=key, seabed=args.seabed, objects=True)
     args.rov_failsafe = config.failsafe_s  # the page infers the ROV's failsafe from it
     compile_codec()
     record = None if args.no_record else (args.record or default_record_path())
@@ -114,7 +114,7 @@ def run(args) -> int:
         link.spawn(operator.run(), name="operator")
         try:
             await serve_operator(
-                operator, args, link=link,
+                operator, args, link=link, sim_seabed=True,
                 banner=(f"rovlink demo: simulated ROV (its own process) over an emulated {args.bitrate:g} bit/s "
                         f"link ({args.delay * 1000:g} ms delay, BER {args.ber:g}); "
                         + ("INSECURE: link version 1.1, frames not authenticated" if key is None else

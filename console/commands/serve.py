@@ -108,7 +108,7 @@ def public_host(host: str) -> str:
     return name
 
 
-async def serve_operator(operator, args, *, banner: str, background=(), link=None) -> None:
+async def serve_operator(operator, args, *, banner: str, background=(), link=None, sim_seabed: bool = False) -> None:
     """Start the scene and the web app for `operator`; return when the server stops.
 
     `background`: coroutines to run in this loop beside the server (a replay).
@@ -125,7 +125,7 @@ async def serve_operator(operator, args, *, banner: str, background=(), link=Non
     policy = AccessPolicy.for_server(args.host, args.allow_host)
     guard_viser(policy)
     try:
-        scene = ConsoleScene(operator, host=args.host, port=args.viser_port).start()
+        scene = ConsoleScene(operator, host=args.host, port=args.viser_port, sim_seabed=sim_seabed).start()
     except OSError as exc:
         raise CommandError(f"cannot serve the 3D scene on port {args.viser_port}: {exc}") from None
     # viser takes the next free port when the one asked for is busy: use the real one.

@@ -72,7 +72,7 @@ from rovlink.console.session.odometry import Pose
 
 from . import chase, frames
 from .chase import SCREEN_WIDTH_M, ViewerView
-from .colours import CAPTURE_RGB, FOLLOW_RGB, FRUSTUM_RGB, GHOST_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
+from .colours import CAPTURE_RGB, FOLLOW_RGB, FRUSTUM_RGB, GHOST_RGB, OBJECT_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
 from .follow import followed_ray
 from .panel import ControlPanel, PanelCallbacks
 from .roi import draw_roi, roi_from_world, roi_outline
@@ -123,6 +123,7 @@ START_POSITION = (0.0, 0.0, -2.0)  # where the screen waits for the first odomet
 
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
+NO_FLOOR_Z = -1.0e6  # a plane no ray meets within its range
 
 @dataclass(frozen=True)
 class SeabedAsset:
@@ -166,7 +167,7 @@ def _show(handle) -> None:
 class ConsoleScene:
     def __init__(self, operator: VehicleSession, *, host: str = "127.0.0.1", port: int = 8080,
                  update_hz: float = 20.0, hfov_deg: float = CAMERA_HFOV_DEG, tilt_deg: float = CAMERA_TILT_DEG,
-                 verbose: bool = False) -> None:
+                 verbose: bool = False, sim_seabed: bool = False) -> None:
         self.operator = operator
         self.host = host
         self.port = port
@@ -174,7 +175,13 @@ class ConsoleScene:
         self.hfov_deg = float(hfov_deg)
         self.tilt_deg = float(tilt_deg)
         self.verbose = verbose
+        # The simulator's seabed is the simulator's truth: only `rovlink demo` offers it, as a
+        # layer labelled so and off by default; the floor drawn is the one the ROV measured.
         self.seabed = SeabedAsset.load()
+        self.sim_seabed = sim_seabed
+        self.floor_z: float | None = None  # the measured seabed (world z, up); None: no floor
+        self._objects_shown: dict[int, tuple] = {}  # what each object's box was laid from
+        self._object_nodes: dict[int, object] = {}
         self.rov_mesh = load_rov_mesh()
         self.server: viser.ViserServer | None = None
         self.panels: dict[int, ControlPanel] = {}  # one per viewer, by viser's client id
@@ -223,7 +230,9 @@ class ConsoleScene:
             self.server = viser.ViserServer(host=self.host, port=self.port, verbose=self.verbose)
         self.server.gui.configure_theme(control_width="large", dark_mode=True, show_logo=False)
         self._build_environment()
-        self._build_seabed()
+        if self.sim_seabed:
+            self._build_seabed()
+        self._build_world()
         self._build_vehicle()
         self._build_ghost()
         self._build_camera()
@@ -290,10 +299,57 @@ class ConsoleScene:
         camera.look_at = VIEW_LOOK_AT
         camera.up = (0.0, 0.0, 1.0)
 
+    def _build_world(self) -> None:
+        """The floor at the depth the ROV measured (hidden until it has one) and the
+        objects it recognised, laid by `update_world`."""
+        s = self.seabed
+        self.floor_node = self.server.scene.add_grid(
+            "/floor", width=60.0, height=60.0, plane="xy", cell_size=1.0, section_size=5.0,
+            cell_color=(70, 110, 120), section_color=(90, 150, 160), plane_color=(20, 60, 70), plane_opacity=0.35,
+            position=frames.ned_to_world((s.x_min_m + s.x_max_m) / 2, (s.y_min_m + s.y_max_m) / 2, 0.0),
+            visible=False)
+
+    def update_world(self) -> None:
+        """The world as the ROV measured it: the floor at its depth, the objects on it."""
+        w = self.operator.world_state()
+        depth = w.get("seabed_depth_m")
+        floor_z = None if depth is None else -float(depth)
+        if floor_z != self.floor_z:
+            if floor_z is None:
+                self.floor_node.visible = False
+            else:
+                x, y, _ = self.floor_node.position
+                self.floor_node.position = (x, y, floor_z)
+                _show(self.floor_node)
+            self.floor_z = floor_z
+        seen = {}
+        for o in w.get("objects", []):
+            key = (o["north_m"], o["east_m"], o["length_m"], o["width_m"], o["heading_deg"], o["class"], floor_z)
+            seen[o["id"]] = key
+            if self._objects_shown.get(o["id"]) == key:
+                continue
+            z = (depth if depth is not None else 0.0)
+            height = 0.3 if o["class"] != "ladder" else 0.1
+            self._object_nodes[o["id"]] = self.server.scene.add_box(
+                f"/objects/{o['id']}", color=OBJECT_RGB.get(o["class"], OBJECT_RGB["unknown"]),
+                dimensions=(o["length_m"], o["width_m"], height), opacity=0.55 + 0.4 * o["confidence"],
+                position=frames.ned_to_world(o["north_m"], o["east_m"], z - height / 2),
+                wxyz=frames.body_wxyz(0.0, 0.0, o["heading_deg"]), cast_shadow=False, receive_shadow=False,
+                visible=depth is not None)  # on a floor only: with no depth measured, no place to lay it
+        for gone in set(self._objects_shown) - set(seen):
+            self._object_nodes.pop(gone).remove()
+        self._objects_shown = seen
+
+    def show_sim_seabed(self, visible: bool) -> None:
+        """The simulator's own seabed (its truth, not measured): `rovlink demo` only."""
+        for node in [getattr(self, "seabed_node", None), *getattr(self, "seabed_ring", [])]:
+            if node is not None:
+                node.visible = bool(visible)
+
     def _build_seabed(self) -> None:
         """The simulated camera's texture, where the simulated camera sees it;
         the texture repeats beyond its extent there, so a ring of coarser copies
-        here."""
+        here.  The simulator's truth: hidden until the viewer asks for it."""
         s = self.seabed
         width_m, height_m = s.y_max_m - s.y_min_m, s.x_max_m - s.x_min_m
         centre = frames.ned_to_world((s.x_min_m + s.x_max_m) / 2, (s.y_min_m + s.y_max_m) / 2, s.depth_m)
@@ -302,7 +358,7 @@ class ConsoleScene:
         down = (0.0, 1.0, 0.0, 0.0)
         self.seabed_node = self.server.scene.add_image(
             "/seabed", s.texture, width_m, height_m, format="jpeg", jpeg_quality=85,
-            position=centre, wxyz=down, cast_shadow=False, receive_shadow=False)
+            position=centre, wxyz=down, cast_shadow=False, receive_shadow=False, visible=False)
         coarse = np.asarray(Image.fromarray(s.texture).resize((256, 256), Image.BILINEAR))
         self.seabed_ring = []
         for i in (-1, 0, 1):
@@ -312,7 +368,7 @@ class ConsoleScene:
                 offset = np.array([i * width_m, j * height_m, -0.01])
                 self.seabed_ring.append(self.server.scene.add_image(
                     f"/seabed_ring/{i + 1}{j + 1}", coarse, width_m, height_m, format="jpeg", jpeg_quality=80,
-                    position=centre + offset, wxyz=down, cast_shadow=False, receive_shadow=False))
+                    position=centre + offset, wxyz=down, cast_shadow=False, receive_shadow=False, visible=False))
 
     def _build_vehicle(self) -> None:
         self.rov_node = self.server.scene.add_frame("/rov", show_axes=False, position=(0.0, 0.0, 0.0))
@@ -451,7 +507,8 @@ class ConsoleScene:
         client_id = client.client_id
         panel = ControlPanel(client.gui, self.operator, PanelCallbacks(
             submit=lambda order: self.desk.submit(order, caller), notify=notify, refused=self.note_refusal,
-            set_view=lambda mode: self.set_view(client_id, mode), centre_view=lambda: self.centre_view(client_id)),
+            set_view=lambda mode: self.set_view(client_id, mode), centre_view=lambda: self.centre_view(client_id),
+            sim_seabed=self.show_sim_seabed if self.sim_seabed else None),
             image_px=self.image_px, target=self.target_state())
         panel.set_permitted(self._may_order(caller))
         if caller.scene_key is not None:
@@ -712,6 +769,7 @@ class ConsoleScene:
                 if t0 >= next_panel:
                     next_panel = t0 + 0.5
                     self.update_trail()
+                    self.update_world()
                     self.update_permissions()
                     self.refresh_panels()
             except Exception:  # a bad frame must not end the scene
@@ -758,12 +816,15 @@ class ConsoleScene:
         self.frames_pushed += 1
 
     def _update_footprint(self, pose: Pose) -> None:
+        if self.floor_z is None:  # no seabed measured: nothing to lay the picture's footprint on
+            self.footprint_node.visible = False
+            return
         r_world_flu = frames.body_rotation(pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
         position = frames.ned_to_world(pose.x_m, pose.y_m, pose.z_m)
         cam = position + r_world_flu @ np.asarray(CAMERA_IN_BODY_FLU)
         r_world_cam = r_world_flu @ frames.camera_rotation_in_body(self.tilt_deg)
         corners = frames.seabed_footprint(cam, r_world_cam, frames.image_corner_rays(self.hfov_deg, *self.image_px),
-                                          self.seabed.floor_z + 0.02, FOOTPRINT_RANGE_M)
+                                          self.floor_z + 0.02, FOOTPRINT_RANGE_M)
         rays = np.stack([np.repeat(cam[None], 4, axis=0), corners], axis=1)
         edges = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
         self.footprint_node.points = np.concatenate([rays, edges]).astype(np.float32)
@@ -895,7 +956,9 @@ class ConsoleScene:
         ray = None
         if state in ("holds", "lost"):
             ray = followed_ray(capture.get("pose"), settings.get("roi"), hfov_deg=self.hfov_deg, tilt_deg=self.tilt_deg,
-                               size_px=self.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU, floor_z=self.seabed.floor_z)
+                               size_px=self.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU,
+                               # no seabed measured: the ray's direction only, to its full range
+                               floor_z=self.floor_z if self.floor_z is not None else NO_FLOOR_Z)
         key = None if ray is None else (state, tuple(np.round(ray, 3).ravel()))
         if key == self._follow_shown:
             return

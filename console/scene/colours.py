@@ -7,3 +7,6 @@ UNCERTAINTY_RGB = (255, 80, 80)  # how far off the prediction may be
 FRUSTUM_RGB = (255, 230, 120)    # the camera now, and its seabed footprint
 CAPTURE_RGB = (230, 120, 255)    # the camera where the picture shown was captured
 FOLLOW_RGB = (255, 210, 0)       # the ray to the followed object (the ROI's colour)
+# The objects the ROV recognised, by class (docs/PROTOCOL.md §11).
+OBJECT_RGB = {"amphora": (214, 140, 80), "pipe": (170, 170, 190), "timber": (150, 110, 70), "ladder": (120, 200, 200),
+              "unknown": (200, 200, 120)}

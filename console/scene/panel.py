@@ -132,6 +132,8 @@ class PanelCallbacks:
     refused: Callable[[], None] | None = None  # an order was refused (the scene counts them)
     set_view: Callable[[str], None] | None = None  # this viewer's camera: follow, top or free
     centre_view: Callable[[], None] | None = None  # this viewer's camera onto the vehicle
+    # The simulator's own seabed shown or hidden (its truth, not measured): `rovlink demo` only.
+    sim_seabed: Callable[[bool], None] | None = None
 
 
 class ControlPanel:
@@ -230,6 +232,11 @@ class ControlPanel:
                                               hint="; ".join(chase.VIEW_LABELS[v] for v in chase.VIEWS))
             self.centre_button = self.gui.add_button("Centre on vehicle")
             self.legend = self.gui.add_html(legend_html())
+            self.sim_seabed = None
+            if self.callbacks.sim_seabed is not None:
+                self.sim_seabed = self.gui.add_checkbox(
+                    "Simulator's seabed (truth)", initial_value=False,
+                    hint="the simulator's own seabed, not measured: the floor drawn is the one the ROV measured")
         if self.view_panel is not None:
             self.view_panel.float(x=10, y=-10, width=VIEW_PANEL_WIDTH_PX)  # the lower left corner
         set_view, centre_view = self.callbacks.set_view, self.callbacks.centre_view
@@ -237,6 +244,9 @@ class ControlPanel:
             self.view.on_update(lambda _event: set_view(self.view.value))
         if centre_view is not None:
             self.centre_button.on_click(lambda _event: centre_view())
+        if self.sim_seabed is not None:
+            show = self.callbacks.sim_seabed
+            self.sim_seabed.on_update(lambda _event: show(bool(self.sim_seabed.value)))
 
     # ------------------------------------------------------------------
     # Vehicle: arm, mode, state

@@ -46,6 +46,7 @@ from rovlink.console.session.odometry import History, LogLine, Odometry, Pose
 from rovlink.console.session.orders import OrderBook
 from rovlink.console.session.predictor import preview_path
 from rovlink.console.session.recorder import Recorder
+from rovlink.console.session.world import SeenWorld
 from rovlink.link import acoustic as ac
 from rovlink.link.acoustic.process import AcousticLinkProcess
 from rovlink.link.acoustic.pump import AcousticPump
@@ -107,6 +108,7 @@ class AcousticSession(SessionBase):
                                     decoder=self._decoder, settings=DEFAULT_THUMB)
         self.orders = OrderBook(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
         self.goto = GoToWatch(self.orders)
+        self.world = SeenWorld(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
         self.requested_settings = DEFAULT_THUMB
         self._by_oid: dict[int, tuple[int, str, Any]] = {}  # OID -> (console order id, kind, settings)
         self._stop_order: int | None = None  # the console's id of the STOP being sent
@@ -296,9 +298,19 @@ class AcousticSession(SessionBase):
                 self._alerting = e.alert
             elif isinstance(e, ac.Resyncing):
                 self.note(f"link lost ({e.why}): synchronising again", "alert", cause="link")
+            elif isinstance(e, ac.SceneAltitude):  # §11.2: what the ROV measured of the world
+                fix = self.odometry.fix
+                self.world.altitude(e.altitude_m, t, None if fix is None else fix.report.z_m)
+            elif isinstance(e, ac.SceneObjectReported):
+                self.world.object_seen(e.obj, e.record_bytes, t)
+            elif isinstance(e, ac.SceneObjectRemoved):
+                self.world.object_removed(e.object_id, t)
+            elif isinstance(e, ac.SceneRecordIgnored):
+                self.world.record_ignored(e.record_hex, t)
 
     def _status(self, report: VehicleReport, uplink: bool | None, t: float) -> None:
         previous = self.odometry.take(report, None)
+        self.world.depth(report.z_m)
         was = None if previous is None else previous.report
         pose = Pose.from_report(report)
         self.history.trail.append((t, pose.x_m, pose.y_m, pose.z_m))
@@ -595,6 +607,8 @@ class AcousticSession(SessionBase):
                 self.orders.replayed(record, t)
             elif kind in ("rx", "tx"):
                 self.health.event(t, kind, PACKET)
+            else:
+                self.world.replayed(record, t)
 
     # ------------------------------------------------------------------
     # The read side (any thread; no side effects)

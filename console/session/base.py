@@ -313,6 +313,19 @@ class SessionBase:
         with self._lock:
             return self.odometry.measured_velocity()
 
+    def world_state(self) -> dict:
+        """The world as the ROV measured it: the seabed's depth (None: no altitude
+        reported, no floor) and the objects it recognised (console/session/world.py)."""
+        return self.world.state(self.now())
+
+    def object_approach(self, object_id: int) -> dict | None:
+        """A go-to's target that stops short of object `object_id`, facing it (previewed, then
+        sent as any go-to); None for an object the ROV does not hold, or before any pose."""
+        fix = self.odometry.fix
+        if fix is None:
+            return None
+        return self.world.approach(object_id, fix.pose.x_m, fix.pose.y_m, fix.pose.z_m)
+
     def _may_move(self, report: VehicleReport) -> bool:
         """Whether the vehicle may be moving on its own accord at full speed (each
         driver says it for its link: armed on the radio's sticks; armed and not
@@ -380,6 +393,7 @@ class SessionBase:
             "link": self.link_state(),
             "velocity_wish": self.wish_state(),
             "orders": self.orders_state(),
+            "world": self.world_state(),
             "log": self.log_entries(20),
             "replaying": self.replaying,
             # The session's clock time now: a replay's own (it stands still while paused).

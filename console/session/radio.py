@@ -30,6 +30,7 @@ from typing import Callable, Iterator
 
 from rovlink.link.aio import run_master
 from rovlink.link.process import LinkProcessDown, MasterProcess
+from rovlink.link.radio.events import AltitudeReported, ObjectRecordIgnored, ObjectRemoved, ObjectReported
 from rovlink.link.radio.frame import MAX_FRAME
 from rovlink.link.radio.master import (
     ImageAbandoned,
@@ -76,6 +77,7 @@ from .odometry import History, Odometry, Pose
 from .orders import MODE_NAMES, REPORTED_MODE_NAMES, OrderBook
 from .predictor import NEUTRAL_WISH, Predictor
 from .recorder import Recorder
+from .world import SeenWorld
 
 __all__ = ["MAX_SPEED_MPS", "MODE_NAMES", "NotNow", "Operator", "OrderError", "Pose"]
 
@@ -142,6 +144,7 @@ class Operator(SessionBase):
                                     decoder=self._decoder, settings=self._initial_settings)
         self.orders = OrderBook(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
         self.goto = GoToWatch(self.orders)
+        self.world = SeenWorld(lock=self._lock, record=self.recorder.write, publish=self._publish, note=self.note)
         # The settings the pilot last asked for: the base for the pilot's edits.
         self.requested_settings = self._initial_settings or ImageSettings(mono=True, budget_bytes=2000)
         self._wish = NEUTRAL_WISH  # fractions -1..1
@@ -293,6 +296,9 @@ class Operator(SessionBase):
                 self.health.inauthentic(t)
             elif isinstance(event, LateReply):
                 self.health.late(t)
+            elif isinstance(event, (AltitudeReported, ObjectReported, ObjectRemoved, ObjectRecordIgnored)):
+                if not self.health.replaying:  # a replay lays the world from its own records
+                    self._scene(event, t)
             elif isinstance(event, Synced):
                 restarted = event.restarted and not event.first
                 self.note("ROV restarted (new BOOT): link synchronised again" if restarted else "link synchronised",
@@ -301,6 +307,18 @@ class Operator(SessionBase):
                     self._resend_image_settings()
             elif isinstance(event, RequestExpired):
                 orders.request_unrepeated(event.what, t, "the link repeated it for its 3 s")
+
+    def _scene(self, event, t: float) -> None:
+        """§11.1: what the ROV measured of the world, to the world part (SI)."""
+        if isinstance(event, AltitudeReported):
+            fix = self.odometry.fix
+            self.world.altitude(event.altitude_m, t, None if fix is None else fix.report.z_m)
+        elif isinstance(event, ObjectReported):
+            self.world.object_seen(event.obj, event.record_bytes, t)
+        elif isinstance(event, ObjectRemoved):
+            self.world.object_removed(event.object_id, t)
+        else:
+            self.world.record_ignored(event.record_hex, t)
 
     def _settled(self, master_id: int, fate: Fate, t: float, reason: str = "") -> None:
         settings = self.orders.settled(master_id, fate, t, reason)
@@ -357,6 +375,7 @@ class Operator(SessionBase):
         with self._lock:
             self._last_reply = reply
             previous = self.odometry.take(report, round_trip_s)
+            self.world.depth(report.z_m)
             entered_failsafe = bool(reply.failsafe) and (previous is None or not previous.report.failsafe)
             left_failsafe = not reply.failsafe and previous is not None and bool(previous.report.failsafe)
             self.health.reply(t, round_trip_s)
@@ -570,6 +589,8 @@ class Operator(SessionBase):
             self.replayed_wish(wish_fractions(record["v"]))
         elif kind in ("order", "order_state"):
             self.replayed_order(record)
+        elif self.world.replayed(record, now):
+            pass
         elif kind == "link" and record.get("version") == 2:
             self.link_version = "2"  # written before the first frame (authenticate comes before run)
 

@@ -178,6 +178,36 @@ class LinkState(BaseModel):
     profile: Literal["radio", "acoustic"] = Field("radio", description="the link's profile (docs/PROTOCOL.md §9: acoustic)")
 
 
+class SeenObjectInfo(BaseModel):
+    """An object the ROV recognised on the seabed (docs/PROTOCOL.md §11), as it last told it."""
+
+    id: int
+    class_: str = Field(alias="class", description="amphora, pipe, timber, ladder or unknown")
+    confidence: float = Field(description="0..1")
+    north_m: float
+    east_m: float
+    length_m: float
+    width_m: float
+    heading_deg: float = Field(description="of the long axis, 0..180, clockwise from north")
+    record_bytes: int = Field(description="the bytes its last record took on the link")
+    first_t: float
+    updated_t: float
+    age_s: float = Field(description="since the ROV last told it")
+
+
+class WorldState(BaseModel):
+    """The world as the ROV measured it: the seabed at its depth plus its altitude, and
+    the objects it recognised; nothing from any simulator's truth."""
+
+    seabed_depth_m: float | None = Field(description="null: no altitude reported, so no floor is drawn")
+    altitude_m: float | None
+    altitude_age_s: float | None
+    altitude_stale: bool
+    seabed_unknown_why: str | None
+    objects: list[SeenObjectInfo]
+    records_ignored: int = Field(description="object records out of range, counted and ignored")
+
+
 class VelocityWish(BaseModel):
     vx: float
     vy: float

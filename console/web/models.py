@@ -27,6 +27,7 @@ from rovlink.console.session.state import (
     OrderInfo,
     PoseState,
     VelocityWish,
+    WorldState,
 )
 
 # The one mode list (the protocol's), as a type for the schema.
@@ -154,6 +155,7 @@ class State(BaseModel):
     link: LinkState
     velocity_wish: VelocityWish
     orders: list[OrderInfo]
+    world: WorldState
     log: list[LogEntry]
     replaying: bool
     wall: float | None = Field(None, description="the session's clock time now, Unix seconds (a replay's own)")

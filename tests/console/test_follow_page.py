@@ -91,17 +91,22 @@ def test_the_scene_draws_the_ray_from_the_capture_through_the_coded_roi_to_the_s
         assert followed.drawn_on == shown
         assert wait_for(lambda: (live.operator.image_state().get("track") or {}).get("state") == "holds", 60)
         assert wait_for(lambda: scene.follow_node.visible, 10), "no ray drawn"
+        # The seabed as a ROV with a rangefinder tells it (this stack's link, version 1.1, carries no
+        # altitude, §11): the ray then ends on that floor, the one the ROV measured.
+        z = live.operator.vehicle().z_m
+        live.operator.world.altitude(scene.seabed.depth_m - z, live.operator.now(), z)
+        assert wait_for(lambda: scene.floor_z is not None, 10), "no floor drawn"
 
         def drawn_as_state() -> bool:
             image = live.operator.image_state()
             want = followed_ray(image["capture"]["pose"], image["settings"]["roi"], hfov_deg=scene.hfov_deg,
                                 tilt_deg=scene.tilt_deg, size_px=scene.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU,
-                                floor_z=scene.seabed.floor_z)
+                                floor_z=scene.floor_z)
             return np.allclose(np.asarray(scene.follow_node.points)[0], want, atol=1e-3)
 
         assert wait_for(drawn_as_state, 10)
         hit = np.asarray(scene.follow_node.points)[0][1]
-        assert hit[2] == pytest.approx(scene.seabed.floor_z, abs=1e-3)  # it ends on the seabed
+        assert hit[2] == pytest.approx(scene.floor_z, abs=1e-3)  # it ends on the measured seabed
         assert frames.world_to_ned(hit)[0] > live.operator.image_state()["capture"]["pose"]["x_m"]  # ahead (north)
         # A plain IMAGE order ends the following: the ray goes once the pictures say no track.
         panel.refresh()

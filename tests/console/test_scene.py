@@ -218,11 +218,15 @@ def test_scene_is_served_on_loopback_with_every_node(live):
     assert scene.url.startswith("http://127.0.0.1:")
     with urllib.request.urlopen(scene.url, timeout=10) as response:
         assert response.status == 200
-    for name in ("/seabed", "/rov", "/rov/mesh", "/rov/camera", "/ghost", "/ghost/mesh", "/screen", "/screen/roi",
+    for name in ("/floor", "/rov", "/rov/mesh", "/rov/camera", "/ghost", "/ghost/mesh", "/screen", "/screen/roi",
                  "/trail", "/footprint", "/target", "/target_ghost", "/preview", "/ghost_uncertainty", "/capture",
                  "/capture/camera"):
         assert scene.server.scene.get_handle_by_name(name) is not None, name
     assert ConsoleScene.__init__.__kwdefaults__["host"] == "127.0.0.1"
+    # The simulator's seabed is its truth: only `rovlink demo` offers it (sim_seabed), never drawn here,
+    # and no floor until the ROV measures one (this stack's version 1.1 carries no altitude, §11).
+    assert scene.server.scene.get_handle_by_name("/seabed") is None
+    assert not scene.floor_node.visible and scene.floor_z is None
 
 
 def test_poses_follow_odometry(live):

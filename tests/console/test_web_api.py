@@ -93,7 +93,8 @@ def test_page_embeds_scene_url_and_documents_the_keys(operator):
 
 def test_state_holds_pose_link_image_wish_orders_log_and_control(client):
     state = client.get("/api/state").json()
-    assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "log", "replaying", "wall", "control", "target"}
+    assert set(state) == {"pose", "image", "link", "velocity_wish", "orders", "world", "log", "replaying", "wall", "control",
+                          "target"}
     assert state["control"] == {"held": False, "holder": None, "holder_kind": None, "held_for_s": None,
                                 "you": False, "lease_s": 30.0, "unattended_s": None, "unattended_warning": False,
                                 "disarm_unattended_s": None, "centre_to_drive": False}

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, HTTPException, Request
 
 from ..deps import ClientIdDep, DeskDep, OperatorDep
-from ..models import Config, LogEntry, OrderInfo, PoseState, State
+from ..models import Config, ErrorBody, LogEntry, OrderInfo, PoseState, State, WorldState
 from ..telemetry import finite, snapshot
 
 router = APIRouter(prefix="/api", tags=["state"])
@@ -20,6 +20,22 @@ def get_state(operator: OperatorDep, desk: DeskDep, cid: ClientIdDep) -> dict:
 @router.get("/pose", response_model=PoseState, summary="Received and predicted pose, armed, mode, failsafe")
 def get_pose(operator: OperatorDep) -> dict:
     return finite(operator.pose_state())
+
+
+@router.get("/world", response_model=WorldState,
+            summary="The world the ROV measured: the seabed's depth and the objects it recognised")
+def get_world(operator: OperatorDep) -> dict:
+    return finite(operator.world_state())
+
+
+@router.get("/world/objects/{object_id}/approach", summary="A go-to target short of an object, facing it",
+            responses={404: {"model": ErrorBody}})
+def get_approach(object_id: int, operator: OperatorDep) -> dict:
+    """Where a go-to to the object would stop (its stand-off), for the page to preview and send."""
+    target = operator.object_approach(object_id)
+    if target is None:
+        raise HTTPException(404, f"no object #{object_id}: the ROV does not hold it (or no pose yet)")
+    return target
 
 
 @router.get("/orders", response_model=list[OrderInfo], summary="The last 50 one-shot orders and their progress")

@@ -130,11 +130,11 @@ function send(obj) {
 // REST
 // ---------------------------------------------------------------------------
 
-async function api(path, body) {
+async function api(path, body, method = "POST") {
   const headers = { "Content-Type": "application/json" };
   if (page.clientId) headers[CLIENT_HEADER] = page.clientId;
   try {
-    const resp = await fetch(path, { method: "POST", headers, body: JSON.stringify(body ?? {}) });
+    const resp = await fetch(path, method === "GET" ? { headers } : { method, headers, body: JSON.stringify(body ?? {}) });
     const text = await resp.text();
     const data = text ? JSON.parse(text) : null;
     if (!resp.ok) {
@@ -419,6 +419,7 @@ function render(s) {
   }
   renderWish(s.velocity_wish);
   renderTarget(s.target);
+  renderWorld(s.world);
 
   const l = s.link;
   $("link-since-reply").textContent = l.since_reply_s === null ? "—" : `${fmt(l.since_reply_s, 1)} s`;
@@ -674,6 +675,51 @@ function renderOrder(o, quiet) {
     if (old) old.replaceWith(li); else ul.prepend(li);
     ul.dataset.lines = "";
   }
+}
+
+// What the ROV measured of the world (console/session/world.py): the seabed's depth, or why
+// it is unknown (then the 3-D scene draws no floor), and the objects it recognised, each
+// with its age; "Go to" fills the go-to with a stand-off facing it and previews it.
+function renderWorld(w) {
+  if (!w) return;
+  const seabed = $("seabed-text");
+  const text = w.seabed_depth_m === null ? `seabed depth unknown: ${w.seabed_unknown_why}`
+    : `seabed at ${fmt(w.seabed_depth_m, 1)} m (altitude ${fmt(w.altitude_m, 1)} m, ${fmt(w.altitude_age_s, 0)} s ago` +
+      `${w.altitude_stale ? ", OLD" : ""})` + (w.records_ignored ? `; ${w.records_ignored} bad object records ignored` : "");
+  if (seabed.textContent !== text) seabed.textContent = text;
+  seabed.className = w.seabed_depth_m === null || w.altitude_stale ? "stale" : "";
+  const ul = $("objects");
+  const key = w.objects.map((o) => `${o.id}:${o.updated_t}`).join(",");
+  if (ul.dataset.key === key) {
+    for (const li of ul.children) {  // only the ages move
+      const o = w.objects.find((x) => `${x.id}` === li.dataset.id);
+      if (o) li.querySelector(".age").textContent = `${fmt(o.age_s, 0)} s ago`;
+    }
+    return;
+  }
+  ul.dataset.key = key;
+  ul.replaceChildren(...w.objects.map((o) => {
+    const li = document.createElement("li");
+    li.dataset.id = o.id;
+    li.append(`#${o.id} ${o.class} ${fmt(o.length_m, 1)} × ${fmt(o.width_m, 1)} m at N ${fmt(o.north_m, 1)} ` +
+      `E ${fmt(o.east_m, 1)}, heading ${fmt(o.heading_deg, 0)}°, ${Math.round(o.confidence * 100)} %, `);
+    const age = Object.assign(document.createElement("span"), { className: "age", textContent: `${fmt(o.age_s, 0)} s ago` });
+    const go = Object.assign(document.createElement("button"), {
+      type: "button", className: "needs-control object-goto", textContent: "Go to",
+      title: "fill in a go-to that stops short of it, facing it, and preview it (Go to sends it)" });
+    go.onclick = () => approachObject(o.id);
+    go.disabled = !page.holder;
+    li.append(age, " ", go);
+    return li;
+  }));
+}
+
+async function approachObject(id) {
+  const t = await api(`/api/world/objects/${id}/approach`, undefined, "GET");
+  if (!t) return;
+  $("goto-x").value = t.x_m; $("goto-y").value = t.y_m; $("goto-z").value = t.z_m; $("goto-yaw").value = t.yaw_deg;
+  $("goto-plan").dataset.object = id;
+  $("goto-preview").click();
 }
 
 function renderTarget(t) {
