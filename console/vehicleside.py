@@ -80,7 +80,7 @@ async def _run(args: argparse.Namespace, key: bytes | None) -> None:
         raise SystemExit(f"vehicle side: {exc}") from None
     config = StackConfig(bitrate_bps=args.bitrate, delay_s=args.delay, ber=args.ber, seed=args.seed,
                          failsafe_s=args.failsafe, camera=args.camera, seabed=args.seabed, channel_log=args.channel_log,
-                         start_depth_m=args.start_depth, key=key, tracker="klt")
+                         start_depth_m=args.start_depth, key=key, tracker="klt", objects=True)
     vehicle = VehicleSide(config, endpoint)
     try:
         try:

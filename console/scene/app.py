@@ -63,6 +63,7 @@ import viser
 from PIL import Image
 from viser import transforms as tf
 
+from rovlink import debt
 from rovlink.assets import ASSETS_DIR
 from rovlink.console import control
 from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
@@ -70,7 +71,7 @@ from rovlink.console.session.base import OrderError
 from rovlink.console.session.contract import VehicleSession
 from rovlink.console.session.odometry import Pose
 
-from . import chase, frames
+from . import chase, frames, mosaic
 from .chase import SCREEN_WIDTH_M, ViewerView
 from .colours import CAPTURE_RGB, FOLLOW_RGB, FRUSTUM_RGB, GHOST_RGB, OBJECT_RGB, ROV_RGB, TARGET_RGB, UNCERTAINTY_RGB
 from .follow import followed_ray
@@ -123,6 +124,7 @@ START_POSITION = (0.0, 0.0, -2.0)  # where the screen waits for the first odomet
 
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
+MOSAIC_KEPT = 12  # pictures laid on the floor at once
 NO_FLOOR_Z = -1.0e6  # a plane no ray meets within its range
 
 @dataclass(frozen=True)
@@ -182,6 +184,7 @@ class ConsoleScene:
         self.floor_z: float | None = None  # the measured seabed (world z, up); None: no floor
         self._objects_shown: dict[int, tuple] = {}  # what each object's box was laid from
         self._object_nodes: dict[int, object] = {}
+        self._mosaic: dict[int, tuple] = {}  # picture serial -> (floor it was laid on, its node)
         self.rov_mesh = load_rov_mesh()
         self.server: viser.ViserServer | None = None
         self.panels: dict[int, ControlPanel] = {}  # one per viewer, by viser's client id
@@ -339,6 +342,42 @@ class ConsoleScene:
         for gone in set(self._objects_shown) - set(seen):
             self._object_nodes.pop(gone).remove()
         self._objects_shown = seen
+
+    def update_mosaic(self) -> None:
+        """The pictures received laid on the measured floor where they were taken (the
+        last MOSAIC_KEPT, the newest on top); none without a floor."""
+        if self.floor_z is None:
+            for _floor, node in self._mosaic.values():
+                node.visible = False
+            return
+        kept = [e for e in self.operator.image_history()
+                if not e.get("partial") and (e.get("capture") or {}).get("pose")][-MOSAIC_KEPT:]
+        wanted = {e["n"] for e in kept}
+        for n in [n for n in self._mosaic if n not in wanted]:
+            self._mosaic.pop(n)[1].remove()
+        for rank, entry in enumerate(kept):
+            n = entry["n"]
+            laid = self._mosaic.get(n)
+            if laid is not None and laid[0] == self.floor_z:
+                _show(laid[1])
+                continue
+            quad = mosaic.ground_quad(entry["capture"]["pose"], hfov_deg=self.hfov_deg, tilt_deg=self.tilt_deg,
+                                      size_px=self.image_px, camera_in_body_flu=CAMERA_IN_BODY_FLU,
+                                      floor_z=self.floor_z)
+            if quad is None:
+                continue
+            try:
+                picture = debt.decode(entry["stream"])
+            except ValueError:  # a stream this codec cannot read: said when it came, not laid
+                continue
+            raster, centre, width_m, height_m = mosaic.warp_to_ground(as_rgb(picture), *quad)
+            centre[2] = self.floor_z + 0.01 + 0.002 * rank  # the newest on top
+            node = self.server.scene.add_image(f"/mosaic/{n}", raster, width_m, height_m, format="png",
+                                               position=centre, wxyz=(0.0, 1.0, 0.0, 0.0), cast_shadow=False,
+                                               receive_shadow=False)
+            if laid is not None:
+                laid[1].remove()
+            self._mosaic[n] = (self.floor_z, node)
 
     def show_sim_seabed(self, visible: bool) -> None:
         """The simulator's own seabed (its truth, not measured): `rovlink demo` only."""
@@ -770,6 +809,7 @@ class ConsoleScene:
                     next_panel = t0 + 0.5
                     self.update_trail()
                     self.update_world()
+                    self.update_mosaic()
                     self.update_permissions()
                     self.refresh_panels()
             except Exception:  # a bad frame must not end the scene

@@ -32,7 +32,8 @@ class SeenWorld:
         self._lock, self._record, self._publish, self._note = lock, record, publish, note
         self.altitude_m: float | None = None
         self.altitude_t: float | None = None  # when the ROV last told it (session time)
-        self.depth_m: float | None = None     # the vehicle's depth with it (the latest report's)
+        self.depth_m: float | None = None     # the vehicle's depth when it was told (the report's then)
+        self._latest_depth_m: float | None = None
         self.objects: dict[int, dict] = {}
         self.records_ignored = 0
 
@@ -43,19 +44,22 @@ class SeenWorld:
             changed = (altitude_m is None) != (self.altitude_m is None)
             self.altitude_m = None if altitude_m is None else float(altitude_m)
             self.altitude_t = t
-            if depth_m is not None:
-                self.depth_m = float(depth_m)
+            depth_m = self._latest_depth_m if depth_m is None else depth_m
+            self.depth_m = None if depth_m is None else float(depth_m)
         self._record({"k": "altitude", "t": round(t, 4),
-                      "altitude_m": None if altitude_m is None else round(float(altitude_m), 3)})
+                      "altitude_m": None if altitude_m is None else round(float(altitude_m), 3),
+                      "depth_m": None if depth_m is None else round(float(depth_m), 3)})
         if changed:
             self._note("seabed depth unknown: the ROV reports no altitude (no rangefinder)" if altitude_m is None
                        else f"seabed measured: altitude {altitude_m:.2f} m above it")
         self._publish("world", self.state(t))
 
     def depth(self, depth_m: float) -> None:
-        """Each report's depth: the seabed under the vehicle is this plus the altitude."""
+        """Each report's depth: an altitude told without one is measured from here.  The
+        seabed is the depth an altitude was measured at plus that altitude (the ROV tells
+        it again as it changes), not today's depth plus an older altitude."""
         with self._lock:
-            self.depth_m = float(depth_m)
+            self._latest_depth_m = float(depth_m)
 
     def object_seen(self, obj, record_bytes: int, t: float) -> None:
         with self._lock:
@@ -139,7 +143,7 @@ class SeenWorld:
         """A recorded altitude or object, laid again; False: not a record of the world."""
         kind = record.get("k")
         if kind == "altitude":
-            self.altitude(record.get("altitude_m"), t, None)
+            self.altitude(record.get("altitude_m"), t, record.get("depth_m"))
         elif kind == "object":
             self.object_seen(_Recorded(record), int(record.get("record_bytes", 0)), t)
         elif kind == "object_removed":

@@ -525,3 +525,24 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
     view = pixels[:, : int(pixels.shape[1] * 0.6)]  # the 3-D view, left of the panel
     assert view.std() > 15.0, "the 3-D view looks blank"
     scene.clear_roi()
+
+
+def test_pictures_are_laid_on_the_measured_floor_and_only_there(live):
+    """With no altitude (this stack's version 1.1 carries none) no floor and no picture
+    laid; once the ROV tells its altitude (as one with a rangefinder does) the floor is
+    drawn at its depth plus the altitude, the pictures received are laid on it, and the
+    simulator's own seabed never shows."""
+    op, scene = live.operator, live.scene
+    assert wait_for(lambda: any(not e["partial"] for e in op.image_history()), 60), op.image_state()
+    time.sleep(1.0)
+    assert scene.floor_z is None and not any(node.visible for _, node in scene._mosaic.values())
+    z = op.vehicle().z_m
+    op.world.altitude(6.0 - z, op.now(), z)  # the seabed 6 m down
+    assert wait_for(lambda: scene.floor_z == -6.0 and scene._mosaic, 10), (scene.floor_z, scene._mosaic)
+    assert scene.floor_node.visible and abs(scene.floor_node.position[2] + 6.0) < 1e-6
+    laid = list(scene._mosaic.values())
+    assert all(floor == -6.0 and node.visible and abs(node.position[2] + 6.0) < 0.1 for floor, node in laid)
+    assert scene.server.scene.get_handle_by_name("/seabed") is None
+    op.world.altitude(None, op.now(), z)  # the rangefinder stops reporting: no floor, nothing laid
+    assert wait_for(lambda: scene.floor_z is None and not scene.floor_node.visible, 10)
+    assert not any(node.visible for _, node in scene._mosaic.values())
