@@ -595,6 +595,13 @@ def grey_twin(name: str) -> str | None:
     return f"{head}-grey/{tail}"
 
 
+def codec_textured(img) -> bool:
+    from rovlink.debt import codec
+
+    grey, colour = codec._as_image(img, None)
+    return codec._textured(grey, colour)
+
+
 def header_bytes(data: bytes) -> int:
     """DEBT's header and side bytes: what it spends before the first coded coefficient."""
     from rovlink.debt import codec
@@ -613,7 +620,9 @@ def losses(quality: list[dict], images: dict) -> list[dict]:
       header were free) is at or above the codec;
     - colour: the picture is in colour and DEBT is at or above the codec on
       its grey version at the same budget (it loses only in the chroma);
-    - texture: detail in at least TEXTURE_SHARE of the 8x8 blocks (`busy_share`);
+    - texture: detail in at least TEXTURE_SHARE of the 8x8 blocks (`busy_share`),
+      or a finest band that wavelet packets would gather (the codec's own
+      `_textured`);
     - edges: detail held in fewer blocks (outlines, text)."""
     from rovlink import debt
 
@@ -643,7 +652,7 @@ def losses(quality: list[dict], images: dict) -> list[dict]:
                     loss.update(cause="header", why=f"{extra} header bytes free would close it")
                 elif twin_margin is not None and twin_margin >= 0:
                     loss.update(cause="colour", why=f"grey version {twin_margin:+.3g}")
-                elif share >= TEXTURE_SHARE:
+                elif share >= TEXTURE_SHARE or codec_textured(img):
                     loss.update(cause="texture", why=f"detail in {share:.0%} of blocks")
                 else:
                     loss.update(cause="edges", why=f"detail in {share:.0%} of blocks")
