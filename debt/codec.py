@@ -481,7 +481,8 @@ def _packets_for(bpp: float) -> tuple:
 
 # A finest detail band whose split gathers its energy this much (arithmetic
 # over geometric mean of the four sub-bands' variances, the split's coding
-# gain) marks a texture worth the packet streams' trial.  Luma of the 52
+# gain) marks a texture worth the packet streams' trial (`rovlink bench
+# debt` names it as a cause where DEBT is behind).  Luma of the 52
 # photograph variants of `rovlink bench debt`: brick 3.75 (scaled down) and
 # 2.43 (crop), where packets win; every other at most 1.94 (page), where
 # they lose or gain < 0.1 dB.  Costs ~1 ms; the trial, three encodes and

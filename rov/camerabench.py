@@ -95,8 +95,9 @@ def camera_rows(runs: int, budgets=CAMERA_BUDGETS, frames: dict | None = None, p
             timed = len(j2k) if short else budget
             for roi, shift in ((None, 0), CAMERA_ROI):
                 data = debt.encode(img, budget, roi=roi, shift=shift)
+                quality = bench.measures(img, debt.decode(data))
                 row = dict(image=name, budget=budget, roi=list(roi) if roi else None, shift=shift,
-                           mode=bench.debt_mode(data), debt_psnr=bench.psnr(img, debt.decode(data)),
+                           mode=bench.debt_mode(data), debt_psnr=quality["psnr"], debt_msssim=quality["msssim"],
                            openjpeg_psnr=j2k_psnr, openjpeg_bytes=len(j2k), openjpeg_short=short,
                            debt_bytes_timed=timed)
                 if short:
@@ -118,6 +119,15 @@ def camera_rows(runs: int, budgets=CAMERA_BUDGETS, frames: dict | None = None, p
         if progress:
             progress(done, len(frames), name)
     return rows
+
+
+def quality_rows(frames: dict, budgets=CAMERA_BUDGETS, progress=None) -> list[dict]:
+    """The whole-picture quality of DEBT (without a region) beside JPEG 2000,
+    WebP and AVIF on the camera's pictures, in `rovlink bench debt`'s row
+    form (PSNR, SSIM, MS-SSIM), for its margins and losses."""
+    from rovlink.debt import bench
+
+    return bench.quality_rows(frames, tuple(budgets), progress)
 
 
 def camera_targets(rows: list[dict]) -> dict:
@@ -153,9 +163,15 @@ def measure(runs: int = 7, budgets=CAMERA_BUDGETS, only: str | None = None, prog
     if only:
         keys = [k.strip() for k in only.split(",")]
         frames = {n: im for n, im in frames.items() if any(k in n for k in keys)}
+    from rovlink.debt import bench
+
     camera = camera_rows(runs, tuple(budgets), frames, progress) if frames else []
+    quality = quality_rows(frames, budgets) if frames else []
     return dict(budgets=list(budgets), roi=dict(rect=list(CAMERA_ROI[0]), shift=CAMERA_ROI[1]),
-                camera=camera, targets=camera_targets(camera) if camera else {})
+                camera=camera, quality=quality, margin_budgets=list(bench.MARGIN_BUDGETS),
+                margins=bench.margins(quality) if quality else {},
+                losses=bench.losses(quality, frames) if quality else [],
+                targets=camera_targets(camera) if camera else {})
 
 
 def _met(ok) -> str:
@@ -163,11 +179,11 @@ def _met(ok) -> str:
 
 
 def render(result: dict) -> str:
-    from rovlink.debt.bench import DECODE_TARGET, ENCODE_TARGET, _r, format_table
+    from rovlink.debt.bench import DECODE_TARGET, ENCODE_TARGET, _r, format_table, render_margins
 
     parts = []
     rows = [[r["image"], r["budget"], "roi" if r["roi"] else "-", r["mode"], _r(r["debt_psnr"]),
-             _r(r["openjpeg_psnr"]), r.get("openjpeg_bytes"),
+             _r(r["openjpeg_psnr"]), _r(r.get("debt_msssim"), 4), r.get("openjpeg_bytes"),
              f"{r.get('debt_bytes_timed', r['budget'])}" + ("<" if r.get("openjpeg_short") else ""),
              _r(r["debt_encode_ms"]), _r(r["openjpeg_encode_ms"]), _r(r["encode_ratio"]),
              _met(r["encode_ratio"] <= ENCODE_TARGET), _r(r["debt_decode_ms"]), _r(r["openjpeg_decode_ms"]),
@@ -180,9 +196,13 @@ def render(result: dict) -> str:
                  "(its whole codestream is smaller; 'timed B' marked <), DEBT is timed at the bytes OpenJPEG "
                  "wrote, and the ratios at the full budget (DEBT then codes more bytes) are in the last two "
                  "columns; elsewhere both are the same measurement.")
-    parts.append(format_table(["picture", "budget", "roi", "mode", "debt dB", "j2k dB", "j2k B", "timed B",
+    parts.append(format_table(["picture", "budget", "roi", "mode", "debt dB", "j2k dB", "debt ms-ssim",
+                               "j2k B", "timed B",
                                "debt enc", "j2k enc", "enc x", "enc", "debt dec", "j2k dec", "dec x", "dec",
                                "enc x @budget", "dec x @budget"], rows))
+    if result.get("margins"):
+        parts.append("\nWhole-picture quality beside JPEG 2000, WebP and AVIF (no region; --json: 'quality')")
+        parts.append(render_margins(result))
     t = result["targets"]
     if t:
         parts.append("\nTargets")

@@ -93,3 +93,17 @@ def test_the_command_refuses_bad_arguments_in_one_line(args, words):
     out = bench(*args)
     assert out.returncode in (1, 2)
     assert len(out.stderr.strip().splitlines()) == 1 and words in out.stderr, out.stderr
+
+
+def test_camera_quality_sets_debt_beside_webp_and_avif_in_psnr_and_msssim(sand):
+    from rovlink.debt import bench
+
+    quality = camerabench.quality_rows(sand, budgets=(1000,))
+    assert len(quality) == 1
+    row = quality[0]
+    for codec in ("debt", "jpeg2000", "webp", "avif"):
+        assert 0 < row[codec]["msssim"] <= 1 and row[codec]["psnr"] > 20, codec
+    margins = bench.margins(quality)
+    assert margins["avif"]["worst_margin_msssim"] == pytest.approx(row["debt"]["msssim"] - row["avif"]["msssim"])
+    text = bench.render_margins(dict(margins=margins, losses=bench.losses(quality, sand)))
+    assert "DEBT minus each codec" in text and "msssim" in text
