@@ -373,11 +373,8 @@ def load_photographs(names=PHOTOGRAPHS, grey_of_colour: bool = True) -> dict:
 
 # Pictures DEBT was not developed on (`--images heldout`): the photographs'
 # corners (top-right and bottom-left 320x240, where the centred crops and
-# downscales hold other content or none of it), the right view of the
-# motorcycle pair, and the ROV's simulated camera at poses drawn from a fixed
-# seed over the whole seabed (the camera bench's poses are hand-picked).
-HELDOUT_SEED = 40
-HELDOUT_POSES = 6
+# downscales hold other content or none of it) and the right view of the
+# motorcycle pair.
 
 
 def _corners(img) -> dict:
@@ -386,29 +383,11 @@ def _corners(img) -> dict:
     return {"tr": img[:fh, w - fw:], "bl": img[h - fh:, :fw]}
 
 
-def heldout_poses() -> dict:
-    """HELDOUT_POSES camera poses (x, y, z m, yaw, roll, pitch rad), from
-    HELDOUT_SEED: anywhere over +-15 m, 1-7.9 m deep (the seabed is at 8 m),
-    any heading, a little roll and pitch."""
-    import numpy as np
-
-    rng = np.random.default_rng(HELDOUT_SEED)
-    poses = {}
-    for i in range(HELDOUT_POSES):
-        x, y = rng.uniform(-15, 15, 2)
-        z = rng.uniform(1.0, 7.9)
-        yaw = rng.uniform(0, 2 * np.pi)
-        roll, pitch = rng.uniform(-0.1, 0.1), rng.uniform(-0.3, 0.3)
-        poses[f"pose{i} {8 - z:.1f} m up"] = tuple(round(float(v), 3) for v in (x, y, z, yaw, roll, pitch))
-    return poses
-
-
 def load_heldout(grey_of_colour: bool = True) -> dict:
     import os
 
     from skimage import data
 
-    from rovlink.debt import codec
 
     folder = os.path.dirname(data.__file__)
     images = {}
@@ -431,14 +410,7 @@ def load_heldout(grey_of_colour: bool = True) -> dict:
             down = _downscale(pic)
             if down is not None:
                 images[f"{label}/down"] = down.copy()
-    from rovlink.rov.camera import SimulatedCamera
-
-    camera = SimulatedCamera()
-    for name, pose in heldout_poses().items():
-        rgb = camera.capture(pose)
-        images[f"{name}/colour"] = rgb
-        if grey_of_colour:
-            images[f"{name}/grey"] = codec._as_image(rgb, True)[0]
+    # (The ROV camera's own pictures are `rovlink bench camera`'s, in rov/: debt/ imports no ROV.)
     return images
 
 
