@@ -719,6 +719,9 @@ def warm_up() -> None:
         soft = np.where(rng.random((16, 16)) < 0.4, 250, 5).astype(np.uint8)
         soft[3, :] = np.arange(16) * 16
         decode(encode(soft, 120))                                                # mask + residual
+    from . import jit
+
+    jit.mark_warmed()
 
 
 def warm_up_in_background(name: str = "debt-warm-up"):

@@ -64,6 +64,40 @@ def _drop_stale_cache(here: str) -> None:
         pass
 
 
+# A warm-up that ran to its end with the cache as it is marks it so (the sources'
+# stamp copied): `rovlink demo` then knows it only loads, however long loading takes
+# on a loaded machine, rather than guessing from the time it takes.
+_WARMED = "debt-warm-up.sha256"
+
+
+def _stamp(name: str) -> str | None:
+    try:
+        with open(os.path.join(_cache_dir(), name)) as f:
+            return f.read()
+    except OSError:
+        return None
+
+
+def warmed() -> bool:
+    """Whether every kernel was compiled into the on-disk cache for these sources."""
+    stamp = _stamp("debt-sources.sha256")
+    return stamp is not None and _stamp(_WARMED) == stamp
+
+
+def mark_warmed() -> None:
+    stamp = _stamp("debt-sources.sha256")
+    if stamp is None:
+        return  # no cache on disk: every process compiles anew
+    path = os.path.join(_cache_dir(), _WARMED)
+    try:
+        tmp = f"{path}.{os.getpid()}"
+        with open(tmp, "w") as f:
+            f.write(stamp)
+        os.replace(tmp, path)
+    except OSError:  # a read-only cache
+        pass
+
+
 if _numba is not None:
     # No reference counting (_nrt=False): profiling showed two thirds of the
     # traversal's time in the atomic increments numba wraps around every

@@ -83,10 +83,12 @@ async def run_master(
         with guard:
             frame = master.next_poll(now)
             events = master.take_events()
-        _hand(on_events, events, now)
-        _safely(on_turn, now)
+        # The poll first: its timer runs from `now`, and whatever the callbacks take
+        # (a busy console, a pipe to it) must not come out of its reply's time.
         if frame is not None:
             endpoint.send(frame)
+        _hand(on_events, events, now)
+        _safely(on_turn, now)
         with guard:
             deadline = master.deadline()
         wait = idle_poll_s if deadline is None else max(0.0, deadline - clock())

@@ -254,13 +254,27 @@ async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) 
     master.set_pilot_in_force(False)
     if spec.get("key") is not None:
         master = SecureMaster(master, spec["key"])
-        master.on_reply = lambda payload, sync, now: send(("reply", payload, sync, now))
+    # The replies the master was given, kept under its lock and sent after it: the pipe
+    # blocks while the console has not read it, and a loop waiting there with the lock
+    # held kept the console's calls waiting too (2 s, then "the link process did not
+    # answer": a STOP then waited for a restart that never came, shown queued).
+    replies: list[tuple] = []
+    if spec.get("key") is not None:
+        master.on_reply = lambda payload, sync, now: replies.append(("reply", payload, sync, now))
     lock = threading.Lock()
     confirmed = threading.Event()  # a STOP confirmed (after the console went: the child may end)
+
+    def send_replies() -> None:
+        with lock:
+            kept = replies[:]
+            replies.clear()
+        for message in kept:
+            send(message)
 
     def on_events(batch: list, t: float) -> None:
         if any(isinstance(e, StopConfirmed) for e in batch):
             confirmed.set()
+        send_replies()  # before the events they led to, as before
         with lock:
             status = _status(master)
         send(("events", batch, t, status))
@@ -268,6 +282,7 @@ async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) 
     port_seen: list = [None]
 
     def on_turn(t: float) -> None:
+        send_replies()
         port_seen[0], news = port_change(endpoint, port_seen[0])
         if news is not None:
             send(("port", port_seen[0], news, port_down_reason(endpoint)))

@@ -66,6 +66,7 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
     console_udp, chan_a, chan_b, rov_udp = (free_udp_port() for _ in range(4))
     http, viser = _free_port(), _free_port()
     base = f"http://127.0.0.1:{http}"
+    channel_log = os.path.join(workdir, "channel.jsonl")  # whose time a late reply spent
     procs: list[subprocess.Popen] = []
     logs = []
 
@@ -86,7 +87,8 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
               vehicle_core)
         start("channel", py + ["channel", "--a", f"udp://127.0.0.1:{chan_a}?peer=127.0.0.1:{console_udp}",
                                "--b", f"udp://127.0.0.1:{chan_b}?peer=127.0.0.1:{rov_udp}", "--bitrate", "1900",
-                               "--delay", "0.085", "--ber", "0", "--quiet"], vehicle_core)
+                               "--delay", "0.085", "--ber", "0", "--quiet", "--log", channel_log],
+              vehicle_core)
         console = start("console", py + ["console", "--key", key, "--no-record", "--port", str(http), "--viser-port",
                                          str(viser), "--link", f"udp://127.0.0.1:{console_udp}?peer=127.0.0.1:{chan_a}"]
                         + (["--link-thread"] if link_thread else []), console_core)
@@ -138,8 +140,9 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
                     t.start()
                 time.sleep(WARM_UP_S)
                 before = _get(base + "/api/link")
-                started_wall = time.time()
+                started_wall, started = time.time(), time.monotonic()
                 time.sleep(minutes * 60)
+                ended = time.monotonic()
                 after = _get(base + "/api/link")
                 log = _get(base + "/api/log")
             finally:
@@ -157,6 +160,7 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
     polls = after["sent"] - before["sent"]
     lost = after["reports_lost"] - before["reports_lost"]
     alerts = [e for e in log if e["level"] == "alert" and e["wall"] >= started_wall]
+    vehicle_side = vehicle_side_delays(channel_log, started, ended)
     return {
         "minutes": minutes,
         "link": "thread of the console's process" if link_thread else "process of its own",
@@ -175,7 +179,73 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
         "api_reads": reads[0], "api_reads_failed": reads[1],
         "cores": {"vehicle": sorted(vehicle_core), "console": sorted(console_core)},
         "burners": burners,
+        "vehicle_side": vehicle_side,
     }
+
+
+def vehicle_side_delays(channel_log: str, since: float, until: float = float("inf"), *,
+                        bitrate_bps: float = 1900.0, delay_s: float = 0.085) -> dict:
+    """Whose time a late reply spent, from the channel's own log (`rovlink channel --log`,
+    its clock CLOCK_MONOTONIC as this process's): each poll the console sent between
+    `since` and `until`, paired with the ROV's reply to it (the ROV's next frame before
+    the console's next one).  The ROV's turnaround runs from the poll handed to it to
+    its reply taken in; the channel's lateness is how long after their arrival it handed
+    either on.  A reply is late on the vehicle side when it was handed back to the console
+    later than the master's timeout allows (docs/PROTOCOL.md §5: both frames' air time,
+    twice the delay, and the margin, 0.15 s, or 0.05 s after a lost reply, counted here
+    both ways) after the poll entered the channel; every other reply the console counts
+    late was late on the console's side (its link process sent the poll after its timer
+    started, or read the reply after its deadline)."""
+    import json
+
+    polls: list[dict] = []
+    current: dict | None = None
+    with open(channel_log) as f:
+        for line in f:
+            try:
+                r = json.loads(line)
+            except ValueError:
+                continue  # a line cut short as the channel ended
+            ev, direction = r.get("ev"), r.get("dir")
+            if ev == "tx" and direction == "a>b":
+                current = {"t": r["t"], "air_s": 8.0 * r["bytes"] / bitrate_bps, "late": 0.0} \
+                    if since <= r["t"] < until else None
+                if current is not None:
+                    polls.append(current)
+            elif current is None:
+                continue
+            elif ev == "rx" and direction == "a>b" and "handed" not in current:
+                current["handed"] = r["t"] + r.get("late_s", 0.0)
+                current["late"] = r.get("late_s", 0.0)
+            elif ev == "tx" and direction == "b>a" and "handed" in current and "reply" not in current:
+                current["reply"], current["due_back"] = r["t"], r["arrival"]
+                current["air_s"] += 8.0 * r["bytes"] / bitrate_bps
+            elif ev == "rx" and direction == "b>a" and "reply" in current and "back" not in current:
+                current["back"] = r["t"] + r.get("late_s", 0.0)
+                current["late"] = max(current["late"], r.get("late_s", 0.0))
+    turnaround = sorted(p["reply"] - p["handed"] for p in polls if "reply" in p)
+
+    def ms(q: float) -> float | None:
+        return round(1000 * turnaround[min(len(turnaround) - 1, int(q * len(turnaround)))], 1) if turnaround else None
+
+    def late(margin_s: float) -> dict:
+        out = {"rov": 0, "channel": 0}
+        for p in polls:
+            if "back" in p and p["back"] - p["t"] > p["air_s"] + 2 * delay_s + margin_s:
+                out["rov" if p["reply"] - p["handed"] > p["late"] else "channel"] += 1
+        return out
+
+    # The console's next poll entered the channel before this one's reply was back, and
+    # sooner than the shortest timeout (0.05 s margin) after this one: this poll left the
+    # console later than the time its timer ran from (the console's side).
+    timer_ahead = sum(1 for p, q in zip(polls, polls[1:]) if "due_back" in p and q["t"] < p["due_back"]
+                      and q["t"] - p["t"] < p["air_s"] + 2 * delay_s + 0.05)
+    return {"polls": len(polls), "unanswered": sum(1 for p in polls if "back" not in p),
+            "console_poll_left_after_its_timer_started": timer_ahead,
+            "rov_turnaround_ms": {"p50": ms(0.5), "p99": ms(0.99), "max": ms(1.0)},
+            "rov_over_50ms": sum(1 for t in turnaround if t > 0.05),
+            "channel_late_over_50ms": sum(1 for p in polls if p["late"] > 0.05),
+            "late_on_vehicle_side": late(0.15), "late_on_vehicle_side_outage_margin": late(0.05)}
 
 
 def loaded_lines(rows: list[dict]) -> list[str]:
@@ -191,7 +261,20 @@ def loaded_lines(rows: list[dict]) -> list[str]:
                  r["polls"], r["replies_not_in_time"], r["late_percent"], r["link_lost_alerts"],
                  r["failsafe_alerts"],
                  f"{r['state_percent']['up']} / {r['state_percent']['degraded']} / {r['state_percent']['lost']}"]
-                for r in rows])]
+                for r in rows]),
+            "whose time (the channel's log): the ROV's turnaround from a poll handed to it to its reply, and the "
+            "channel's own lateness",
+            format_table(["the link runs in", "polls", "unanswered", "ROV p50 / p99 / max ms", "ROV > 50 ms",
+                          "channel late > 50 ms", "late by ROV / channel (0.05 s margin)",
+                          "console's poll left after its timer"], [
+                [r["link"], v["polls"], v["unanswered"],
+                 " / ".join(str(v["rov_turnaround_ms"][k]) for k in ("p50", "p99", "max")),
+                 v["rov_over_50ms"], v["channel_late_over_50ms"],
+                 f"{v['late_on_vehicle_side']['rov']} / {v['late_on_vehicle_side']['channel']} "
+                 f"({v['late_on_vehicle_side_outage_margin']['rov']} / "
+                 f"{v['late_on_vehicle_side_outage_margin']['channel']})",
+                 v["console_poll_left_after_its_timer_started"]]
+                for r in rows if (v := r.get("vehicle_side"))])]
 
 
 def loaded_target(r: dict) -> dict:

@@ -197,7 +197,10 @@ class Channel:
                 self.counters.bits_flipped += flipped
                 self._emit({"t": f.arrival, "ev": "corrupt", "dir": direction, "bytes": len(data), "bits": flipped})
             self.counters.delivered += 1
-            self._emit({"t": f.arrival, "ev": "rx", "dir": direction, "bytes": len(data)})
+            # late_s: how long after its arrival the packet was handed on (this process's
+            # own lateness, on a loaded machine), told apart from the ends' own.
+            self._emit({"t": f.arrival, "ev": "rx", "dir": direction, "bytes": len(data),
+                        "late_s": round(max(0.0, now - f.arrival), 6)})
             out.append(Delivery(receiver, data, f.arrival))
         self._prune(now)
         return out

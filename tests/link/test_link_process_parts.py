@@ -85,3 +85,47 @@ def test_the_radio_masters_calls_answered_with_its_status_and_a_call_not_listed_
     assert link._kept["set_attended"] == (True,)
     with pytest.raises(LinkProcessDown, match="^the link process is not running"):
         link.cancel_stop()
+
+
+def test_the_master_loop_sends_a_poll_before_it_hands_on_what_happened():
+    """run_master: the poll leaves before the events are handed on, so that a slow
+    callback (a console's, a pipe to it) never comes out of its reply's time."""
+    import asyncio
+
+    from rovlink.link.aio import run_master
+    from rovlink.link.radio.events import PollSent
+
+    class Endpoint:
+        max_frame = None
+
+        def __init__(self) -> None:
+            self.sent: list[bytes] = []
+
+        def send(self, frame: bytes) -> None:
+            self.sent.append(frame)
+
+        async def recv(self) -> bytes:
+            await asyncio.sleep(3600)
+
+        def recv_nowait(self):
+            return None
+
+    endpoint = Endpoint()
+    seen: list[tuple[bytes, int]] = []
+
+    async def main() -> None:
+        tasks: list[asyncio.Future] = []
+
+        def on_events(events: list, now: float) -> None:
+            for e in events:
+                if isinstance(e, PollSent):
+                    seen.append((e.frame, len(endpoint.sent)))
+                    tasks[0].cancel()
+
+        tasks.append(asyncio.ensure_future(run_master(Master(bitrate_bps=1900, delay_s=0.085), endpoint, on_events)))
+        with pytest.raises(asyncio.CancelledError):
+            await tasks[0]
+
+    asyncio.run(main())
+    frame, sent_before = seen[0]
+    assert sent_before == 1 and endpoint.sent[0] == frame
