@@ -142,7 +142,10 @@ def test_the_page_shows_an_arm_the_vehicle_follows_late_waiting_then_armed(brows
             page.screenshot(path=str(_shots(tmp_path) / "arm-waiting.png"))
             page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=30000)
             assert page.text_content("#arm-fate").startswith("armed ✓ "), page.text_content("#arm-fate")
-            assert page.text_content("#armed") == "ARMED"
+            # (The top bar's ARMED may not last: with nobody driving, the simulated ArduSub disarms
+            # 3 s after arming, as a real one does on "Lost manual control"; the fate is what is tested.)
+            arm = next(o for o in live.operator.orders_state() if o["kind"] == "ARM")
+            assert arm["state"] == "followed" and "t_waiting" in arm, arm
             shown = page.evaluate("Array.from(document.querySelectorAll('#orders li')).map(li => li.textContent)")
             arm_lines = [line for line in shown if " ARM" in line]
             assert arm_lines and "followed: " in arm_lines[0] and "after it was asked" in arm_lines[0], shown
