@@ -453,12 +453,6 @@ class RovNode:
         return stream
 
     def _start_objects(self, outbox) -> None:
-        if self._objects_geometry is None or outbox is None:
-            return
-        from rovlink.rov.objects import ObjectWatcher
+        from rovlink.rov.objects import watch_node_camera
 
-        def grab():
-            snap = self.bridge.snapshot()
-            return self.grab(snap), snap, snap.altitude_m
-
-        self.objects = ObjectWatcher(grab, outbox, geometry=self._objects_geometry).start()  # a failure: one warning
+        self.objects = watch_node_camera(self.bridge, self.grab, outbox, self._objects_geometry)

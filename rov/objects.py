@@ -368,3 +368,16 @@ class ObjectWatcher:
             return
         frame, pose, altitude = got
         self.map.add(detector.detect(frame, pose, altitude), now)
+
+
+def watch_node_camera(bridge, grab, outbox, geometry: CameraGeometry | None) -> ObjectWatcher | None:
+    """A node's object watcher (either profile's): its camera's frames with the bridge's
+    pose and altitude at the grab, told into `outbox`; None when it recognises nothing."""
+    if geometry is None or outbox is None:
+        return None
+
+    def frame():
+        snap = bridge.snapshot()
+        return grab(snap), snap, snap.altitude_m
+
+    return ObjectWatcher(frame, outbox, geometry=geometry).start()  # a failure: one warning
