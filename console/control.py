@@ -510,12 +510,13 @@ class ControlDesk:
             self._clients[client.id] = client
             return client
 
-    def disconnect(self, client_id: str) -> None:
-        """A WebSocket closed: its page is gone, and control with it."""
+    def disconnect(self, client_id: str, how: str = "") -> None:
+        """A WebSocket closed: its page is gone, and control with it.  `how`:
+        what ended it, for the log ("closed by the page (1001)", ...)."""
         with self._lock:
             client = self._clients.pop(client_id, None)
             if client is not None and self._holder == client_id:
-                self._release(f"control released: {client.name} left")
+                self._release(f"control released: {client.name} left" + (f" ({how})" if how else ""))
 
     def _lookup(self, client_id: str) -> Client:
         client = self._clients.get(client_id)

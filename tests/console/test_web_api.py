@@ -342,7 +342,10 @@ def test_websocket_velocity_only_from_the_holder_and_released_on_disconnect(clie
         assert client.post("/api/orders/mode", json={"mode": "MANUAL"}, headers=me).status_code == 200
     assert wait_for(lambda: not client.get("/api/control").json()["held"], 2.0)
     assert wish(operator) == (0.0, 0.0, 0.0, 0.0)
-    assert any("pilot page left" in e["text"] for e in client.get("/api/state").json()["log"])
+    # The log says how the page left (here its socket closed normally), so that a page
+    # dropped by a failed connection is told apart from one closed by its pilot.
+    assert any("pilot page left (closed by the page, code 1000" in e["text"]
+               for e in client.get("/api/state").json()["log"]), client.get("/api/state").json()["log"]
 
 
 def test_websocket_velocity_falls_back_to_neutral_when_its_repeats_stop(operator):

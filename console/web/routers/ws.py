@@ -131,24 +131,36 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
 
     unsubscribe = operator.subscribe(on_event)
     sender = asyncio.create_task(send_or_close(), name=f"ws sender {client.name}")
+    how = "its WebSocket ended"
     try:
         while True:
             # A page gone while the sender writes also ends this receive.
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
+                how = _how_it_closed(message.get("code"), message.get("reason"))
                 break
             if message.get("text") is None:
                 post({"type": "error", "message": "binary messages are not understood; send JSON text"})
                 continue
             _handle(message["text"], client.id, operator, desk, post)
-    except WebSocketDisconnect:
-        pass
+    except WebSocketDisconnect as exc:
+        how = _how_it_closed(exc.code, exc.reason)
     finally:
         # Release before any await: a cancelled handler must still let go.
-        desk.disconnect(client.id)
+        desk.disconnect(client.id, how)
+        log.info("WebSocket of %s ended: %s", client.name, how)
         unsubscribe()
         sender.cancel()
         await asyncio.gather(sender, return_exceptions=True)
+
+
+def _how_it_closed(code: int | None, reason: str | None) -> str:
+    """A WebSocket's end in words: a page that went away (1000, 1001) or a
+    connection that failed (1006, or 1011 when the server's keepalive ping
+    went unanswered)."""
+    words = {1000: "closed by the page", 1001: "the page went away", 1006: "the connection broke",
+             1011: "the connection failed"}.get(code, "its WebSocket closed")
+    return f"{words}, code {code}" + (f": {reason}" if reason else "")
 
 
 def _handle(text: str, client_id: str, operator, desk, post) -> None:

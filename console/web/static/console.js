@@ -64,8 +64,11 @@ function connect() {
   page.ws = ws;
   ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
   ws.onopen = () => setBadge($("connection"), "online", "good");
-  ws.onclose = () => {
-    // Our id and any control we held died with the socket.
+  ws.onclose = (ev) => {
+    // Our id and any control we held died with the socket.  How many times and how
+    // (a test that finds control gone reads it here).
+    const closes = (+(document.body.dataset.socketCloses || "0").split(" ")[0] || 0) + 1;
+    document.body.dataset.socketCloses = `${closes} (last code ${ev.code})`;
     page.clientId = null;
     setHolder(false);
     setBadge($("connection"), "offline", "bad");
