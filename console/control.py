@@ -71,6 +71,7 @@ STOP_KEY_ANYWHERE = "Escape"  # STOP from any focus, text fields included
 KEY_GAIN = 0.5            # the fraction a held key asks for (the page's strength slider starts here)
 DEADMAN_S = 1.0           # a streamed velocity (keys, gamepad) goes neutral when not repeated within it
 LEASE_S = 30.0            # a script holding control and silent this long loses it
+STATUS_WAIT_S = 0.05      # a status waits this long for the lock, then reads without it
 UNATTENDED_WARN_S = 60.0  # armed with nobody in control this long: every page is warned
 # The picture budget's limit is the link's (`Capabilities.image_budget_max`), not one here.
 LIMITS = {"velocity": (-1.0, 1.0), "shift": (0, 15)}
@@ -653,51 +654,63 @@ class ControlDesk:
         """What no request triggers: the dead man, script leases, nobody in
         control (neutral; a warning; optionally disarm).  A few times a second."""
         now = self._clock()
-        with self._lock:
-            holder = self._holder_client()
-            if holder is not None and holder.streamed_at is not None \
-                    and now - holder.streamed_at > self.deadman_s:
-                holder.streamed_at = None
-                self._set_neutral()
-                self._uncentre(holder)  # the stick's state is unknown until its next neutral
-                self.operator.note(f"velocity from {holder.name} stopped arriving: neutral", "warn")
-                self._publish_control()
-            if holder is not None and holder.kind == "script" and now - holder.last_seen > self.lease_s:
-                self._release(f"control released: {holder.name} silent for {self.lease_s:g} s")
-                holder = None
-            for client in [c for c in self._clients.values() if c.kind == "script"]:
-                # Forget idle scripts so that memory stays flat.
-                if client.id != self._holder and now - client.last_seen > self.lease_s:
-                    del self._clients[client.id]
-            if holder is None:
-                self._set_neutral()  # nobody in control: nobody drives
-                if self.disarm_unattended_s is not None and not self._disarmed_unattended \
-                        and self._armed() and now - self._unheld_since >= self.disarm_unattended_s \
-                        and not self.operator.replaying:
-                    self._disarmed_unattended = True
-                    self.operator.note(f"nobody in control for {self.disarm_unattended_s:g} s with the "
-                                       f"vehicle armed: disarming", "alert")
-                    self.operator.arm(False)
+        # An order waiting on the link process holds the lock (2 s at most): this tick
+        # is skipped, not waited for (the pages' telemetry calls it, and would stall).
+        if not self._lock.acquire(blocking=False):
+            return
+        try:
+            self._tick(now)
+        finally:
+            self._lock.release()
+
+    def _tick(self, now: float) -> None:
+        # (lock held)
+        holder = self._holder_client()
+        if holder is not None and holder.streamed_at is not None \
+                and now - holder.streamed_at > self.deadman_s:
+            holder.streamed_at = None
+            self._set_neutral()
+            self._uncentre(holder)  # the stick's state is unknown until its next neutral
+            self.operator.note(f"velocity from {holder.name} stopped arriving: neutral", "warn")
+            self._publish_control()
+        if holder is not None and holder.kind == "script" and now - holder.last_seen > self.lease_s:
+            self._release(f"control released: {holder.name} silent for {self.lease_s:g} s")
+            holder = None
+        for client in [c for c in self._clients.values() if c.kind == "script"]:
+            # Forget idle scripts so that memory stays flat.
+            if client.id != self._holder and now - client.last_seen > self.lease_s:
+                del self._clients[client.id]
+        if holder is None:
+            self._set_neutral()  # nobody in control: nobody drives
+            if self.disarm_unattended_s is not None and not self._disarmed_unattended \
+                    and self._armed() and now - self._unheld_since >= self.disarm_unattended_s \
+                    and not self.operator.replaying:
+                self._disarmed_unattended = True
+                self.operator.note(f"nobody in control for {self.disarm_unattended_s:g} s with the "
+                                   f"vehicle armed: disarming", "alert")
+                self.operator.arm(False)
 
     def _armed(self) -> bool:
         report = self.operator.vehicle()
         return bool(report is not None and report.armed)
 
-    def unattended_s(self) -> float | None:
-        """How long the vehicle has been armed with nobody in control (None if it is not)."""
-        with self._lock:
-            if self._holder is not None or not self._armed() or self.operator.replaying:
-                return None
-            return self._clock() - self._unheld_since
+    def _unattended_s(self) -> float | None:
+        """How long the vehicle has been armed with nobody in control (None if it is not; lock held)."""
+        if self._holder is not None or not self._armed() or self.operator.replaying:
+            return None
+        return self._clock() - self._unheld_since
 
     # ------------------------------------------------------------------
     # Status
     # ------------------------------------------------------------------
 
     def status(self, client_id: str | None = None) -> dict:
-        with self._lock:
+        # Read without the lock when an order waiting on the link holds it: the pages'
+        # telemetry must not stall meanwhile; what changes under it shows next tick.
+        locked = self._lock.acquire(timeout=STATUS_WAIT_S)
+        try:
             holder = self._holder_client()
-            unattended = self.unattended_s()
+            unattended = self._unattended_s()
             return {
                 "held": holder is not None,
                 "holder": holder.name if holder else None,
@@ -710,3 +723,6 @@ class ControlDesk:
                 "disarm_unattended_s": self.disarm_unattended_s,
                 "centre_to_drive": holder is not None and not holder.centred,
             }
+        finally:
+            if locked:
+                self._lock.release()

@@ -13,8 +13,11 @@ a scheduler's share of its own.
 Plan: `MasterProcess` stands in the console for the master (the methods and
 read-outs the session uses) and runs the real one in a child process started
 with `multiprocessing`'s spawn.  Two pipes join them:
-- commands, console to link: ("call", method, args) answered at once with
-  ("ok", result, status) or ("error", text, status); ("quit",) to end;
+- commands, console to link: ("call", seq, method, args) answered at once with
+  ("ok", seq, result, status) or ("error", seq, text, status); ("quit",) to end.
+  `seq` numbers the calls: an answer that comes after its call gave up waiting
+  (`CALL_TIMEOUT_S`) is told apart from the next call's and handed to whoever
+  made the call (`LinkProcessSlow`), never read as another call's;
 - what happened, link to console: ("up", pid), ("events", [master events],
   t, status), ("rx", bytes, t), ("reply", payload, sync, t) (version 2: the
   reply the master was given, for the recording), ("port", up, news, reason),
@@ -42,6 +45,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import itertools
 import logging
 import multiprocessing
 import os
@@ -85,6 +89,61 @@ def raise_priority(nice: int = LINK_NICE) -> int:
 
 class LinkProcessDown(RuntimeError):
     """The link process is not running (it ended and is being started again)."""
+
+
+class LinkProcessSlow(LinkProcessDown):
+    """The link process runs but did not answer a call within `CALL_TIMEOUT_S`: the
+    call was handed to it and may yet be made there (a busy machine).  Its caller
+    says what then with `when_answered`.  Never a refusal: an order it carried may
+    reach the ROV."""
+
+    def __init__(self, text: str, pending: "_PendingCall") -> None:
+        super().__init__(text)
+        self._pending = pending
+
+    def when_answered(self, on_result: Callable[[Any], None], on_refused: Callable[[str], None],
+                      on_lost: Callable[[str], None]) -> None:
+        """`on_result(result)` when the answer comes; `on_refused(text)` if the call was
+        refused or failed there; `on_lost(why)` if no answer will come (the process
+        ended first).  Called on the thread that reads the answer, with no lock held."""
+        self._pending.attach(on_result, on_refused, on_lost)
+
+
+class _PendingCall:
+    """A call its caller stopped waiting for: its answer (or its loss), whenever
+    it comes, and the caller's callbacks, whichever is first."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self._lock = threading.Lock()
+        self._outcome: tuple | None = None  # ("ok", result) / ("refused" or "error", text) / ("lost", why)
+        self._callbacks: tuple | None = None
+
+    def attach(self, *callbacks: Callable) -> None:
+        with self._lock:
+            outcome, self._callbacks = self._outcome, callbacks
+        if outcome is not None:
+            self._tell(outcome)
+
+    def settle(self, outcome: tuple) -> None:
+        """Its answer came (or none will)."""
+        with self._lock:
+            if self._outcome is not None:
+                return
+            self._outcome = outcome
+            callbacks = self._callbacks
+        if callbacks is not None:
+            self._tell(outcome)
+        elif outcome[0] in ("refused", "error"):  # a setting nobody waited for: said, at least
+            log.warning("the link process could not take %s: %s", self.name, outcome[1])
+
+    def _tell(self, outcome: tuple) -> None:
+        on_result, on_refused, on_lost = self._callbacks
+        kind, value = outcome
+        try:
+            {"ok": on_result, "lost": on_lost}.get(kind, on_refused)(value)
+        except Exception:  # a caller's callback must not stop the link's reading
+            log.exception("the late answer to %s could not be taken", self.name)
 
 
 # ---------------------------------------------------------------------------
@@ -159,19 +218,19 @@ def _serve_calls(commands, *, what: str, calls: tuple[str, ...], machine, lock: 
             break
         if message[0] == "quit":
             break
-        _, name, args = message
+        _, seq, name, args = message
         try:
             if name not in calls:
                 raise ValueError(f"{name} is not a call of the {what} process")
             with lock:
                 result = getattr(machine, name)(*args)
                 now_status = status()
-            answer = ("ok", result, now_status)
+            answer = ("ok", seq, result, now_status)
         except Exception as exc:  # said to the caller, whose order it was
             with lock:
                 now_status = status()
-            answer = (("refused", str(exc), now_status) if isinstance(exc, refused)
-                      else ("error", f"{type(exc).__name__}: {exc}", now_status))
+            answer = (("refused", seq, str(exc), now_status) if isinstance(exc, refused)
+                      else ("error", seq, f"{type(exc).__name__}: {exc}", now_status))
         try:
             commands.send(answer)
         except (OSError, EOFError):
@@ -340,6 +399,8 @@ class LinkProcess:
         self.what = what  # its name in what is said of it: "link", "acoustic link"
         self.port = port
         self._call_lock = threading.Lock()
+        self._seq = itertools.count(1)
+        self._late: dict[int, _PendingCall] = {}  # calls that gave up waiting, by seq, until answered
         self._process = None
         self._commands = None
         self._events = None
@@ -376,23 +437,80 @@ class LinkProcess:
     # -- its calls --------------------------------------------------------------
 
     def _call(self, name: str, *args):
-        with self._call_lock:
-            if not self.up or self._commands is None:
-                raise LinkProcessDown(f"the {self.what} process is not running (it is being started again)")
-            try:
-                self._commands.send(("call", name, args))
-                if not self._commands.poll(CALL_TIMEOUT_S):
-                    raise LinkProcessDown(f"the {self.what} process did not answer {name} within "
-                                          f"{CALL_TIMEOUT_S:g} s")
-                kind, result, status = self._commands.recv()
-            except (OSError, EOFError) as exc:
-                raise LinkProcessDown(f"the {self.what} process is gone ({exc or type(exc).__name__})") from None
-        self._take_status(status)
+        late: list[tuple] = []
+        try:
+            with self._call_lock:
+                if not self.up or self._commands is None:
+                    raise LinkProcessDown(f"the {self.what} process is not running (it is being started again)")
+                seq = next(self._seq)
+                deadline = time.monotonic() + CALL_TIMEOUT_S
+                try:
+                    self._commands.send(("call", seq, name, args))
+                    while True:
+                        remaining = deadline - time.monotonic()
+                        if remaining <= 0 or not self._commands.poll(remaining):
+                            pending = self._late[seq] = _PendingCall(name)
+                            raise LinkProcessSlow(f"the {self.what} process did not answer {name} within "
+                                                  f"{CALL_TIMEOUT_S:g} s (a busy machine?); it may yet do it",
+                                                  pending)
+                        kind, answered, result, status = self._commands.recv()
+                        self._take_status(status)
+                        if answered == seq:
+                            break
+                        late.append((self._late.pop(answered, None), kind, result))
+                except (OSError, EOFError) as exc:
+                    raise LinkProcessDown(f"the {self.what} process is gone ({exc or type(exc).__name__})") from None
+        finally:
+            self._settle_late(late)
         if kind == "refused":
             raise self.refusal(result)
         if kind == "error":
             raise ValueError(result)
         return result
+
+    def _cast(self, name: str, *args) -> None:
+        """A call nobody waits for (a setting, the pilot's wish): handed over in its turn
+        among the calls, its answer read later (its status taken, a failure logged).
+        A caller holding a lock of its own is then never held up by a busy machine."""
+        with self._call_lock:
+            if not self.up or self._commands is None:
+                raise LinkProcessDown(f"the {self.what} process is not running (it is being started again)")
+            seq = next(self._seq)
+            self._late[seq] = _PendingCall(name)
+            try:
+                self._commands.send(("call", seq, name, args))
+            except (OSError, EOFError) as exc:
+                self._late.pop(seq, None)
+                raise LinkProcessDown(f"the {self.what} process is gone ({exc or type(exc).__name__})") from None
+
+    def _read_late_answers(self) -> None:
+        """Answers to calls that gave up waiting, read when no call is waiting (each turn)."""
+        if not self._late or not self._call_lock.acquire(blocking=False):
+            return
+        late: list[tuple] = []
+        try:
+            while self._commands is not None and self._commands.poll(0):
+                kind, answered, result, status = self._commands.recv()
+                self._take_status(status)
+                late.append((self._late.pop(answered, None), kind, result))
+        except (OSError, EOFError):
+            pass  # the process is ending: its supervisor says so, and loses what is left
+        finally:
+            self._call_lock.release()
+            self._settle_late(late)
+
+    @staticmethod
+    def _settle_late(late: list[tuple]) -> None:
+        for pending, kind, result in late:
+            if pending is not None:
+                pending.settle(("ok", result) if kind == "ok" else (kind, str(result)))
+
+    def _lose_late(self, why: str) -> None:
+        """The process ended: the calls it never answered never will be."""
+        with self._call_lock:
+            lost, self._late = list(self._late.values()), {}
+        for pending in lost:
+            pending.settle(("lost", why))
 
     # -- running it -------------------------------------------------------------
 
@@ -429,6 +547,7 @@ class LinkProcess:
             loop.add_reader(self._events.fileno(), readable)
             try:
                 while not ended.done():
+                    self._read_late_answers()
                     turn()
                     await asyncio.wait({ended}, timeout=TURN_S)
             finally:
@@ -449,6 +568,7 @@ class LinkProcess:
                 self.up = False
                 self._carry_counts()
             self._close_pipes()
+            self._lose_late(f"the {self.what} process ended before it answered")
             down(self.down_reason)
             await asyncio.sleep(RESTART_AFTER_S if was_up else max(RESTART_AFTER_S, 1.0))
 
@@ -573,7 +693,7 @@ class MasterProcess(LinkProcess):
         refused while there is none (it goes with the next one)."""
         self._kept[name] = args
         try:
-            self._call(name, *args)
+            self._cast(name, *args)
         except LinkProcessDown:
             pass
 
@@ -588,7 +708,7 @@ class MasterProcess(LinkProcess):
 
     def recentred(self) -> None:
         try:
-            self._call("recentred")
+            self._cast("recentred")
         except LinkProcessDown:
             pass
 

@@ -51,7 +51,7 @@ from rovlink.link import acoustic as ac
 from rovlink.link.acoustic.process import AcousticLinkProcess
 from rovlink.link.acoustic.pump import AcousticPump
 from rovlink.link.pictures import ImageAbandoned, ImageComplete, ImageProgress
-from rovlink.link.process import LinkProcessDown
+from rovlink.link.process import LinkProcessDown, LinkProcessSlow
 from rovlink.link.report import VehicleReport, report_from_status
 from rovlink.link.transports.transport import port_down_reason
 from rovlink.link.units import acoustic_goto
@@ -222,15 +222,22 @@ class AcousticSession(SessionBase):
             self.clear_alerts("process")
         pressed = None
         with self._lock:
-            if self._stop_pending:  # a STOP the pilot pressed is never lost with a process
-                self._stop_pending = False
-                try:
-                    self._stop_no = self.op.stop(self._clock())
-                    pressed = self._stop_no
-                    self.orders.update(self._stop_order, stop_no=pressed)
-                    self.orders.set_state(self._stop_order, Fate.SENT, t)
-                except (LinkProcessDown, ValueError) as exc:
-                    self.orders.set_state(self._stop_order, Fate.UNKNOWN, t, f"not sent again ({exc})")
+            again, self._stop_pending = self._stop_pending, False
+            order_id = self._stop_order
+        if again:  # a STOP the pilot pressed is never lost with a process
+            try:
+                pressed = self.op.stop(self._clock())
+            except LinkProcessSlow as slow:
+                slow.when_answered(lambda no: self._stop_told(order_id, int(no)),
+                                   lambda text: self.orders.set_state(order_id, Fate.REFUSED, self.now(), text),
+                                   lambda why: None)
+            except (LinkProcessDown, ValueError) as exc:
+                self.orders.set_state(order_id, Fate.UNKNOWN, t, f"not sent again ({exc})")
+            else:
+                with self._lock:
+                    self._stop_no = pressed
+                    self.orders.update(order_id, stop_no=pressed)
+                    self.orders.set_state(order_id, Fate.SENT, t)
         if pressed is not None:
             self.note(f"STOP pressed again in the new link process (STOP {pressed}): sent first, in every slot "
                       "until confirmed")
@@ -424,13 +431,29 @@ class AcousticSession(SessionBase):
         t = self.now()
         if self.op is None:
             raise NotNow("a replay: there is no ROV to order")
-        with self._lock:
-            try:
+        try:
+            with self._machine_lock(self.op):
                 oid = self.op.send_order(body, self._clock())
-            except ac.OrderRefused as exc:
-                raise NotNow(f"the acoustic link cannot take it now: {exc}") from None
-            except LinkProcessDown as exc:
-                raise NotNow(str(exc)) from None
+        except ac.OrderRefused as exc:
+            raise NotNow(f"the acoustic link cannot take it now: {exc}") from None
+        except LinkProcessSlow as slow:
+            # Handed to the link process, which has not answered yet: queued, and
+            # followed under its OID when the answer comes (never refused meanwhile).
+            order_id = self.orders.new(kind, Fate.QUEUED, {**detail, "oid": None}, t)
+            self.note(f"{kind} order {order_id}: {slow}", "warn")
+
+            def answered(oid: int) -> None:
+                with self._lock:
+                    self.orders.update(order_id, oid=int(oid))
+                    self._by_oid[int(oid)] = (order_id, kind, settings)
+
+            slow.when_answered(answered,
+                               lambda text: self.orders.set_state(order_id, Fate.REFUSED, self.now(), text),
+                               lambda why: self.orders.set_state(order_id, Fate.UNKNOWN, self.now(), why))
+            return order_id
+        except LinkProcessDown as exc:
+            raise NotNow(str(exc)) from None
+        with self._lock:
             order_id = self.orders.new(kind, Fate.QUEUED, {**detail, "oid": oid}, t)
             self._by_oid[oid] = (order_id, kind, settings)
         return order_id
@@ -462,40 +485,62 @@ class AcousticSession(SessionBase):
         if self.op is None:
             raise NotNow("a replay: there is no ROV to order")
         t = self.now()
-        with self._lock:
-            try:
+        slow = None
+        try:
+            with self._machine_lock(self.op):
                 no = self.op.stop(self._clock())
-            except LinkProcessDown:  # never refused: pressed again in the next link process
-                joined = self._stop_pending and self._stop_order is not None
+        except LinkProcessSlow as exc:  # handed over, its number not yet told
+            no, slow = None, exc
+        except LinkProcessDown:  # never refused: pressed again in the next link process
+            no = None
+        with self._lock:
+            if no is None:
+                earlier = self.orders.fate(self._stop_order)
+                joined = earlier is not None and not earlier.ended and (self._stop_pending or self._stop_no is None)
                 if not joined:
-                    self._stop_pending = True
                     self._stop_no = None
                     self._stop_order = self.orders.new("STOP", Fate.QUEUED, {"stop_no": None}, t)
-                self.goto.abort("STOP", t)
-                order_id = self._stop_order
-                no = None
+                self._stop_pending = slow is None
             else:
                 joined = self._stop_no == no and self._stop_order is not None
                 if not joined:
                     self._stop_no = no
                     self._stop_order = self.orders.new("STOP", Fate.SENT, {"stop_no": no}, t)
-                self.goto.abort("STOP", t)
-                order_id = self._stop_order
-        if no is None:
+            self.goto.abort("STOP", t)
+            order_id = self._stop_order
+        if slow is not None:
+            self.note(f"STOP order {order_id}: {slow}", "warn")
+            slow.when_answered(lambda no: self._stop_told(order_id, int(no)),
+                               lambda text: self.orders.set_state(order_id, Fate.REFUSED, self.now(), text),
+                               lambda why: None)  # the process's end presses it again in the next one
+        elif no is None:
             if not joined:
                 self.note("STOP waits for the link process, which is being started again", "warn")
         elif not joined:
             self.note(f"STOP {no} pressed: sent first, in every slot until confirmed")
         return order_id
 
+    def _stop_told(self, order_id: int, no: int) -> None:
+        """A STOP the link process was slow to take: its number, now told."""
+        with self._lock:
+            if self._stop_order != order_id:
+                return
+            self._stop_no = no
+            self.orders.update(order_id, stop_no=no)
+            fate = self.orders.fate(order_id)
+            if fate is Fate.QUEUED:
+                self.orders.set_state(order_id, Fate.SENT, self.now())
+        self.note(f"STOP {no} pressed: sent first, in every slot until confirmed")
+
     def cancel_stop(self) -> bool:
         if self.op is None:
             return False
-        with self._lock:
-            try:
+        try:
+            with self._machine_lock(self.op):
                 done = bool(self.op.cancel_stop())
-            except LinkProcessDown as exc:
-                raise NotNow(str(exc)) from None
+        except LinkProcessDown as exc:  # slow included: said, never guessed
+            raise NotNow(str(exc)) from None
+        with self._lock:
             if done and self._stop_order is not None:
                 self.orders.set_state(self._stop_order, Fate.CANCELLED, self.now(), "by the pilot (no autopilot to hold)")
         if done:

@@ -209,6 +209,14 @@ class SessionBase:
     # The link's surroundings
     # ------------------------------------------------------------------
 
+    def _machine_lock(self, machine) -> contextlib.AbstractContextManager:
+        """What a call into the link's machine is made under: the session's lock where
+        the machine runs in this process (the link's loop takes it too); none where it
+        runs in a link process.  Its calls may wait `CALL_TIMEOUT_S` there, and the
+        session's lock held that long would stall the link's events meanwhile (the
+        process's own lock keeps its calls one at a time)."""
+        return contextlib.nullcontext() if isinstance(machine, LinkProcess) else self._lock
+
     def _watch_port(self) -> None:
         """This console's own modem port going down (unplugged, its adapter gone) is
         said at once, loudly, with the transport's reason, beside the lost link it

@@ -24,6 +24,7 @@ from .fates import Fate, fields, parse_recorded, words
 from .odometry import Fix
 
 ORDERS_KEPT = 200
+EARLY_KEPT = 64    # master ids not mapped yet whose news is kept for them
 ORDERS_LISTED = 50
 
 # The modes a pilot may request: the protocol's own list (1..6).
@@ -40,6 +41,9 @@ class OrderBook:
         self._orders: dict[int, dict] = {}  # console order id -> its info (kind, state, times, details)
         self._next_id = 1
         self._by_master_id: dict[int, int] = {}  # the master's one-shot order ids -> ours
+        # What the master said of ids not mapped yet: a link process's events may come
+        # before its answer to the call that queued the order (`queued` applies them).
+        self._early: dict[int, list[tuple]] = {}
         self._requests: dict[str, int] = {}  # "arm"/"mode" -> our id of the request awaiting its effect
         self._image_settings: dict[int, Any] = {}  # IMAGE orders -> the settings they carry
 
@@ -64,10 +68,26 @@ class OrderBook:
         self._publish("order", info)
         return order_id
 
-    def queued(self, order_id: int, master_id: int) -> None:
-        """A one-shot order handed to the master under its id."""
+    def queued(self, order_id: int, master_id: int):
+        """A one-shot order handed to the master under its id; what the master already
+        said of that id applies now.  Returns what `settled` would have (the settings
+        of an IMAGE order already acknowledged), else None."""
         with self._lock:
             self._by_master_id[master_id] = order_id
+            early = self._early.pop(master_id, [])
+        settings = None
+        for what, args in early:
+            if what == "sent":
+                self.sent(order_id, *args)
+            else:
+                settings = self.settled(master_id, *args) or settings
+        return settings
+
+    def _said_early(self, master_id: int, what: str, args: tuple) -> None:
+        # (lock held)
+        self._early.setdefault(master_id, []).append((what, args))
+        if len(self._early) > EARLY_KEPT:
+            del self._early[min(self._early)]
 
     def image_order(self, order_id: int, settings) -> None:
         with self._lock:
@@ -91,6 +111,9 @@ class OrderBook:
     def sent_by_master_id(self, master_id: int, t: float) -> None:
         with self._lock:
             mine = self._by_master_id.get(master_id)
+            if mine is None:
+                self._said_early(master_id, "sent", (t,))
+                return
         self.sent(mine, t)
 
     def watch(self, what: str, order_id: int, t: float) -> None:
@@ -113,8 +136,9 @@ class OrderBook:
         picture on), else None."""
         with self._lock:
             order_id = self._by_master_id.get(master_id)
-        if order_id is None:
-            return None
+            if order_id is None:
+                self._said_early(master_id, "settled", (fate, t, reason))
+                return None
         info = self.set_state(order_id, fate, t, reason)
         if info is not None and info["kind"] == "IMAGE":
             with self._lock:
@@ -204,6 +228,7 @@ class OrderBook:
             open_ids = {mine for mine in self._by_master_id.values()
                         if mine in self._orders and Fate(self._orders[mine]["state"]) in (Fate.QUEUED, Fate.SENT)}
             self._by_master_id.clear()
+            self._early.clear()  # the next master's ids are its own
             stops = sorted(i for i in open_ids if self._orders[i]["kind"] == "STOP")
             requests = [i for i in self._requests.values()
                         if i in self._orders and Fate(self._orders[i]["state"]).pending]

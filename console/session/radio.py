@@ -24,12 +24,13 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import threading
 import time
 from pathlib import Path
 from typing import Callable, Iterator
 
 from rovlink.link.aio import run_master
-from rovlink.link.process import LinkProcessDown, MasterProcess
+from rovlink.link.process import LinkProcessDown, LinkProcessSlow, MasterProcess
 from rovlink.link.radio.events import AltitudeReported, ObjectRecordIgnored, ObjectRemoved, ObjectReported
 from rovlink.link.radio.frame import MAX_FRAME
 from rovlink.link.radio.master import (
@@ -120,6 +121,7 @@ class Operator(SessionBase):
         self.rov_failsafe_s = FAILSAFE_S  # the ROV's (docs/PROTOCOL.md §3); create_app may say otherwise
         self._initial_settings = image_settings
         self._stops_to_resend: list[int] = []  # STOPs a link process took with it, for the next one
+        self._wish_lock = threading.Lock()
         self._link_down_said: str | None = None  # the link process's end last said, until it runs again
         if isinstance(self.master, MasterProcess):
             self.master.t0 = self._t0  # one session clock in both processes
@@ -215,18 +217,26 @@ class Operator(SessionBase):
             self.clear_alerts("process")
         with self._lock:
             stops, self._stops_to_resend = self._stops_to_resend, []
-            for order_id in stops:  # a STOP the pilot pressed is never lost with a process
-                try:
-                    self.orders.queued(order_id, self.master.send_order(Stop()))
-                except (LinkProcessDown, ValueError) as exc:
-                    self.orders.set_state(order_id, Fate.UNKNOWN, t, f"not sent again ({exc})")
+        for order_id in stops:  # a STOP the pilot pressed is never lost with a process
+            try:
+                self._handed(order_id, self.master.send_order(Stop()))
+            except LinkProcessSlow as slow:
+                self._answer_awaited(slow, order_id, "STOP")
+            except (LinkProcessDown, ValueError) as exc:
+                self.orders.set_state(order_id, Fate.UNKNOWN, t, f"not sent again ({exc})")
         self._publish("link", self.link_state())
 
     @contextlib.contextmanager
-    def _link_call(self) -> Iterator[None]:
-        """A call into the link process: its absence is the pilot's 409, with why."""
+    def _link_call(self, *, may_be_slow: bool = False) -> Iterator[None]:
+        """A call into the link process: its absence is the pilot's 409, with why; so
+        is its slowness (its words say it may yet be done), unless `may_be_slow`: the
+        caller then says what follows."""
         try:
             yield
+        except LinkProcessSlow as exc:
+            if may_be_slow:
+                raise
+            raise NotNow(str(exc)) from None
         except LinkProcessDown as exc:
             raise NotNow(str(exc)) from None
 
@@ -415,15 +425,18 @@ class Operator(SessionBase):
                 raise OrderError(f"{name} must be a number in -1..1, got {v!r}")
         ints = velocity_ints(values)
         t = self.now()
-        with self._lock:
-            self.master.set_velocity(*ints, t)
-            changed = tuple(float(v) for v in values) != self._wish
-            self._wish = tuple(float(v) for v in values)
-            if changed:
-                self.history.commanded.append((t, *self._wish))
-                # Every change is recorded, neutral ones (STOP, a holder
-                # gone, the dead man) as much as the pilot's.
-                self.recorder.write({"k": "wish", "t": round(t, 4), "v": list(ints)})
+        # One wish at a time, the master's and ours alike (the link's events are not held up).
+        with self._wish_lock:
+            with self._machine_lock(self.master):
+                self.master.set_velocity(*ints, t)
+            with self._lock:
+                changed = tuple(float(v) for v in values) != self._wish
+                self._wish = tuple(float(v) for v in values)
+                if changed:
+                    self.history.commanded.append((t, *self._wish))
+                    # Every change is recorded, neutral ones (STOP, a holder
+                    # gone, the dead man) as much as the pilot's.
+                    self.recorder.write({"k": "wish", "t": round(t, 4), "v": list(ints)})
         if changed:
             self._publish("wish", self.wish_state())
 
@@ -431,28 +444,27 @@ class Operator(SessionBase):
         """Whether the wish is a pilot's own input: someone holds control and has
         re-centred since taking it (the command layer decides).  When not, a
         neutral wish releases no HOLD on the ROV (link.master.set_pilot_in_force)."""
-        with self._lock:
+        with self._machine_lock(self.master):
             self.master.set_pilot_in_force(in_force)
 
     def set_attended(self, attended: bool) -> None:
         """Whether a pilot holds control (the command layer says): replies are
         then sized for the pilot's reaction and a fresh pose, not only for pictures."""
-        with self._lock:
+        with self._machine_lock(self.master):
             self.master.set_attended(attended)
 
     def recentred(self) -> None:
         """The holder's own input is neutral: its re-centring reaches the ROV
         (releasing a HOLD) even if the sticks move again before the next poll."""
-        with self._lock:
+        with self._machine_lock(self.master):
             self.master.recentred()
 
     def arm(self, armed: bool) -> int:
         """Request arming (or disarming); the returned order id is followed
         until the vehicle reports it armed (disarmed), however late."""
         t = self.now()
-        with self._lock, self._link_call():
-            self.master.request_arm(bool(armed), t)
-        order_id = self.orders.request("arm", "ARM" if armed else "DISARM", {"armed": bool(armed)}, t)
+        order_id = self._request(lambda: self.master.request_arm(bool(armed), t), "arm", "ARM" if armed else "DISARM",
+                                 {"armed": bool(armed)}, t)
         self.note("arm requested" if armed else "disarm requested")
         return order_id
 
@@ -461,25 +473,69 @@ class Operator(SessionBase):
         order id is followed until the vehicle reports the mode, however late."""
         value = mode_of(mode)
         t = self.now()
-        with self._lock, self._link_call():
-            self.master.request_mode(value, t)
-        order_id = self.orders.request("mode", "MODE", {"mode": value.name}, t)
+        order_id = self._request(lambda: self.master.request_mode(value, t), "mode", "MODE", {"mode": value.name}, t)
         self.note(f"mode {value.name} requested")
         return order_id
 
+    def _request(self, call: Callable[[], None], what: str, kind: str, detail: dict, t: float) -> int:
+        """An arm or mode request handed to the master, then watched (followed when the
+        vehicle shows it).  A link process slow to answer has it all the same: it is
+        watched, and refused only if the process says so."""
+        try:
+            with self._machine_lock(self.master), self._link_call(may_be_slow=True):
+                call()
+        except LinkProcessSlow as slow:
+            order_id = self.orders.request(what, kind, detail, t)
+            self.note(f"{kind} order {order_id}: {slow}", "warn")
+            slow.when_answered(lambda _: None,
+                               lambda text: self.orders.set_state(order_id, Fate.REFUSED, self.now(), text),
+                               lambda _why: None)  # the process's end settles its requests (link_ended)
+            return order_id
+        return self.orders.request(what, kind, detail, t)
+
     def _queue(self, order, kind: str, detail: dict) -> int:
         order_id = self.orders.new(kind, Fate.QUEUED, detail, self.now())
-        with self._lock:
-            try:
-                self.orders.queued(order_id, self.master.send_order(order))
-            except LinkProcessDown as exc:
-                if kind == "STOP":  # never refused: it goes with the next link process
+        try:
+            with self._machine_lock(self.master):
+                master_id = self.master.send_order(order)
+        except LinkProcessSlow as slow:
+            self._answer_awaited(slow, order_id, kind)
+            return order_id
+        except LinkProcessDown as exc:
+            if kind == "STOP":  # never refused: it goes with the next link process
+                with self._lock:
                     self._stops_to_resend.append(order_id)
-                    self.note("STOP waits for the link process, which is being started again", "warn")
-                    return order_id
-                self.orders.set_state(order_id, Fate.REFUSED, self.now(), str(exc))
-                raise NotNow(str(exc)) from None
+                self.note("STOP waits for the link process, which is being started again", "warn")
+                return order_id
+            self.orders.set_state(order_id, Fate.REFUSED, self.now(), str(exc))
+            raise NotNow(str(exc)) from None
+        self._handed(order_id, master_id)
         return order_id
+
+    def _handed(self, order_id: int, master_id: int) -> None:
+        """A one-shot order the master took under `master_id`: what it already said of it
+        (a link process's events may come before its answer) applies now."""
+        settings = self.orders.queued(order_id, master_id)
+        if settings is not None:
+            with self._lock:
+                self.images.confirmed_settings = settings
+
+    def _answer_awaited(self, slow: LinkProcessSlow, order_id: int, kind: str) -> None:
+        """The link process took the order but has not answered yet (a busy machine): it
+        stays queued, neither refused nor parked, and is followed when the answer comes.
+        If the process ends first, a STOP goes with the next one; any other order is
+        unknown (it may have gone out)."""
+        self.note(f"{kind} order {order_id}: {slow}", "warn")
+
+        def lost(why: str) -> None:
+            if kind == "STOP":
+                with self._lock:
+                    self._stops_to_resend.append(order_id)
+            else:
+                self.orders.set_state(order_id, Fate.UNKNOWN, self.now(), why)
+
+        slow.when_answered(lambda master_id: self._handed(order_id, master_id),
+                           lambda text: self.orders.set_state(order_id, Fate.REFUSED, self.now(), text), lost)
 
     def _queue_position(self, x_m: float, y_m: float, z_m: float, yaw_deg: float, *, relative: bool, body: bool,
                         detail: dict) -> int:
@@ -541,7 +597,7 @@ class Operator(SessionBase):
     def cancel_stop(self) -> bool:
         """Give up a STOP the ROV shows it cannot carry out (no autopilot), so that
         a DISARM or a SURFACE can go out (protocol 1.1); False if there is none."""
-        with self._lock, self._link_call():
+        with self._machine_lock(self.master), self._link_call():
             done = bool(self.master.cancel_stop())
         if done:
             self.note("STOP cancelled by the pilot")
@@ -554,10 +610,9 @@ class Operator(SessionBase):
     def next_image(self) -> None:
         """The pilot skips the picture arriving: the ROV's next one is asked for.  What was
         skipped is said (the log, and the image state's `skipped`) when the master lets it go."""
-        with self._lock:
-            arriving = self.protocol_master.image_received
-            with self._link_call():
-                self.master.abandon_image()
+        arriving = self.protocol_master.image_received
+        with self._machine_lock(self.master), self._link_call():
+            self.master.abandon_image()
         if not arriving:
             self.images.nothing_to_skip(self.now())
 

@@ -325,6 +325,53 @@ def test_websocket_says_hello_then_streams_telemetry(client):
         assert second["link"]["t"] > first["link"]["t"]
 
 
+def test_websocket_reads_on_while_an_order_waits_on_the_link_and_carries_out_the_newest_wish(client, operator,
+                                                                                            monkeypatch):
+    """A page's message waits on the link process at most 2 s (a busy machine): the socket
+    goes on being read and written meanwhile (its keepalive pong is never stuck behind an
+    order, which closed pages' sockets, and took their control), wishes that queue up
+    meanwhile are carried out newest first, and a STOP drops the wishes before it."""
+    import threading
+
+    gate, entered = threading.Event(), threading.Event()
+    carried: list[tuple] = []
+    real = operator.set_velocity
+
+    def slow_set_velocity(*values):
+        if values != (0.0, 0.0, 0.0, 0.0) and not gate.is_set():
+            entered.set()
+            gate.wait(10)  # the link process is slow to answer this one
+        carried.append(values)
+        real(*values)
+
+    monkeypatch.setattr(operator, "set_velocity", slow_set_velocity)
+    with client.websocket_connect("/ws?name=pilot page") as ws:
+        me = {HEADER: ws.receive_json()["client_id"]}
+        assert client.post("/api/control/take", headers=me).status_code == 200
+        ws.send_json({"type": "velocity"})  # neutral first: the page re-centred
+        ws.send_json({"type": "velocity", "vx": 0.1})
+        assert entered.wait(5)
+        for vx in (0.2, 0.3, 0.4):  # waiting behind the slow one: only the newest counts
+            ws.send_json({"type": "velocity", "vx": vx})
+        # Telemetry keeps coming while the order waits: the loop is not held.
+        first = next_of(ws, "telemetry")["link"]["t"]
+        assert next_of(ws, "telemetry")["link"]["t"] > first
+        gate.set()
+        assert wait_for(lambda: wish(operator) == (0.4, 0.0, 0.0, 0.0), 5.0), carried
+        assert (0.2, 0.0, 0.0, 0.0) not in carried and (0.3, 0.0, 0.0, 0.0) not in carried, carried
+        # A STOP: what waited before it is not carried out after it.
+        gate.clear()
+        entered.clear()
+        ws.send_json({"type": "velocity", "vx": 0.5})
+        assert entered.wait(5)
+        ws.send_json({"type": "velocity", "vx": 0.6})
+        ws.send_json({"type": "stop"})
+        gate.set()
+        assert wait_for(lambda: client.get("/api/orders").json()[-1]["kind"] == "STOP", 5.0)
+        assert wait_for(lambda: wish(operator) == (0.0, 0.0, 0.0, 0.0), 5.0)
+        assert (0.6, 0.0, 0.0, 0.0) not in carried, carried
+
+
 def test_websocket_velocity_only_from_the_holder_and_released_on_disconnect(client, operator):
     with client.websocket_connect("/ws?name=pilot page") as ws:
         me = {HEADER: ws.receive_json()["client_id"]}

@@ -71,10 +71,15 @@ def test_the_radio_masters_calls_answered_with_its_status_and_a_call_not_listed_
     master = Master(bitrate_bps=1900.0, delay_s=0.085)
     served = Served(link, master, radio_status, CALLS)
     try:
+        # A setting is handed over without waiting for its answer; the next call's answer
+        # comes after it (one pipe, in order), and with it the status it made.
         link.set_pilot_in_force(True)
+        assert link.cancel_stop() is False
         assert master.pilot_in_force and link.pilot_in_force
         link.set_pilot_in_force(False)
+        link.abandon_image()
         assert not master.pilot_in_force and not link.pilot_in_force
+        assert not link._late  # every answer read, the settings' too
         with pytest.raises(ValueError, match="^ValueError: receive is not a call of the link process$"):
             link._call("receive", b"\x00")
     finally:
@@ -129,3 +134,80 @@ def test_the_master_loop_sends_a_poll_before_it_hands_on_what_happened():
     asyncio.run(main())
     frame, sent_before = seen[0]
     assert sent_before == 1 and endpoint.sent[0] == frame
+
+
+class SlowMaster(Master):
+    """A master whose send_order waits on the test: a machine too busy to answer in time."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.go_on = threading.Event()
+
+    def send_order(self, order):
+        self.go_on.wait(10)
+        return super().send_order(order)
+
+
+def test_a_call_answered_late_is_told_to_its_caller_and_never_read_as_the_next_calls_answer(monkeypatch):
+    """The console's half of the hostile-relay STOP: a link process that is up but slow
+    to answer is not "down".  The order was handed over and may yet go: its caller is
+    told LinkProcessSlow and, when the answer comes, the result (the master's order id);
+    the next call still gets its own answer, not the late one."""
+    from rovlink.link import process
+    from rovlink.link.radio.messages import Stop
+
+    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
+    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
+                         max_frame=None, t0=0.0)
+    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
+    served = Served(link, master, radio_status, CALLS)
+    told: list = []
+    try:
+        with pytest.raises(process.LinkProcessSlow, match="did not answer send_order within 0.3 s") as slow:
+            link.send_order(Stop())
+        assert isinstance(slow.value, LinkProcessDown)  # where only "not now" is understood
+        slow.value.when_answered(lambda result: told.append(("ok", result)),
+                                 lambda text: told.append(("refused", text)), lambda why: told.append(("lost", why)))
+        assert told == []
+        master.go_on.set()
+        # The next call waits for its own answer, reading the late one on the way.
+        # (cancel_stop's own answer: False, the STOP may not be given up here; the late
+        # answer, order id 1, read as this call's would have said True)
+        assert link.cancel_stop() is False
+        assert told == [("ok", 1)] and not link._late and master.stopping
+    finally:
+        served.end()
+
+
+def test_a_late_answer_is_read_between_calls_and_a_process_that_ends_first_loses_it(monkeypatch):
+    from rovlink.link import process
+    from rovlink.link.radio.messages import Stop
+
+    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
+    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
+                         max_frame=None, t0=0.0)
+    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
+    served = Served(link, master, radio_status, CALLS)
+    told: list = []
+    try:
+        with pytest.raises(process.LinkProcessSlow) as slow:
+            link.send_order(Stop())
+        master.go_on.set()
+        served.thread.join(0.5)  # (it answers meanwhile; nobody reads it yet)
+        # What the link loop does each turn: the answer read with no call waiting, and
+        # told at once to a caller that says what it wants after it came.
+        link._read_late_answers()
+        assert not link._late
+        slow.value.when_answered(lambda result: told.append(("ok", result)), told.append, told.append)
+        assert told == [("ok", 1)]
+        # A second slow call, and the process ends before it answers: lost, with why.
+        master.go_on.clear()
+        with pytest.raises(process.LinkProcessSlow) as slow2:
+            link.send_order(Stop())
+        slow2.value.when_answered(lambda result: told.append(("ok", result)),
+                                  lambda text: told.append(("refused", text)), lambda why: told.append(("lost", why)))
+        link._lose_late("the link process ended before it answered")
+        assert told[-1] == ("lost", "the link process ended before it answered")
+    finally:
+        master.go_on.set()
+        served.end()

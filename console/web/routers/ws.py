@@ -34,6 +34,7 @@ the socket releases control if this client held it.  Pages of other sites
 from __future__ import annotations
 
 import asyncio
+import collections
 import json
 import logging
 
@@ -52,6 +53,8 @@ from ..telemetry import finite
 log = logging.getLogger("rovlink.console.web.ws")
 
 router = APIRouter(tags=["ws"])
+
+INBOX_MAX = 64  # a page's messages waiting to be carried out, at most (velocities coalesce)
 
 EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order", "wish": "wish", "target": "target"}
 
@@ -95,6 +98,14 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
         except RuntimeError:  # loop closed
             pass
 
+    def tick_and_state(control_version: int) -> tuple[dict | None, dict]:
+        # (a worker thread: the desk's and the session's locks may be held a while by an
+        # order waiting on the link process, and the loop must go on reading the page,
+        # its pongs included)
+        desk.tick()
+        control = desk.status(client.id) if desk.version != control_version else None
+        return control, app.state.snapshot.get(client.id)
+
     async def send_loop() -> None:
         period = 1.0 / config["telemetry_hz"]
         control_version = desk.version
@@ -111,11 +122,11 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
                     continue
                 except TimeoutError:
                     pass
-            desk.tick()
-            if desk.version != control_version:
-                control_version = desk.version
-                await websocket.send_text(json.dumps({"type": "control", "control": desk.status(client.id)}))
-            state = app.state.snapshot.get(client.id)
+            version = desk.version
+            control, state = await asyncio.to_thread(tick_and_state, control_version)
+            if control is not None:
+                control_version = version
+                await websocket.send_text(json.dumps({"type": "control", "control": control}))
             await websocket.send_text(json.dumps({"type": "telemetry", **state}))
             next_at = max(next_at + period, loop.time())
 
@@ -129,8 +140,45 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
             log.exception("telemetry to %s failed", client.name)
             await websocket.close(1011)
 
+    # What the page sends is carried out in a worker thread, in order, one at a time:
+    # an order may wait on the link process (2 s at most), and meanwhile the loop goes
+    # on reading, so a pong is never stuck behind it (the keepalive would close the
+    # page's socket, and its control with it).  A velocity still waiting when a newer
+    # one comes is replaced by it: the newest wish is the one that counts.
+    inbox: collections.deque[str] = collections.deque()
+    arrived = asyncio.Event()
+
+    def threadsafe_post(message: dict) -> None:  # a worker thread
+        try:
+            loop.call_soon_threadsafe(post, message)
+        except RuntimeError:  # loop closed
+            pass
+
+    async def carry_out() -> None:
+        while True:
+            await arrived.wait()
+            arrived.clear()
+            while inbox:
+                text = inbox.popleft()
+                await asyncio.to_thread(_handle, text, client.id, operator, desk, threadsafe_post)
+
+    def take(text: str) -> None:
+        kind = _kind(text)
+        if kind == "stop":  # the wishes before it are over: none is carried out after it
+            for old in [m for m in inbox if _kind(m) == "velocity"]:
+                inbox.remove(old)
+        if inbox and kind == "velocity" and _kind(inbox[-1]) == "velocity":
+            inbox[-1] = text
+        elif len(inbox) >= INBOX_MAX:
+            post({"type": "error", "message": f"message dropped: more than {INBOX_MAX} waiting to be carried out"})
+            return
+        else:
+            inbox.append(text)
+        arrived.set()
+
     unsubscribe = operator.subscribe(on_event)
     sender = asyncio.create_task(send_or_close(), name=f"ws sender {client.name}")
+    worker = asyncio.create_task(carry_out(), name=f"ws orders {client.name}")
     how = "its WebSocket ended"
     try:
         while True:
@@ -142,7 +190,7 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
             if message.get("text") is None:
                 post({"type": "error", "message": "binary messages are not understood; send JSON text"})
                 continue
-            _handle(message["text"], client.id, operator, desk, post)
+            take(message["text"])
     except WebSocketDisconnect as exc:
         how = _how_it_closed(exc.code, exc.reason)
     finally:
@@ -151,7 +199,17 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
         log.info("WebSocket of %s ended: %s", client.name, how)
         unsubscribe()
         sender.cancel()
-        await asyncio.gather(sender, return_exceptions=True)
+        worker.cancel()
+        await asyncio.gather(sender, worker, return_exceptions=True)
+
+
+def _kind(text: str) -> str | None:
+    """A page's message's type, or None if it has none (`_handle` says what is wrong)."""
+    try:
+        message = json.loads(text)
+    except ValueError:
+        return None
+    return message.get("type") if isinstance(message, dict) else None
 
 
 def _how_it_closed(code: int | None, reason: str | None) -> str:
