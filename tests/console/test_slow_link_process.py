@@ -16,10 +16,7 @@ import pytest
 
 from rovlink.console.session.fates import Fate
 from rovlink.console.session.radio import Operator
-from rovlink.link import process
-from rovlink.link.process import CALLS, MasterProcess
-from rovlink.link.process import _status as radio_status
-from tests.link.test_link_process_parts import Served, SlowMaster
+from tests.link.test_link_process_parts import slow_master_served
 
 
 def answers_read(link) -> None:
@@ -33,11 +30,7 @@ def answers_read(link) -> None:
 
 @pytest.fixture
 def slow(monkeypatch):
-    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
-    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
-                         max_frame=None, t0=0.0)
-    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
-    served = Served(link, master, radio_status, CALLS)
+    link, master, served = slow_master_served(monkeypatch)
     operator = Operator(None, master=link, record=None)
     try:
         yield operator, link, master

@@ -148,6 +148,18 @@ class SlowMaster(Master):
         return super().send_order(order)
 
 
+def slow_master_served(monkeypatch) -> tuple[MasterProcess, SlowMaster, Served]:
+    """A radio link process's console side and its child's command thread serving a
+    SlowMaster, calls given up after 0.3 s."""
+    from rovlink.link import process
+
+    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
+    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
+                         max_frame=None, t0=0.0)
+    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
+    return link, master, Served(link, master, radio_status, CALLS)
+
+
 def test_a_call_answered_late_is_told_to_its_caller_and_never_read_as_the_next_calls_answer(monkeypatch):
     """The console's half of the hostile-relay STOP: a link process that is up but slow
     to answer is not "down".  The order was handed over and may yet go: its caller is
@@ -156,11 +168,7 @@ def test_a_call_answered_late_is_told_to_its_caller_and_never_read_as_the_next_c
     from rovlink.link import process
     from rovlink.link.radio.messages import Stop
 
-    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
-    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
-                         max_frame=None, t0=0.0)
-    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
-    served = Served(link, master, radio_status, CALLS)
+    link, master, served = slow_master_served(monkeypatch)
     told: list = []
     try:
         with pytest.raises(process.LinkProcessSlow, match="did not answer send_order within 0.3 s") as slow:
@@ -183,11 +191,7 @@ def test_a_late_answer_is_read_between_calls_and_a_process_that_ends_first_loses
     from rovlink.link import process
     from rovlink.link.radio.messages import Stop
 
-    monkeypatch.setattr(process, "CALL_TIMEOUT_S", 0.3)
-    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
-                         max_frame=None, t0=0.0)
-    master = SlowMaster(bitrate_bps=1900.0, delay_s=0.085)
-    served = Served(link, master, radio_status, CALLS)
+    link, master, served = slow_master_served(monkeypatch)
     told: list = []
     try:
         with pytest.raises(process.LinkProcessSlow) as slow:
