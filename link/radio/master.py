@@ -715,6 +715,19 @@ class Master:
         return []
 
     def _update_requests(self, reply: Reply, poll: Poll | None, now: float) -> None:
+        if reply.failsafe:
+            # §2 (decided): the ROV failed safe before it took this poll, and its
+            # reference went with it.  A VELOCITY poll only set it anew: a request
+            # riding in it was swallowed, and goes again after a 0 (a disarm acted).
+            # Any other poll set none: requests wait for a VELOCITY's reply.
+            if poll is not None and isinstance(poll.order, Velocity):
+                for what, value in (("arm", poll.order.arm), ("mode", poll.order.mode)):
+                    request = self._requests[what]
+                    if request is not None and value and value == request[0] \
+                            and not (what == "arm" and value == Arm.DISARM):
+                        request[2] = True
+            else:
+                self._reference_unset = True
         if not reply.hold or (poll is not None and isinstance(poll.order, Velocity) and poll.order.is_neutral):
             self._recentre_owed = False  # the ROV has the re-centring, or needs none
         if poll is not None and isinstance(poll.order, Velocity):

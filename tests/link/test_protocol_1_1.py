@@ -624,6 +624,57 @@ def test_a_request_right_after_a_stop_waits_for_the_rovs_new_reference():
     assert not of(master.take_events(), RequestExpired)
 
 
+def test_a_request_in_the_first_poll_after_a_failsafe_goes_again_after_a_0():
+    """§2 (decided): the ROV's failsafe resets its ARM/MODE reference, so the first
+    VELOCITY it takes after one only sets it.  The ARM that rode in it (the console
+    was starved, the link silent past the failsafe, the pilot's ARM then in flight:
+    tests/console/test_restarts.py's swallowed ARM) goes again after a 0, and the
+    vehicle arms; it is never left repeating a value the ROV takes as no change."""
+    master, slave = started_master(), ready_slave()
+    slave.update_status(dataclasses.replace(READY, armed=False))
+    for t in (0.0, 0.3):
+        send(slave, Poll(order=Velocity()), t)  # the ROV's reference: ARM 0
+    slave.tick(0.3 + slave.failsafe_s + 0.1)  # then silence: the ROV fails safe
+    assert slave.failsafe
+    master.request_arm(True, 3.0)
+    armed_at = None
+    t = 3.0
+    while t < 6.0 and armed_at is None:
+        poll = polls_of(master, t)
+        reply, events = send(slave, poll, t + 0.02)
+        if of(events, ArmRequested):
+            armed_at = t
+            slave.update_status(dataclasses.replace(READY, armed=True))
+            reply, _ = send(slave, Poll(order=Velocity()), t + 0.03)  # (its status now armed)
+        master.receive_bytes(encode_frame(reply.encode()), t + 0.05)
+        t += 0.1
+    assert armed_at is not None and armed_at >= 3.1, "the ARM in the first poll after the failsafe was swallowed"
+    assert not of(master.take_events(), RequestExpired)
+
+
+def test_a_request_waits_for_a_velocity_after_a_failsafe_answered_to_another_poll():
+    master = started_master()
+    master.send_order(Position(1, 2, 3, 0))
+    t = 3.0
+    while not isinstance((poll := polls_of(master, t)).order, Position):
+        answer(master, t + 0.05, autopilot=True, mode=Mode.MANUAL)
+        t += 0.1
+    master.request_mode(Mode.STABILIZE, t)
+    answer(master, t + 0.05, autopilot=True, mode=Mode.MANUAL, failsafe=True, hold=True)
+
+    def next_velocity(t: float) -> Velocity:
+        while not isinstance((poll := polls_of(master, t)).order, Velocity):
+            answer(master, t + 0.05, autopilot=True, mode=Mode.MANUAL, hold=True)
+            t += 0.1
+        return poll.order
+
+    # The ROV's reference is unset (the failsafe) and the POSITION set none: the request
+    # goes as 0 in the next VELOCITY, then, once that is answered, as itself.
+    assert next_velocity(t + 0.1).mode == Mode.KEEP
+    answer(master, t + 0.15, autopilot=True, mode=Mode.MANUAL, hold=True)
+    assert next_velocity(t + 0.2).mode == Mode.STABILIZE
+
+
 def test_the_operator_len_cap_follows_the_last_polls_size():
     master = started_master(idle_size=0)
     polls_of(master, 3.0)
