@@ -698,16 +698,9 @@ class AcousticSession(SessionBase):
         state["waiting"] = self.picture_wait()
         return state
 
-    def picture_wait(self) -> str | None:
-        if self.images.view.picture is not None or self.images.view.images_completed:
-            return None
-        condition, _ = self.link_condition()
-        if condition == "replay":
-            return "no thumbnail in the recording yet"
-        if condition == "starting":
-            return "waiting for the ROV's first status"
-        if condition == "lost":
-            return "no thumbnail: the link is lost"
+    _first_report = "status"
+
+    def _picture_wait_on_link(self) -> str:
         if self.images.view.received_bytes:
             return "decoding the first bytes of the thumbnail"
         waiting = [o for o in self.orders.state() if o["kind"] == "IMAGE" and not Fate(o["state"]).ended]

@@ -209,6 +209,36 @@ class SessionBase:
     # The link's surroundings
     # ------------------------------------------------------------------
 
+    # -- why there is no picture yet -------------------------------------------
+
+    _first_report = "report"  # what the ROV's first word is called on this link
+
+    def picture_wait(self) -> str | None:
+        """Why there is no picture yet, in the pilot's words; None once there is one."""
+        view = self.images.view
+        if view.picture is not None or view.images_completed:
+            return None
+        off = self._pictures_off()
+        if off is not None:
+            return off
+        word = "thumbnail" if self.capabilities.picture == "thumbnail" else "picture"
+        state, _ = self.link_condition()
+        if state == "replay":
+            return f"no {word} in the recording yet"
+        if state == "starting":
+            return f"waiting for the ROV's first {self._first_report}"
+        if state == "lost":
+            return f"no {word}: the link is lost"
+        return self._picture_wait_on_link()
+
+    def _pictures_off(self) -> str | None:
+        """Why no picture is coming at all (the pilot turned them off), or None."""
+        return None
+
+    def _picture_wait_on_link(self) -> str:
+        """Why there is none yet, the link being up: the driver's words."""
+        raise NotImplementedError
+
     def _machine_lock(self, machine) -> contextlib.AbstractContextManager:
         """What a call into the link's machine is made under: the session's lock where
         the machine runs in this process (the link's loop takes it too); none where it

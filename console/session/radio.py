@@ -682,19 +682,14 @@ class Operator(SessionBase):
     def image_state(self) -> dict:
         return {**self.images.state(), "waiting": self.picture_wait()}
 
-    def picture_wait(self) -> str | None:
-        """Why there is no picture yet, in the pilot's words; None once there is one."""
-        if self.images.view.picture is not None or self.images.view.images_completed:
-            return None
+    _first_report = "reply"
+
+    def _pictures_off(self) -> str | None:
         if self.requested_settings.budget_bytes == 0:
             return "pictures are off (budget 0 B): give them a budget to get some"
-        state, _ = self.link_condition()
-        if state == "replay":
-            return "no picture in the recording yet"
-        if state == "starting":
-            return "waiting for the ROV's first reply"
-        if state == "lost":
-            return "no picture: the link is lost"
+        return None
+
+    def _picture_wait_on_link(self) -> str:
         if self.images.view.received_bytes:
             return ("the first picture's first bytes are in: it shows as soon as this console's picture "
                     "decoder has started (up to a minute on a first run)")

@@ -57,6 +57,7 @@ class Relay:
         self.drop_stop_for_s: float | None = None  # armed: the window starts at the first STOP poll
         self.hold_next_reply_s: float | None = None
         self.held_at: float | None = None
+        self.polls_since_held = 0  # a held reply goes only once the master has polled again (it is late)
         self.stop_polls_passed: list[float] = []
         self.stop_polls_dropped = 0
         self.sizes: list[int] = []
@@ -77,8 +78,11 @@ class Relay:
         while self._running:
             now = time.monotonic()
             with self.lock:
-                due = [d for d in self._delayed if d[0] <= now]
-                self._delayed = [d for d in self._delayed if d[0] > now]
+                # Held past its time and past the master's next poll, whatever the machine's
+                # load: then it is a late reply for certain (a loaded run once saw the master
+                # poll again only after 1.5 s, and the held reply was then on time).
+                due = [d for d in self._delayed if d[0] <= now and self.polls_since_held]
+                self._delayed = [d for d in self._delayed if d not in due]
             for _, data in due:
                 self.a.sendto(data, self.console_addr)
             ready, _, _ = select.select([self.a, self.b], [], [], 0.005)
@@ -93,6 +97,8 @@ class Relay:
 
     def _poll(self, data: bytes, now: float) -> None:
         with self.lock:
+            if self.held_at is not None:
+                self.polls_since_held += 1
             if _poll_order(data) == STOP:
                 if self.drop_stop_for_s is not None:
                     self.drop_stop_until, self.drop_stop_for_s = now + self.drop_stop_for_s, None

@@ -656,7 +656,7 @@ def test_a_request_waits_for_a_velocity_after_a_failsafe_answered_to_another_pol
     master = started_master()
     master.send_order(Position(1, 2, 3, 0))
     t = 3.0
-    while not isinstance((poll := polls_of(master, t)).order, Position):
+    while not isinstance(polls_of(master, t).order, Position):
         answer(master, t + 0.05, autopilot=True, mode=Mode.MANUAL)
         t += 0.1
     master.request_mode(Mode.STABILIZE, t)
