@@ -28,7 +28,9 @@ from .pages import take_control
 @pytest.fixture(scope="module")
 def live():
     # 3 m over the seabed, amphorae ahead: objects in view from the start.
-    with running_console(scene=True, objects=True, tracker="klt", start_depth_m=5.0) as console:
+    # The ROV's failsafe at its real 3 s, not the tests' 1 s: a loaded machine's pause in the
+    # link would otherwise brake the go-to this module flies.
+    with running_console(scene=True, objects=True, tracker="klt", start_depth_m=5.0, failsafe_s=3.0) as console:
         yield console
 
 
@@ -80,7 +82,7 @@ def test_a_pilot_goes_to_an_object_and_frames_it(open_page, live):
 
     # Armed, Sent: it arrives at the stand-off, facing the object.
     page.click("#arm")
-    page.wait_for_function("document.getElementById('armed').textContent === 'ARMED'", timeout=30000)
+    page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=30000)
     page.click("#goto-go")
     page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=120000)
     there = op.vehicle()
@@ -163,3 +165,56 @@ def test_the_scene_orders_for_the_holders_page_only_and_says_why_not_in_one_line
             desk.submit(control.FrameObject(999), control.Caller(script.id))
     finally:
         desk.release(script.id)
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_with_no_rangefinder_the_page_and_the_scene_say_seabed_depth_unknown_and_draw_no_floor(open_page, live):
+    """The vehicle's rangefinder stops reporting (as a real ArduSub without one, which sends
+    no range the bridge may use): the ROV tells no altitude (§11's ALT 0), the page says
+    "seabed depth unknown" with why, the scene hides its floor, the pictures laid on it and
+    the objects, and its panel says so too.  It comes back with the rangefinder."""
+    op, scene, sim = live.operator, live.scene, live.stack.sim
+    page = open_page()
+    page.wait_for_function("/seabed at/.test(document.getElementById('seabed-text').textContent)", timeout=90000)
+    assert wait_for(lambda: scene.floor_z is not None and scene.floor_node.visible, 10)
+    sim.has_rangefinder = False
+    try:
+        page.wait_for_function("document.getElementById('seabed-text').textContent === "
+                               "'seabed depth unknown: the ROV reports no altitude (no rangefinder)'", timeout=30000)
+        assert "stale" in page.get_attribute("#seabed-text", "class")
+        assert wait_for(lambda: scene.floor_z is None and not scene.floor_node.visible, 10), "the floor is drawn"
+        assert all(not node.visible for node in scene._object_nodes.values())
+        assert all(not node.visible for _floor, node in scene._mosaic.values())
+        assert any("seabed depth unknown: the ROV reports no altitude" in e["text"] for e in op.log_entries(50))
+        viewer = next(iter(scene.panels.values()), None)
+        if viewer is not None:  # the page's embedded scene, when its viewer is connected
+            assert wait_for(lambda: "seabed depth unknown" in viewer.world_md.content
+                            and "no floor drawn" in viewer.world_md.content, 10), viewer.world_md.content
+    finally:
+        sim.has_rangefinder = True
+    page.wait_for_function("/seabed at/.test(document.getElementById('seabed-text').textContent)", timeout=30000)
+    assert wait_for(lambda: scene.floor_z is not None, 10)
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_an_object_record_out_of_range_on_the_wire_is_counted_and_ignored(open_page, live):
+    """A record of a reserved class (§11.3) in a reply, authentic: the console takes the
+    reply, ignores the record and counts it, says it once in the log; the page shows the
+    count; the link and the world go on."""
+    from rovlink.link.scene import OP_NEW, ObjectRecord
+
+    op = live.operator
+    page = open_page()
+    page.wait_for_function("/seabed at/.test(document.getElementById('seabed-text').textContent)", timeout=90000)
+    before = op.world_state()["records_ignored"]
+    reports = op.link_state()["reports"]
+    live.loop.call_soon_threadsafe(live.stack.node.scene.put, ObjectRecord(OP_NEW, 60, 6, 3, 80, 41, 18, 16, 50))
+    assert wait_for(lambda: op.world_state()["records_ignored"] == before + 1, 30), op.world_state()
+    page.wait_for_function("/bad object records ignored/.test(document.getElementById('seabed-text').textContent)",
+                           timeout=30000)
+    assert 60 not in {o["id"] for o in op.world_state()["objects"]}
+    assert wait_for(lambda: op.link_state()["reports"] > reports + 3, 10)  # the replies still taken
+    if before == 0:
+        assert sum("object record out of range was ignored" in e["text"] for e in op.log_entries(200)) == 1
