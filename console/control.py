@@ -9,7 +9,7 @@ resends an old value.
 Plan:
 - Orders are frozen dataclasses (`Arm`, `SetMode`, `Drive`, `GoTo`,
   `PreviewTarget`, `ClearTarget`, `SendTarget`, `ChangeImage`, `NextImage`,
-  `FollowRoi`, `Stop`); an adapter builds one and hands it to `ControlDesk.submit(order,
+  `FollowRoi`, `FrameObject`, `Stop`); an adapter builds one and hands it to `ControlDesk.submit(order,
   caller)`.  The adapters hold no state of their own: what they show comes
   from the operator's events ("wish", "target", "control", "order", ...).
 - One permission table, `PERMISSION`: STOP is open to all, everything else
@@ -181,6 +181,16 @@ class FollowRoi(Order):
 
 
 @dataclass(frozen=True)
+class FrameObject(Order):
+    """"Frame it": the next picture's ROI on object `object_id` (docs/PROTOCOL.md §11), where
+    it lies in the picture taken from where the ROV is (the session's `object_frame`), and
+    FOLLOW where the link carries it; refused in one line when the object is not in view."""
+
+    object_id: int
+    kind = "FRAME"
+
+
+@dataclass(frozen=True)
 class NextImage(Order):
     kind = "NEXT_IMAGE"
 
@@ -202,7 +212,8 @@ class CancelStop(Order):
 ANYONE, HOLDER = "anyone", "holder"
 PERMISSION: dict[type, str] = {Stop: ANYONE, Arm: HOLDER, SetMode: HOLDER, Drive: HOLDER, GoTo: HOLDER,
                                PreviewTarget: HOLDER, ClearTarget: HOLDER, SendTarget: HOLDER,
-                               ChangeImage: HOLDER, NextImage: HOLDER, CancelStop: HOLDER, FollowRoi: HOLDER}
+                               ChangeImage: HOLDER, NextImage: HOLDER, CancelStop: HOLDER, FollowRoi: HOLDER,
+                               FrameObject: HOLDER}
 
 
 @dataclass(frozen=True)
@@ -328,7 +339,7 @@ class ControlDesk:
             Arm: self._arm, SetMode: self._mode, Drive: self._drive, GoTo: self._go_to,
             PreviewTarget: self._preview, ClearTarget: self._clear_target, SendTarget: self._send_target,
             ChangeImage: self._image, NextImage: self._next_image, Stop: self._stop, CancelStop: self._cancel_stop,
-            FollowRoi: self._follow}
+            FollowRoi: self._follow, FrameObject: self._frame}
         assert set(self._effects) == set(PERMISSION)
         operator.set_pilot_in_force(False)  # nobody holds control yet
         operator.set_attended(False)
@@ -465,6 +476,23 @@ class ControlDesk:
         shift = self.operator.requested_settings.shift
         return self.operator.follow_roi(order.roi, keep=order.keep, drawn_on=order.drawn_on,
                                         shift=shift if shift else DEFAULT_ROI_SHIFT)
+
+    def _frame(self, order: FrameObject, caller: Caller) -> dict:
+        """The IMAGE (or FOLLOW) order that frames the object; what was decided, with its id."""
+        if isinstance(order.object_id, bool) or not isinstance(order.object_id, int):
+            raise OrderError(f"an object is named by its id, not {order.object_id!r}")
+        try:
+            plan = self.operator.object_frame(order.object_id)
+        except OrderError as exc:
+            self.operator.note(f"Frame it: {exc}", "warn")
+            raise
+        roi = tuple(plan["roi"])
+        if plan["follow"]:
+            order_id = self._follow(FollowRoi(roi=roi, keep=True, drawn_on=plan["drawn_on"]), caller)
+        else:
+            order_id = self._image(ChangeImage(roi=roi), caller)
+        self.operator.note(f"Frame it: {plan['text']}; ROI {roi}, order #{order_id}")
+        return {**plan, "id": order_id, "kind": "IMAGE"}
 
     def _next_image(self, order: NextImage, caller: Caller) -> None:
         self.operator.next_image()

@@ -70,6 +70,7 @@ from rovlink.console.control import CONSOLE, Caller, ControlDesk, NotHolder
 from rovlink.console.session.base import OrderError
 from rovlink.console.session.contract import VehicleSession
 from rovlink.console.session.odometry import Pose
+from rovlink.console.session.world import CAMERA_HFOV_DEG, CAMERA_IN_BODY_FLU, CAMERA_TILT_DEG
 
 from . import chase, frames, mosaic
 from .chase import SCREEN_WIDTH_M, ViewerView
@@ -82,11 +83,8 @@ from .rov_model import load_rov_mesh
 log = logging.getLogger("rovlink.console.scene")
 
 
-# The simulated camera of rov/camera.py (SimulatedCamera's defaults); a test
-# checks they agree.
-CAMERA_HFOV_DEG = 80.0
-CAMERA_TILT_DEG = 35.0
-CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electronics tube
+# The ROV's camera (CAMERA_*: rov/camera.py SimulatedCamera's defaults, a test checks they
+# agree) is named once in console/session/world.py, which "Frame it" projects through.
 DEFAULT_IMAGE_PX = (320, 240)
 SCENE_KEY_PATH = "/rovlink/"  # the operator page opens the scene's WebSocket at SCENE_KEY_PATH + key
 REFUSAL_NOTICE_S = 3.0         # at most one "not sent" notification per viewer this often
@@ -125,6 +123,10 @@ START_POSITION = (0.0, 0.0, -2.0)  # where the screen waits for the first odomet
 TRAIL_POINTS = 600
 FOOTPRINT_RANGE_M = 14.0
 MOSAIC_KEPT = 12  # pictures laid on the floor at once
+# A floor told this much off the one a picture was laid on: the picture lifted onto it, not
+# decoded and warped again (the altitude moves by its 5 cm steps as the vehicle does; twelve
+# pictures re-laid at every step cost the scene's thread seconds on a loaded machine).
+MOSAIC_RELAY_M = 0.1
 NO_FLOOR_Z = -1.0e6  # a plane no ray meets within its range
 
 @dataclass(frozen=True)
@@ -339,9 +341,21 @@ class ConsoleScene:
                 position=frames.ned_to_world(o["north_m"], o["east_m"], z - height / 2),
                 wxyz=frames.body_wxyz(0.0, 0.0, o["heading_deg"]), cast_shadow=False, receive_shadow=False,
                 visible=depth is not None)  # on a floor only: with no depth measured, no place to lay it
+            self._object_nodes[o["id"]].on_click(lambda event, oid=o["id"]: self.select_object(oid, event.client))
         for gone in set(self._objects_shown) - set(seen):
             self._object_nodes.pop(gone).remove()
         self._objects_shown = seen
+
+    def select_object(self, object_id: int, client) -> bool:
+        """An object clicked in the scene: shown in that viewer's panel with Go to and Frame it
+        (ordering from there goes through the desk, as every scene order: its page must hold
+        control).  False when the viewer or the object is gone."""
+        panel = self.panels.get(getattr(client, "client_id", client))
+        obj = next((o for o in self.operator.world_state()["objects"] if o["id"] == object_id), None)
+        if panel is None or obj is None:
+            return False
+        panel.select_object(obj)
+        return True
 
     def update_mosaic(self) -> None:
         """The pictures received laid on the measured floor where they were taken (the
@@ -358,7 +372,9 @@ class ConsoleScene:
         for rank, entry in enumerate(kept):
             n = entry["n"]
             laid = self._mosaic.get(n)
-            if laid is not None and laid[0] == self.floor_z:
+            if laid is not None and abs(laid[0] - self.floor_z) <= MOSAIC_RELAY_M:
+                x, y, _ = laid[1].position  # a floor told a few cm off: lifted onto it, not warped again
+                laid[1].position = (x, y, self.floor_z + 0.01 + 0.002 * rank)
                 _show(laid[1])
                 continue
             quad = mosaic.ground_quad(entry["capture"]["pose"], hfov_deg=self.hfov_deg, tilt_deg=self.tilt_deg,
@@ -372,11 +388,11 @@ class ConsoleScene:
                 continue
             raster, centre, width_m, height_m = mosaic.warp_to_ground(as_rgb(picture), *quad)
             centre[2] = self.floor_z + 0.01 + 0.002 * rank  # the newest on top
+            if laid is not None:  # before its successor takes its name (viser replaces a node by name)
+                laid[1].remove()
             node = self.server.scene.add_image(f"/mosaic/{n}", raster, width_m, height_m, format="png",
                                                position=centre, wxyz=(0.0, 1.0, 0.0, 0.0), cast_shadow=False,
                                                receive_shadow=False)
-            if laid is not None:
-                laid[1].remove()
             self._mosaic[n] = (self.floor_z, node)
 
     def show_sim_seabed(self, visible: bool) -> None:

@@ -162,6 +162,7 @@ class ControlPanel:
         self._build_keys()
         self._build_target()
         self._build_image()
+        self._build_world()
         self._build_link()
         self._build_plots()
         self.render_wish(self.operator.wish_state())
@@ -449,6 +450,94 @@ class ControlPanel:
             f"{'mono' if settings.get('mono') else 'colour'}, budget {settings.get('budget_bytes')} B{roi_text}")
 
     # ------------------------------------------------------------------
+    # The world the ROV measured: the seabed, and the object selected in the scene
+    # ------------------------------------------------------------------
+
+    def _build_world(self) -> None:
+        self.selected_object: int | None = None
+        self._frame_order: int | None = None
+        self._frame_text = ""
+        with self.gui.add_folder("Seabed and objects"):
+            self.world_md = self.gui.add_markdown("seabed depth unknown: no report yet")
+            self.object_md = self.gui.add_markdown("*Click an object in the scene to select it.*")
+            self.object_goto_button = self.gui.add_button(
+                "Go to object (preview)", hint="a go-to that stops short of it, facing it: previewed; Send sends it")
+            self.object_frame_button = self.gui.add_button(
+                "Frame it", hint="the next picture's ROI on it, and FOLLOW where the link carries it")
+            self.object_fate_md = self.gui.add_markdown("")
+        self.order_widgets += [self.object_goto_button, self.object_frame_button]
+        self.object_goto_button.on_click(lambda _event: self.goto_object())
+        self.object_frame_button.on_click(lambda _event: self.frame_object())
+
+    def select_object(self, obj: dict) -> None:
+        """The object clicked in the scene (a WorldState object) is the one Go to and Frame it act on."""
+        self.selected_object = int(obj["id"])
+        self._frame_order = None
+        self.object_fate_md.content = ""
+        self._show_object(obj)
+
+    def _show_object(self, obj: dict | None) -> None:
+        if obj is None:
+            self.object_md.content = f"Object #{self.selected_object} **removed by the ROV**."
+            return
+        self.object_md.content = (
+            f"**Object #{obj['id']}: {obj['class']}** {obj['length_m']:.1f} x {obj['width_m']:.1f} m at "
+            f"N {obj['north_m']:+.1f} E {obj['east_m']:+.1f}, heading {obj['heading_deg']:.0f}°, "
+            f"{obj['confidence']:.0%}, seen {obj.get('age_s', 0):.0f} s ago")
+
+    def _why_not(self, exc: Exception) -> None:
+        self.object_fate_md.content = f"**Not sent**: {exc}"
+        if self.callbacks.refused is not None:
+            self.callbacks.refused()
+
+    def goto_object(self):
+        """Preview a go-to to the selected object's stand-off, facing it (Send sends it, as any target)."""
+        if self.selected_object is None:
+            self.object_fate_md.content = "Click an object in the scene first."
+            return None
+        target = self.operator.object_approach(self.selected_object)
+        if target is None:
+            self.object_fate_md.content = f"Object #{self.selected_object} is no longer held (or no pose yet)."
+            return None
+        try:
+            points = self.callbacks.submit(control.PreviewTarget(target["x_m"], target["y_m"], target["z_m"],
+                                                                 target["yaw_deg"]))
+        except (NotHolder, OrderError) as exc:
+            return self._why_not(exc)
+        self.object_fate_md.content = (f"Go-to previewed: {target['standoff_m']:g} m short of it, facing it; "
+                                       "**Send** (Target) sends it, switching to GUIDED.")
+        return points
+
+    def frame_object(self):
+        """Frame it (console/control.py FrameObject): its fate, or why not, under the buttons."""
+        if self.selected_object is None:
+            self.object_fate_md.content = "Click an object in the scene first."
+            return None
+        try:
+            result = self.callbacks.submit(control.FrameObject(self.selected_object))
+        except (NotHolder, OrderError) as exc:
+            return self._why_not(exc)
+        self._frame_order = result["id"]
+        self._frame_text = f"{result['text']}: ROI {tuple(result['roi'])}"
+        self.object_fate_md.content = self._frame_text
+        return result
+
+    def _refresh_world(self, w: dict) -> None:
+        text = (f"seabed depth unknown: {w['seabed_unknown_why']} (no floor drawn)" if w["seabed_depth_m"] is None
+                else f"seabed at {w['seabed_depth_m']:.1f} m (altitude {w['altitude_m']:.1f} m, "
+                     f"{w['altitude_age_s']:.0f} s ago{', OLD' if w['altitude_stale'] else ''}); "
+                     f"{len(w['objects'])} objects (click one)")
+        if self.world_md.content != text:
+            self.world_md.content = text
+        if self.selected_object is None:
+            return
+        self._show_object(next((o for o in w["objects"] if o["id"] == self.selected_object), None))
+        if self._frame_order is not None:
+            order = next((o for o in self.operator.orders_state() if o["id"] == self._frame_order), None)
+            if order is not None:
+                self.object_fate_md.content = f"{self._frame_text} · order #{order['id']} {order['text']}"
+
+    # ------------------------------------------------------------------
     # Link health
     # ------------------------------------------------------------------
 
@@ -531,5 +620,6 @@ class ControlPanel:
         image = self.operator.image_state() if image is None else image
         self._refresh_vehicle(pose, link)
         self._refresh_image(image)
+        self._refresh_world(self.operator.world_state())
         self._refresh_link(link)
         self._refresh_plots()

@@ -74,7 +74,8 @@ class AcousticSession(SessionBase):
     _logger = log
 
     capabilities = Capabilities(profile="acoustic", velocity=False, next_image=False, follow=True, picture="thumbnail",
-                                image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S)
+                                image_budget_max=ac.MAX_BUDGET, report_every_s=ac.STATUS_IDLE_S,
+                                picture_px=(ac.THUMB_W, ac.THUMB_H), follow_newest_frame=0)
 
     def __init__(self, endpoint, key: bytes | None, *, clock: Callable[[], float] = time.monotonic,
                  pace_s: float = 1.0, record=None, link: AcousticLinkProcess | None = None) -> None:

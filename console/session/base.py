@@ -40,6 +40,7 @@ from .images import DaemonWorker, ImageView
 from .odometry import LOG_KEPT, LogLine, Pose
 from .orders import MODE_NAMES, REPORTED_MODE_NAMES
 from .predictor import preview_path
+from .world import SAME_POSE_DEG, SAME_POSE_M
 
 MAX_SPEED_MPS = 1.0       # how fast the prediction's uncertainty grows when nothing is heard
 
@@ -364,6 +365,43 @@ class SessionBase:
             return None
         return self.world.approach(object_id, fix.pose.x_m, fix.pose.y_m, fix.pose.z_m)
 
+    def object_frame(self, object_id: int) -> dict:
+        """How "Frame it" frames object `object_id` in the next picture (console/control.py
+        FrameObject): the ROI where it lies in the picture taken from where the ROV is now,
+        and whether FOLLOW goes with it, drawn on which picture: the one shown when it was
+        taken from here (within SAME_POSE_M and SAME_POSE_DEG), else the ROV's newest frame
+        where the link can name it; else the ROI alone.  NotNow, in one line, when the
+        object is not in view from here (never a wrong ROI); OrderError for no such object."""
+        with self._lock:
+            fix = self.odometry.fix
+        if fix is None:
+            raise NotNow("no pose from the ROV yet: nothing can be framed before its first report")
+        picture = self.picture()
+        caps = self.capabilities
+        size = caps.picture_px if picture is None else (int(picture.shape[1]), int(picture.shape[0]))
+        if int(object_id) not in self.world.objects:
+            raise OrderError(f"no object #{object_id}: the ROV does not hold it")
+        roi, words = self.world.frame(object_id, fix.pose, size)
+        if roi is None:
+            raise NotNow(words)
+        plan = {"object_id": int(object_id), "roi": list(roi), "follow": False, "drawn_on": None, "size_px": list(size),
+                "text": words}
+        if not caps.follow:
+            plan["text"] += ": the ROI on the next picture (this link carries no FOLLOW)"
+            return plan
+        shown = self.image_state()
+        capture = (shown.get("capture") or {}).get("pose")
+        if shown.get("img") is not None and capture and _same_place(capture, fix.pose):
+            plan.update(follow=True, drawn_on=int(shown["img"]))
+            plan["text"] += f": the ROI follows it, drawn on picture {shown['img']} (taken from here)"
+        elif caps.follow_newest_frame is not None:
+            plan.update(follow=True, drawn_on=caps.follow_newest_frame)
+            plan["text"] += ": the ROI follows it from the ROV's newest camera frame"
+        else:
+            plan["text"] += (": the ROI on the next picture; FOLLOW once a picture taken from here has come "
+                             "(Frame it again then)")
+        return plan
+
     def _may_move(self, report: VehicleReport) -> bool:
         """Whether the vehicle may be moving on its own accord at full speed (each
         driver says it for its link: armed on the radio's sticks; armed and not
@@ -437,3 +475,13 @@ class SessionBase:
             # The session's clock time now: a replay's own (it stands still while paused).
             "wall": round(self.wall(self.now()), 3),
         }
+
+
+def _same_place(capture: dict, pose: Pose) -> bool:
+    """A picture captured at `capture` (a pose's dict) was taken from where `pose` is."""
+    try:
+        moved = math.dist((capture["x_m"], capture["y_m"], capture["z_m"]), (pose.x_m, pose.y_m, pose.z_m))
+        turned = abs(wrap_deg(capture["yaw_deg"] - pose.yaw_deg))
+    except (KeyError, TypeError):
+        return False
+    return moved <= SAME_POSE_M and turned <= SAME_POSE_DEG

@@ -20,6 +20,18 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
+import numpy as np
+
+# The ROV's camera as the console knows it (rov/camera.py SimulatedCamera's defaults; a
+# test checks they agree): the scene draws it, "Frame it" projects through it.
+CAMERA_HFOV_DEG = 80.0
+CAMERA_TILT_DEG = 35.0
+CAMERA_IN_BODY_FLU = (0.2, 0.0, 0.035)  # the dome at the front of the electronics tube
+FRAME_RANGE_M = 8.0       # an object further off is framed by too few pixels (the mosaic's range)
+FRAME_MARGIN = 0.15       # the ROI's margin round the object's footprint, a fraction of its size each side
+FRAME_MIN_PX = 4          # an ROI smaller than this frames nothing (a drag this small is a click)
+FRAME_IN_VIEW = 0.5       # at least this share of the footprint in the picture: in view
+SAME_POSE_M, SAME_POSE_DEG = 0.3, 5.0  # a picture taken this near the pose now was taken from here
 ALTITUDE_STALE_S = 10.0   # an altitude not told again within this long is shown old
 STANDOFF_M = 1.5          # a go-to to an object stops this far from its nearer end, facing it
 APPROACH_ALTITUDE_M = 2.5  # ... this high above the measured seabed (the detector's own height)
@@ -137,6 +149,43 @@ class SeenWorld:
                 "yaw_deg": round(math.degrees(math.atan2(de, dn)) % 360.0, 1), "object_id": obj["id"],
                 "standoff_m": STANDOFF_M}
 
+    def frame(self, object_id: int, pose, size_px: tuple[int, int]) -> tuple[tuple[int, int, int, int] | None, str]:
+        """The ROI that frames object `object_id` in a picture of `size_px` taken from `pose`
+        (NED, anything with x_m..yaw_deg): its footprint on the measured seabed projected
+        through the camera, a margin round it, clipped to the picture, as the pilot would
+        drag it.  (None, why) when it cannot: no such object, no seabed, out of view."""
+        with self._lock:
+            obj = self.objects.get(int(object_id))
+            alt, depth = self.altitude_m, self.depth_m
+        if obj is None:
+            return None, f"no object #{object_id}: the ROV does not hold it"
+        if alt is None or depth is None:
+            return None, (f"object #{object_id} cannot be framed: seabed depth unknown (the ROV reports no altitude), "
+                          "so where it lies in the picture is not known")
+        what = f"object #{object_id} ({obj['class']})"
+        corners = footprint_ned(obj, depth + alt)
+        col, row, ahead, range_m = project_ned(pose, corners, size_px)
+        centre_range = float(np.mean(range_m))
+        if not ahead.all():
+            return None, f"{what} is not in view of the camera from where the ROV is: it lies behind the camera"
+        if centre_range > FRAME_RANGE_M:
+            return None, (f"{what} is not in view of the camera from where the ROV is: {centre_range:.1f} m off, "
+                          f"beyond {FRAME_RANGE_M:g} m (Go to first)")
+        w, h = size_px
+        x0, y0, x1, y1 = float(col.min()), float(row.min()), float(col.max()), float(row.max())
+        cx0, cy0, cx1, cy1 = max(0.0, x0), max(0.0, y0), min(float(w), x1), min(float(h), y1)
+        area = max(1e-9, (x1 - x0) * (y1 - y0))
+        shown = max(0.0, cx1 - cx0) * max(0.0, cy1 - cy0) / area
+        if shown < FRAME_IN_VIEW:
+            return None, (f"{what} is not in view of the camera from where the ROV is: {shown:.0%} of it in the "
+                          f"picture (turn towards it, or Go to first)")
+        mx, my = FRAME_MARGIN * (x1 - x0), FRAME_MARGIN * (y1 - y0)
+        roi = (max(0, math.floor(x0 - mx)), max(0, math.floor(y0 - my)),
+               min(w, math.ceil(x1 + mx)), min(h, math.ceil(y1 + my)))
+        if roi[2] - roi[0] < FRAME_MIN_PX or roi[3] - roi[1] < FRAME_MIN_PX:
+            return None, f"{what} is too small in the picture from where the ROV is to frame (Go to first)"
+        return roi, f"{what} framed at {centre_range:.1f} m"
+
     # -- a replay ---------------------------------------------------------------
 
     def replayed(self, record: dict, t: float) -> bool:
@@ -151,6 +200,42 @@ class SeenWorld:
         else:
             return False
         return True
+
+
+def footprint_ned(obj: dict, floor_depth_m: float) -> np.ndarray:
+    """The four corners (4, 3) of an object's footprint on the seabed, NED."""
+    c, s = math.cos(math.radians(obj["heading_deg"])), math.sin(math.radians(obj["heading_deg"]))
+    along = np.array([1, 1, -1, -1]) * obj["length_m"] / 2
+    across = np.array([1, -1, -1, 1]) * obj["width_m"] / 2
+    return np.column_stack([obj["north_m"] + along * c - across * s, obj["east_m"] + along * s + across * c,
+                            np.full(4, float(floor_depth_m))])
+
+
+def _rotation_ned_frd(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    r, p, y = (math.radians(v) for v in (roll_deg, pitch_deg, yaw_deg))
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def project_ned(pose, points_ned, size_px: tuple[int, int], *, hfov_deg: float = CAMERA_HFOV_DEG,
+                tilt_deg: float = CAMERA_TILT_DEG, camera_in_body_flu=CAMERA_IN_BODY_FLU):
+    """Where NED points fall in a picture of `size_px` taken from `pose`: (column, row) in
+    pixel edges (0..W), whether each lies ahead of the camera, and its range (m)."""
+    w, h = size_px
+    rot = _rotation_ned_frd(pose.roll_deg, pose.pitch_deg, pose.yaw_deg)
+    fx, fy, fz = camera_in_body_flu
+    camera = np.array([pose.x_m, pose.y_m, pose.z_m]) + rot @ np.array([fx, -fy, -fz])  # FLU -> FRD
+    body = (np.asarray(points_ned, float) - camera) @ rot  # rows: body FRD
+    t = math.radians(tilt_deg)
+    forward = math.cos(t) * body[:, 0] + math.sin(t) * body[:, 2]
+    down = -math.sin(t) * body[:, 0] + math.cos(t) * body[:, 2]
+    ahead = forward > 1e-6
+    focal = (w / 2) / math.tan(math.radians(hfov_deg) / 2)
+    safe = np.where(ahead, forward, 1.0)
+    return (focal * body[:, 1] / safe + w / 2, focal * down / safe + h / 2, ahead,
+            np.linalg.norm(np.asarray(points_ned, float) - camera, axis=1))
 
 
 class _Recorded:

@@ -169,6 +169,17 @@ class OrderQueued(BaseModel):
     mode: str | None = Field(None, description="the mode the ROV switches to for it (GUIDED for a position)")
 
 
+class FrameQueued(OrderQueued):
+    """"Frame it" (POST /api/world/objects/{id}/frame): the IMAGE or FOLLOW order that frames it."""
+
+    object_id: int
+    roi: tuple[int, int, int, int] = Field(description="the ROI, pixels of a picture of size_px, x1 and y1 exclusive")
+    size_px: tuple[int, int] = Field(description="the picture's width and height the ROI is in")
+    follow: bool = Field(description="FOLLOW went with it: the ROV tracks the object")
+    drawn_on: int | None = Field(description="FOLLOW's picture the ROI was drawn on (None without FOLLOW)")
+    text: str = Field(description="what was decided, in one line")
+
+
 class Requested(BaseModel):
     """A request the link repeats until the ROV confirms it (arm, mode)."""
 
@@ -209,7 +220,8 @@ class Config(BaseModel):
     rov_failsafe_s: float
     unattended_warn_s: float
     disarm_unattended_s: float | None
-    capabilities: dict[str, bool | str | float | int] = Field(
+    capabilities: dict[str, bool | str | float | int | list[int] | None] = Field(
         default_factory=dict, description="what the link carries (console/session/contract.py Capabilities): "
                                           "profile, velocity (sticks), next_image, picture ('stream' or "
-                                          "'thumbnail'), image_budget_max, report_every_s")
+                                          "'thumbnail'), image_budget_max, report_every_s, picture_px "
+                                          "([width, height] before a picture came), follow_newest_frame")

@@ -29,7 +29,7 @@ KEY = "k" * 32
 EXAMPLES = [control.Arm(True), control.SetMode("DEPTH_HOLD"), control.Drive(0.3), control.GoTo(1.0, 2.0, 3.0),
             control.PreviewTarget(1.0, 1.0, 2.0), control.ClearTarget(), control.SendTarget(),
             control.ChangeImage(budget_bytes=1500), control.NextImage(), control.CancelStop(), control.Stop(),
-            control.FollowRoi((10, 10, 50, 50), keep=True, drawn_on=1)]
+            control.FollowRoi((10, 10, 50, 50), keep=True, drawn_on=1), control.FrameObject(1)]
 
 
 @pytest.fixture

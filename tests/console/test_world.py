@@ -86,3 +86,65 @@ def test_no_altitude_no_floor_and_a_record_out_of_range_is_one_line():
     world.object_seen(SeenObject(7, "pipe", 0.75, 1.0, 2.0, 4.0, 0.3, 30.0, True), 9, 4.0)
     world.object_removed(7, 5.0)
     assert world.state(5.0)["objects"] == [] and "world" in published
+
+
+def _world_with_a_pipe(seabed_depth_m: float = 8.0):
+    import threading
+
+    notes = []
+    world = SeenWorld(lock=threading.RLock(), record=lambda r: None, publish=lambda t, p: None,
+                      note=lambda text, level="info", **kw: notes.append((level, text)))
+    world.altitude(seabed_depth_m - 5.5, 1.0, 5.5)
+    world.object_seen(SeenObject(3, "pipe", 0.9, 4.0, 2.0, 2.4, 0.3, 60.0, True), 9, 1.0)
+    return world
+
+
+def test_frame_it_projects_the_object_where_the_camera_sees_it():
+    """"Frame it"'s ROI, from the stand-off the go-to to it stops at, covers the object's
+    true box in the simulated camera's picture taken there (the ROV's own projection,
+    rov/camera.py), with a margin, and stays inside the picture."""
+    import math
+    from types import SimpleNamespace
+
+    from rovlink.console.session.odometry import Pose
+    from rovlink.rov.camera import SimulatedCamera
+    from rovlink.rov.seabed import SeabedObject
+
+    world = _world_with_a_pipe()
+    stand = world.approach(3, 0.0, 0.0, 5.5)
+    pose = Pose(stand["x_m"], stand["y_m"], stand["z_m"], 0.0, 0.0, stand["yaw_deg"])
+    camera = SimulatedCamera(seabed=SimpleNamespace(texture=Seabed.load().texture, depth_m=8.0))
+    for size in ((320, 240), (80, 60)):
+        camera.width, camera.height = size
+        roi, words = world.frame(3, pose, size)
+        assert roi is not None, words
+        truth = camera.object_box(SimpleNamespace(x_m=pose.x_m, y_m=pose.y_m, z_m=pose.z_m, roll_rad=0.0,
+                                                  pitch_rad=0.0, yaw_rad=math.radians(pose.yaw_deg)),
+                                  SeabedObject("pipe", 4.0, 2.0, 2.4, 0.3, math.radians(60.0))).clipped
+        assert truth is not None
+        # The ROI holds the object (the camera's 0.2 m dome offset and the margin aside)...
+        assert roi[0] <= truth[0] + 1 and roi[1] <= truth[1] + 1 and roi[2] >= truth[2] - 1 and roi[3] >= truth[3] - 1
+        # ... and is not the whole picture: it frames the object.
+        assert (roi[2] - roi[0]) * (roi[3] - roi[1]) < 0.6 * size[0] * size[1], (roi, truth)
+        assert 0 <= roi[0] < roi[2] <= size[0] and 0 <= roi[1] < roi[3] <= size[1]
+        assert "framed" in words
+
+
+def test_frame_it_says_why_not_rather_than_a_wrong_roi():
+    """Behind the camera, too far, off to the side, or no seabed measured: no ROI, one line."""
+    from rovlink.console.session.odometry import Pose
+
+    world = _world_with_a_pipe()
+    away = Pose(0.0, 0.0, 5.5, 0.0, 0.0, 180.0)  # the pipe lies north-east: looking south
+    roi, words = world.frame(3, away, (320, 240))
+    assert roi is None and "not in view of the camera from where the ROV is" in words
+    far = Pose(-20.0, 2.0, 5.5, 0.0, 0.0, 0.0)
+    roi, words = world.frame(3, far, (320, 240))
+    assert roi is None and "beyond" in words and "Go to first" in words
+    aside = Pose(4.0, -1.5, 5.5, 0.0, 0.0, 0.0)  # beside it, looking north: it is off to the right
+    roi, words = world.frame(3, aside, (320, 240))
+    assert roi is None and "not in view" in words
+    assert world.frame(9, away, (320, 240))[0] is None
+    world.altitude(None, 2.0, 5.5)  # the altitude gone: nowhere to lay it in the picture
+    roi, words = world.frame(3, Pose(0.0, 0.0, 5.5, 0.0, 0.0, 27.0), (320, 240))
+    assert roi is None and "seabed depth unknown" in words

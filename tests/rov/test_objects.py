@@ -133,3 +133,47 @@ def test_the_rov_node_recognises_what_lies_ahead_and_puts_it_in_its_scene_outbox
         # The committed seabed's amphorae lie in a cluster (touching ones are one object to this
         # detector), about 4 m north and 2 m east of the start.
         assert all(1.0 < d.north_m < 8.0 and -2.0 < d.east_m < 6.0 for d in told)
+
+
+def test_a_detector_that_fails_in_a_running_rov_node_is_said_once_and_the_node_goes_on(monkeypatch, caplog):
+    """The whole radio stack (version 2, the ROV recognising objects), its detector failing on
+    every frame: one warning in the ROV's log, no object told; the node goes on answering,
+    its pictures keep coming, and the vehicle still moves when asked."""
+    import asyncio
+    import logging
+
+    from rovlink.console.stack import Stack, StackConfig
+
+    def broken(self, frame, pose, altitude):
+        raise RuntimeError("bad frame")
+
+    monkeypatch.setattr(SeabedDetector, "detect", broken)
+    caplog.set_level(logging.WARNING, logger="rovlink")
+
+    async def until(predicate, timeout_s):
+        deadline = time.monotonic() + timeout_s
+        while not predicate() and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        return predicate()
+
+    async def main():
+        config = StackConfig(bitrate_bps=19200, delay_s=0.02, ber=0.0, key=bytes(range(32)), objects=True,
+                             start_depth_m=5.0)
+        async with Stack(config) as stack:
+            op, node = stack.operator, stack.node
+            assert await until(lambda: node.objects is not None and node.objects.failed is not None, 30)
+            serial, replies = op.image_state()["serial"], op.link_state()["reports"]
+            op.arm(True)
+            assert await until(lambda: op.last_reply is not None and op.last_reply.armed, 15)
+            start = op.vehicle()
+            op.set_velocity(0.5, 0.0, 0.0, 0.0)
+            assert await until(lambda: op.vehicle().x_m > start.x_m + 0.5, 20), "the vehicle did not move"
+            op.set_velocity(0.0, 0.0, 0.0, 0.0)
+            assert await until(lambda: op.image_state()["serial"] >= serial + 2, 30), "no picture since"
+            assert op.link_state()["reports"] > replies and op.world_state()["objects"] == []
+            return node.objects.failed
+
+    failed = asyncio.run(asyncio.wait_for(main(), 120))
+    assert failed == "RuntimeError: bad frame"
+    said = [r.getMessage() for r in caplog.records if "object detector stopped" in r.getMessage()]
+    assert said == ["object detector stopped: RuntimeError: bad frame; the ROV goes on without objects"], said

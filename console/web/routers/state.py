@@ -1,11 +1,15 @@
-"""Reading the session: the whole state at once, or one part of it."""
+"""Reading the session: the whole state at once, or one part of it (and "Frame it", an
+order on the world's objects, beside the world it reads)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, Request
 
+from rovlink.console import control
+from rovlink.console.control import Caller
+
 from ..deps import ClientIdDep, DeskDep, OperatorDep
-from ..models import Config, ErrorBody, LogEntry, OrderInfo, PoseState, State, WorldState
+from ..models import Config, ErrorBody, FrameQueued, LogEntry, OrderInfo, PoseState, State, WorldState
 from ..telemetry import finite, snapshot
 
 router = APIRouter(prefix="/api", tags=["state"])
@@ -36,6 +40,15 @@ def get_approach(object_id: int, operator: OperatorDep) -> dict:
     if target is None:
         raise HTTPException(404, f"no object #{object_id}: the ROV does not hold it (or no pose yet)")
     return target
+
+
+@router.post("/world/objects/{object_id}/frame", response_model=FrameQueued, summary="Frame it: the next picture's "
+             "ROI on an object, and FOLLOW where the link carries it", responses={
+                 409: {"model": ErrorBody, "description": "the caller does not hold control, or the object is not "
+                                                          "in view from where the ROV is (said in one line)"},
+                 422: {"model": ErrorBody, "description": "no such object"}})
+def post_frame(object_id: int, desk: DeskDep, cid: ClientIdDep) -> dict:
+    return desk.submit(control.FrameObject(object_id), Caller(cid))
 
 
 @router.get("/orders", response_model=list[OrderInfo], summary="The last 50 one-shot orders and their progress")

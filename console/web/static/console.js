@@ -35,6 +35,7 @@ const page = {
   alerts: 0,             // alarm sounds started (the tests read it)
   audio: null,
   orders: {},            // id -> the order as last shown (its fate: state, reason, text, outcome)
+  frames: {},            // object id -> its last "Frame it": {text, outcome, orderId}
   wallOffset: null,      // clock time minus session time (from telemetry)
   roiSent: null,         // {id, roi}: the pilot's ROI as sent in IMAGE order id
   logEntries: [],        // every log line seen, oldest first (GET /api/log, then events)
@@ -667,6 +668,7 @@ function renderOrder(o, quiet) {
   page.orders[o.id] = o;
   if (page.roiSent && page.roiSent.id === o.id && before !== o.state) renderRoiStatus();
   if (page.follow && page.follow.id === o.id && before !== o.state) renderTrack(lastImageState);
+  for (const [id, f] of Object.entries(page.frames)) if (f.orderId === o.id) renderFrameFate(id);
   const bad = o.outcome === "bad" && o.state !== "unknown";  // unknown: in the log, not a pop-up
   if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.text}`);
   if (!quiet) {
@@ -712,9 +714,51 @@ function renderWorld(w) {
       title: "fill in a go-to that stops short of it, facing it, and preview it (Go to sends it)" });
     go.onclick = () => approachObject(o.id);
     go.disabled = !page.holder;
-    li.append(age, " ", go);
+    const frame = Object.assign(document.createElement("button"), {
+      type: "button", className: "needs-control object-frame", textContent: "Frame it",
+      title: "the next picture's ROI on it, where it lies in the picture from where the ROV is, and FOLLOW where " +
+             "the link carries it (said here when it is not in view)" });
+    frame.onclick = () => frameObject(o.id);
+    frame.disabled = !page.holder;
+    const fate = Object.assign(document.createElement("span"), { className: "fate object-frame-fate" });
+    fate.setAttribute("role", "status");
+    li.append(age, " ", go, " ", frame, " ", fate);
+    renderFrameFate(o.id, fate);
     return li;
   }));
+}
+
+// "Frame it" (POST /api/world/objects/{id}/frame, the desk's FrameObject): what was decided,
+// or why not in one line, beside the button; then the IMAGE order's fate as the vehicle tells it.
+async function frameObject(id) {
+  const headers = { "Content-Type": "application/json" };
+  if (page.clientId) headers[CLIENT_HEADER] = page.clientId;
+  let data = null;
+  try {
+    const resp = await fetch(`/api/world/objects/${id}/frame`, { method: "POST", headers, body: "{}" });
+    data = await resp.json();
+    page.frames[id] = resp.ok
+      ? { text: `${data.text}: ROI [${data.roi.join(", ")}]`, outcome: "pending", orderId: data.id }
+      : { text: `not framed: ${data.message || resp.status}`, outcome: "bad", orderId: null };
+  } catch (err) {
+    page.frames[id] = { text: `not framed: ${err}`, outcome: "bad", orderId: null };
+  }
+  const f = page.frames[id];
+  if (f.orderId !== null && page.orders[f.orderId]) f.outcome = page.orders[f.orderId].outcome;
+  renderFrameFate(id);
+  return data;
+}
+
+function renderFrameFate(id, el) {
+  el = el || document.querySelector(`#objects li[data-id="${id}"] .object-frame-fate`);
+  const f = page.frames[id];
+  if (!el || !f) return;
+  const o = f.orderId === null ? null : page.orders[f.orderId];
+  const fate = o ? ` · order #${o.id} ${o.text}` : "";
+  el.textContent = f.text + fate;
+  el.className = `fate object-frame-fate ${o ? fateClass(o) : f.outcome}`;
+  el.dataset.outcome = o ? o.outcome : f.outcome;
+  el.dataset.order = f.orderId === null ? "" : f.orderId;
 }
 
 async function approachObject(id) {
