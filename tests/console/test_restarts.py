@@ -217,7 +217,7 @@ def test_a_console_restarted_with_the_stick_held_does_not_drive_until_it_is_cent
         time.sleep(1.0)
         gcs.stick_x = 600
         start = _fresh_pose(procs)
-        assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), procs.pose()
+        assert wait_until_up(lambda: _moved_m(start, procs.pose()["received"]) > 1.0, 20), ("centred, then forward", _why(procs))
         gcs.stick_x = 0
 
         # The ghost does not jump when the stick moves: full yaw now changes nothing
