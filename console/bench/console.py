@@ -180,6 +180,17 @@ def run(args) -> int:
         doc["wish_p95_s"] = steering["wish_p95_s"]
         doc["targets"].update(steering_targets(steering))
         lines += ["", *steering_lines(steering)]
+        if args.steering_processes_minutes > 0:
+            from .steering import measure_steering_processes
+
+            real = measure_steering_processes(args.steering_processes_minutes, args.seed + 2)
+            doc["steering_processes"] = real
+            lines += [f"with real processes (rov, channel, console; {real['minutes']:g} min, load average "
+                      f"{real['load_average']:.1f} on {real['cpus']} CPUs): {real['pictures']} pictures of "
+                      f"{real['picture_bytes_median']} bytes in {real['steering_picture_s']} s (median, first trunk "
+                      f"to last); the wish at the ROV in {real['wish_p95_s']} s at p95 ({real['wishes_seen']} of "
+                      f"{real['wishes']} wishes seen); frames that collided on the half-duplex channel: "
+                      f"{real['collisions']}"]
     if not args.no_prediction:
         from .prediction import measure_prediction, prediction_lines, prediction_targets
 
@@ -279,6 +290,9 @@ def add_parser(subparsers) -> None:
                    help="skip pictures while steering and where a cycle's bytes go (version 2, simulated time)")
     p.add_argument("--steering-seconds", type=float, default=900.0, metavar="S",
                    help="simulated seconds of the steering session (900)")
+    p.add_argument("--steering-processes-minutes", type=float, default=0.0, metavar="MIN",
+                   help="also steer with real processes (rovlink rov, channel and console) for MIN minutes "
+                        "(0: not; real time, so meaningful only on a machine with a core to spare)")
     p.add_argument("--no-prediction", action="store_true",
                    help="skip the prediction and reaction measurement (simulated time, a few seconds)")
     p.add_argument("--prediction-minutes", type=float, default=10.0, metavar="MIN",

@@ -218,3 +218,120 @@ def steering_lines(result: dict) -> list[str]:
         f"({SMALLEST_POSE} bytes) a picture takes at least {longest['picture_s']:.2f} s; 19 s needs a pose of "
         f"{longest['pose_bytes_for_19s']:.1f} bytes or fewer at that cycle")
     return lines
+
+
+def measure_steering_processes(minutes: float = 4.0, seed: int = 2) -> dict:
+    """The same with real processes: `rovlink rov` (its simulated vehicle and camera,
+    2000-byte pictures, no objects: their records are another cost, §11.1), `rovlink
+    channel` (1900 bit/s, 85 ms, BER 7e-6, its log) and `rovlink console` (version 2),
+    a pilot on the REST API changing the wish every 0.5-1.5 s.  A picture's time is the
+    console's (its first trunk to its last, /api/images).  A wish's time to the ROV runs
+    from its POST to the arrival at the ROV's end of the channel of the first poll that
+    left after it carrying a wish (§8.1: a VELOCITY poll of 12 bytes or more; the polls
+    repeating a wish are 8)."""
+    import json
+    import os
+    import random
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from rovlink.link.transports.transport import free_udp_port
+
+    from .child import die_with_parent, end_child
+    from .load import _request
+    from .pilot import _free_port
+
+    rng = random.Random(seed)
+    workdir = tempfile.mkdtemp(prefix="rovlink-bench-steering-")
+    key = os.path.join(workdir, "link.key")
+    subprocess.run([sys.executable, "-m", "rovlink", "keygen", key], check=True, capture_output=True)
+    console_udp, chan_a, chan_b, rov_udp = (free_udp_port() for _ in range(4))
+    http, viser = _free_port(), _free_port()
+    base = f"http://127.0.0.1:{http}"
+    channel_log = os.path.join(workdir, "channel.jsonl")
+    py = [sys.executable, "-m", "rovlink"]
+    procs, logs = [], []
+
+    def start(name: str, argv: list[str]) -> subprocess.Popen:
+        log = open(os.path.join(workdir, f"{name}.log"), "w")
+        logs.append(log)
+        p = subprocess.Popen(argv, cwd=workdir, stdout=log, stderr=subprocess.STDOUT, preexec_fn=die_with_parent)
+        procs.append(p)
+        return p
+
+    posts: list[float] = []
+    try:
+        start("rov", py + ["rov", "--key", key, "--no-objects", "--budget", "2000",
+                           "--link", f"udp://127.0.0.1:{rov_udp}?peer=127.0.0.1:{chan_b}"])
+        start("channel", py + ["channel", "--a", f"udp://127.0.0.1:{chan_a}?peer=127.0.0.1:{console_udp}",
+                               "--b", f"udp://127.0.0.1:{chan_b}?peer=127.0.0.1:{rov_udp}", "--bitrate", "1900",
+                               "--delay", "0.085", "--ber", "7e-6", "--seed", str(seed), "--quiet",
+                               "--log", channel_log])
+        console = start("console", py + ["console", "--key", key, "--no-record", "--port", str(http),
+                                         "--viser-port", str(viser),
+                                         "--link", f"udp://127.0.0.1:{console_udp}?peer=127.0.0.1:{chan_a}"])
+        deadline = time.monotonic() + 300
+        while True:
+            try:
+                if _request(base + "/api/state")["pose"]["received"] is not None:
+                    break
+            except (OSError, KeyError, TypeError, ValueError):
+                pass
+            if console.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError("the console did not come up: "
+                                   + open(os.path.join(workdir, "console.log")).read()[-2000:])
+            time.sleep(0.5)
+        client = _request(base + "/api/control/take", "POST", {"name": "bench"})["client_id"]
+        _request(base + "/api/orders/velocity", "POST", {"vx": 0, "vy": 0, "vz": 0, "vyaw": 0}, client)
+        time.sleep(3.0)  # the centred sticks reach the ROV (HOLD at start), pictures start
+        started_wall, started = time.time(), time.monotonic()
+        end = started + minutes * 60
+        while time.monotonic() < end:
+            wish = {axis: round(rng.uniform(-1, 1), 2) for axis in ("vx", "vy", "vz", "vyaw")}
+            at = time.monotonic()
+            _request(base + "/api/orders/velocity", "POST", wish, client)
+            posts.append(at)
+            time.sleep(rng.uniform(0.5, 1.5))
+        ended_wall = time.time()
+        images = _request(base + "/api/images")
+    finally:
+        for p in reversed(procs):
+            end_child(p)
+        for f in logs:
+            f.close()
+    collisions = 0
+    wish_polls = []  # (left, arrived at the ROV's end)
+    left: list[float] = []
+    with open(channel_log) as f:
+        for line in f:
+            try:
+                r = json.loads(line)
+            except ValueError:
+                continue
+            collisions += r.get("ev") == "collision"
+            if r.get("dir") != "a>b":
+                continue
+            if r.get("ev") == "tx":
+                left.append(r["t"] if r["bytes"] >= 12 else -1.0)
+            elif r.get("ev") == "rx" and left and left[-1] >= 0:
+                wish_polls.append((left[-1], r["t"] + r.get("late_s", 0.0)))
+                left[-1] = -1.0
+    latencies = []
+    for at in posts:
+        arrival = next((got for went, got in wish_polls if went >= at), None)
+        if arrival is not None:
+            latencies.append(arrival - at)
+    done = [i for i in images if not i["partial"] and i["seconds"] is not None
+            and started_wall <= i["received_wall"] <= ended_wall]
+    return {
+        "minutes": minutes, "pictures": len(done),
+        "picture_bytes_median": median([i["bytes"] for i in done]),
+        "steering_picture_s": median([i["seconds"] for i in done]),
+        "steering_picture_s_p95": quantile([i["seconds"] for i in done], 0.95),
+        "wishes": len(posts), "wishes_seen": len(latencies),
+        "wish_p95_s": quantile(latencies, 0.95), "wish_median_s": median(latencies),
+        # Real time: what else the machine ran says how far these figures are the link's.
+        "collisions": collisions, "load_average": os.getloadavg()[0], "cpus": os.cpu_count(),
+    }
