@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass, field
+from typing import Callable
 
 from rovlink.bench import emit, format_table, median, quantile
 from rovlink.link.emulators.channel import Channel, LinkParams
@@ -64,7 +65,10 @@ class Session:
 
 
 def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: int, *, bitrate: float = 1900.0,
-                delay_s: float = 0.085, change_s: float = 1.0, loss: float = 0.0, burst: float = 1.0) -> Session:
+                delay_s: float = 0.085, change_s: float = 1.0, loss: float = 0.0, burst: float = 1.0,
+                tap: Callable[[str, bytes, float], None] | None = None) -> Session:
+    """One session; `tap(side, frame_bytes, at)` sees every frame handed to the channel
+    ("a": the operator's, "b": the ROV's), before the channel's errors."""
     rng = random.Random(seed)
     stream = rng.randbytes(OBJECT_BYTES - 2)
     if mode == "paper":
@@ -82,6 +86,14 @@ def run_session(mode: str, ber: float, steering: bool, duration_s: float, seed: 
         key = random.Random(seed).randbytes(32)
         master_end, slave_end = secure, _ = SecureMaster(master, key), SecureSlave(slave, key)
     channel = Channel(LinkParams(bitrate_bps=bitrate, delay_s=delay_s, ber=ber, loss=loss, burst=burst), seed=seed)
+    if tap is not None:
+        send = channel.send
+
+        def tapped_send(side: str, data: bytes, at: float) -> bool:
+            tap(side, data, at)
+            return send(side, data, at)
+
+        channel.send = tapped_send  # type: ignore[method-assign]
     result = Session()
     pending_wish: list[tuple[float, tuple[int, int, int, int]]] = []
     first_counted: set[float] = set()

@@ -29,7 +29,7 @@ Plan
   candidate seen once and not again within 5 s is forgotten (never told).
 
 Rate: DETECT_HZ = 2.  A picture takes 11 to 21 s over the radio and a thumbnail a minute over
-the acoustic link, and a record goes at most every fourth reply (0.47 s cycles) on the radio
+the acoustic link, and a record goes at most every fourth reply (0.48 s cycles) on the radio
 and in a SCENE every few seconds on the acoustic link: two looks a second see an object lying
 in a 6 m wide view at least 3 times while the vehicle passes at 1 m/s, and leave most of a
 core to the encoder and the tracker (a look takes about 15 ms for 320x240).

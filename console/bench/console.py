@@ -9,6 +9,10 @@
 - web load (unless `--no-load`): see console/bench/load.py: poll interval
   and lost replies of `rovlink demo` while 300 WebSocket readers and 5
   parallel 200 MB uploads hit its web server.
+- steering (unless `--no-steering`): see console/bench/steering.py: a
+  2000-byte picture's time while steering on version 2 and the wish's p95 to
+  the ROV (JSON `steering_picture_s`, `wish_p95_s`), where each cycle's bytes
+  go, and the floor a pose in every reply and the wish limit set.
 - prediction (unless `--no-prediction`): see console/bench/prediction.py: the
   predicted pose's and the received pose's error against the vehicle model's
   truth by the pose's age, the pose's age while not steering, and the first
@@ -166,6 +170,27 @@ def run(args) -> int:
         "",
         format_table(["minute", "Python heap MB"], [[round(s["t_s"] / 60, 1), s["heap_mb"]] for s in samples]),
     ]
+    if not args.no_steering:
+        from .steering import measure_steering, steering_lines, steering_targets
+
+        steering = measure_steering(args.steering_seconds, args.seed + 2)
+        doc["steering"] = steering
+        # Issue 40's two figures, at the document's top.
+        doc["steering_picture_s"] = steering["steering_picture_s"]
+        doc["wish_p95_s"] = steering["wish_p95_s"]
+        doc["targets"].update(steering_targets(steering))
+        lines += ["", *steering_lines(steering)]
+        if args.steering_processes_minutes > 0:
+            from .steering import measure_steering_processes
+
+            real = measure_steering_processes(args.steering_processes_minutes, args.seed + 2)
+            doc["steering_processes"] = real
+            lines += [f"with real processes (rov, channel, console; {real['minutes']:g} min, load average "
+                      f"{real['load_average']:.1f} on {real['cpus']} CPUs): {real['pictures']} pictures of "
+                      f"{real['picture_bytes_median']} bytes in {real['steering_picture_s']} s (median, first trunk "
+                      f"to last); the wish at the ROV in {real['wish_p95_s']} s at p95 ({real['wishes_seen']} of "
+                      f"{real['wishes']} wishes seen); frames that collided on the half-duplex channel: "
+                      f"{real['collisions']}"]
     if not args.no_prediction:
         from .prediction import measure_prediction, prediction_lines, prediction_targets
 
@@ -261,6 +286,13 @@ def add_parser(subparsers) -> None:
     p.add_argument("--flat-mb", type=float, default=2.0, metavar="MB",
                    help="largest rise of the heap peak from the first half to the second that counts as flat (2)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-steering", action="store_true",
+                   help="skip pictures while steering and where a cycle's bytes go (version 2, simulated time)")
+    p.add_argument("--steering-seconds", type=float, default=900.0, metavar="S",
+                   help="simulated seconds of the steering session (900)")
+    p.add_argument("--steering-processes-minutes", type=float, default=0.0, metavar="MIN",
+                   help="also steer with real processes (rovlink rov, channel and console) for MIN minutes "
+                        "(0: not; real time, so meaningful only on a machine with a core to spare)")
     p.add_argument("--no-prediction", action="store_true",
                    help="skip the prediction and reaction measurement (simulated time, a few seconds)")
     p.add_argument("--prediction-minutes", type=float, default=10.0, metavar="MIN",

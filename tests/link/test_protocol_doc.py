@@ -106,3 +106,13 @@ def test_a_reply_with_a_structural_fault_is_authentic_counted_and_never_chained_
     got = op.open_reply(contents(test_auth.REPLY3), 0.0, parse)
     assert not got.malformed and op.chain_to.hex() == test_auth.CHAINS[7]
     assert got.parsed[2] == (1250, -300, 450, 150, -220, 9000)
+
+
+def test_the_size_classes_caps_are_the_ones_the_page_prints():
+    """§8.1: SIZE 0, 1 and 2 cap a cycle (poll frame plus reply frame); issue 40 made
+    SIZE 0 72 bytes.  The page's figures are the code's."""
+    from rovlink.link.radio.wire2 import V2_CYCLE
+
+    found = re.search(r"are at most (\d+), (\d+) and (\d+) bytes for SIZE 0, 1 and 2", _section("8."))
+    assert found is not None
+    assert tuple(int(g) for g in found.groups()) == V2_CYCLE[:3] == (72, 110, 180)

@@ -209,7 +209,7 @@ def test_an_unchanged_wish_goes_as_none_and_the_vehicle_keeps_it():
     assert slave.slave.stats.velocity_lapses == 0
     driving = [v for t, v in commanded if t > 7.0]
     assert len(driving) > 50 and all((v.vx, v.vy, v.vz, v.vyaw) == (60, 0, 0, 0) for v in driving)
-    # And each reply filled its cycle: a poll and its reply within SIZE 0's 70 bytes.
+    # And each reply filled its cycle: a poll and its reply within SIZE 0's 72 bytes.
     replies = [d for side, d in sent[len(sent) // 2:] if side == "b"]
     assert max(len(r) for r in replies) + 8 <= V2_CYCLE[0]
 
@@ -379,8 +379,23 @@ def test_hellos_come_after_twice_the_failsafe_time_less_two_timeouts_of_the_larg
     out = slave.receive_bytes(master.next_poll(0.0), 0.0)
     master.receive_bytes(out.reply, 0.1)  # heard at 0.1 s
     m = master.master
-    for size, silent in ((0, 4.68), (3, 3.04)):  # the defaults: 3 s, 1.9 kbit/s, 85 ms, margin 0.15 s
+    for size, silent in ((0, 4.66), (3, 3.04)):  # the defaults: 3 s, 1.9 kbit/s, 85 ms, margin 0.15 s
         master._last_size = size
         largest = m.timeout_for(19, m.reply_frame_bytes(size))  # a POSITION with its request, its SIZE's reply
         assert abs((6.0 - 2 * largest) - silent) < 0.01
         assert not master._silent_too_long(0.1 + silent - 0.02) and master._silent_too_long(0.1 + silent + 0.02)
+
+
+def test_size_0_caps_a_steering_cycle_at_72_bytes():
+    """§8.1 (issue 40): SIZE 0's cycle is 72 bytes, poll frame and reply frame.  After the
+    vectors' VELOCITY poll of 12 bytes a reply with a pose of seven bytes of differences
+    carries 45 bytes of picture (72 - 12 - start, LEN, byte 0, status, pose, tag); after
+    a NONE poll of 8 bytes the reply frame may be 64 bytes."""
+    from rovlink.link.radio.auth import TAG_BYTES
+    from rovlink.link.radio.wire2 import reply_frame_cap, trunk_room
+
+    velocity_poll = bytes.fromhex("550a013200ec0a018fe21f06")
+    none_poll = bytes.fromhex("55060002db2babe3")
+    assert trunk_room(0, 257, 7, TAG_BYTES, len(velocity_poll)) == 45
+    assert reply_frame_cap(0, 257, len(none_poll)) == 64
+    assert reply_frame_cap(0, 40, len(none_poll)) == 40  # a link's maximum frame caps it too
