@@ -16,6 +16,7 @@ published ("order") and, when it went wrong, an alert in the log.
 
 from __future__ import annotations
 
+import itertools
 from typing import Any, Callable
 
 from rovlink.link.vocabulary import REQUESTABLE_MODES
@@ -24,6 +25,9 @@ from .fates import Fate, fields, parse_recorded, words
 from .odometry import Fix
 
 ORDERS_KEPT = 200
+# Each change of any order takes the next number, across the books a process makes (a
+# replay seeking back makes a new one): a page keeps the copy with the highest.
+_VERSIONS = itertools.count(1)
 EARLY_KEPT = 64    # master ids not mapped yet whose news is kept for them
 ORDERS_LISTED = 50
 
@@ -55,7 +59,8 @@ class OrderBook:
         with self._lock:
             order_id = self._next_id
             self._next_id += 1
-            info = {"id": order_id, "kind": kind, **fields(fate), "t_queued": t, f"t_{fate.value}": t, **detail}
+            info = {"id": order_id, "kind": kind, **fields(fate), "t_queued": t, f"t_{fate.value}": t, **detail,
+                    "version": next(_VERSIONS)}
             self._orders[order_id] = info
             if len(self._orders) > ORDERS_KEPT:
                 for old in sorted(self._orders)[:-ORDERS_KEPT]:
@@ -155,6 +160,7 @@ class OrderBook:
                 return None
             info.update(fields(fate, reason))
             info["t_" + fate.value] = t
+            info["version"] = next(_VERSIONS)
             info = dict(info)
         self._record({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"],
                       "state": fate.value, "reason": reason})
@@ -180,6 +186,7 @@ class OrderBook:
             if info is None:
                 return
             info.update(fields)
+            info["version"] = next(_VERSIONS)
             info = dict(info)
         self._publish("order", info)
 
@@ -248,11 +255,12 @@ class OrderBook:
             if record["k"] == "order":
                 detail = {k: v for k, v in record.items() if k not in ("k", "t", "id", "kind")}
                 self._orders[order_id] = {"id": order_id, "kind": record.get("kind", "?"), **fields(Fate.QUEUED),
-                                          "t_queued": t, **detail}
+                                          "t_queued": t, **detail, "version": next(_VERSIONS)}
             elif order_id in self._orders:
                 fate, reason = parse_recorded(str(record.get("state", "?")), record.get("reason"))
                 self._orders[order_id].update(fields(fate, reason))
                 self._orders[order_id]["t_" + fate.value] = t
+                self._orders[order_id]["version"] = next(_VERSIONS)
             info = dict(self._orders[order_id]) if order_id in self._orders else None
         if info is not None:
             self._publish("order", info)

@@ -228,6 +228,7 @@ class OrderInfo(BaseModel):
                                     "position order then arrived or aborted, with distance_left_m (from the last "
                                     "reply; null: no position); each state's time is t_<state>")
     reason: str = Field("", description="why, in the ROV's or the console's words (empty: nothing to add)")
+    version: int = Field(1, description="counts up at each change: a copy with a lower one is older than one seen")
     text: str = Field(description="the fate in words, as the pilot reads it")
     outcome: Literal["pending", "done", "bad", "ended"] = Field(
         description="pending: the vehicle has not said yet; done; bad: the pilot is alerted; ended: by a choice")

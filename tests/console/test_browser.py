@@ -329,7 +329,10 @@ def test_every_orders_fate_shows_beside_its_control_with_its_time(open_page, liv
     page.wait_for_function("/m to go/.test(document.getElementById('goto-fate').textContent)"
                            " || document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=15000)
     wait_fate("#goto-fate", before, "arrived", 60000)
-    assert page.text_content("#goto-fate").startswith("go-to #") and "arrived" in page.text_content("#goto-fate")
+    shown = page.text_content("#goto-fate")  # read once: it must not change back after "arrived"
+    assert shown.startswith("go-to #") and "arrived" in shown, shown
+    page.wait_for_timeout(1500)  # more telemetry, made before and after the event: none takes it back
+    assert "arrived" in page.text_content("#goto-fate"), page.text_content("#goto-fate")
     assert "done" in page.get_attribute("#goto-fate", "class")
 
     # Another, given up by STOP: aborted, not left "acknowledged" for good.

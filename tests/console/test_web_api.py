@@ -207,8 +207,8 @@ def test_image_settings_left_out_keep_their_value(client, operator):
     assert client.post("/api/image/settings", json={"roi": [10, 20, 110, 90], "shift": 6},
                        headers=holder).status_code == 200
     assert client.post("/api/image/settings", json={"mono": True}, headers=holder).status_code == 200
-    assert client.get("/api/orders").json()[-1] | {"id": 0, "t_queued": 0} == {
-        "id": 0, "t_queued": 0, "kind": "IMAGE", "state": "queued", "reason": "", "text": "queued",
+    assert client.get("/api/orders").json()[-1] | {"id": 0, "t_queued": 0, "version": 0} == {
+        "id": 0, "t_queued": 0, "version": 0, "kind": "IMAGE", "state": "queued", "reason": "", "text": "queued",
         "outcome": "pending", "roi": [10, 20, 110, 90], "shift": 6,
         "mono": True, "budget_bytes": operator.requested_settings.budget_bytes}
     client.post("/api/image/settings", json={"roi": None}, headers=holder)

@@ -663,6 +663,10 @@ function renderFate(o) {
 
 // Every order's fate is shown; a refusal or rejection also pops up once.
 function renderOrder(o, quiet) {
+  // Each change of an order counts up its version: a telemetry made before an event it
+  // follows never takes back what the event said (a go-to "arrived", then "0.9 m to go").
+  const shown = page.orders[o.id];
+  if (shown && (shown.version || 0) > (o.version || 0)) return;
   renderFate(o);
   const before = page.orders[o.id] ? page.orders[o.id].state : undefined;
   page.orders[o.id] = o;
