@@ -347,7 +347,7 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
     sgn = np.zeros(n, dtype=np.uint8)
     complete = coder.run(0, mag, neg, plan.cfloor8, plan.ccls, node_max, plan.node_floor,
                          lay.binfo, lay.noff, lay.nw, lay.seg, KMAX, top, buf, st, rec, pk, sgn,
-                         plan.cdef8, plan.node_def)
+                         plan.cdef8, plan.node_def, prior=not reversible)
     if errors is not None and not reversible:
         errors.append(_coefficient_error(flat, plan, rec, pk))
         if views is not None:
@@ -626,7 +626,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
     sgn = np.zeros(n, dtype=np.uint8)
     coder.run(1, dummy, np.zeros(1, dtype=np.uint8), plan.cfloor8, plan.ccls, dummy, plan.node_floor, lay.binfo,
               lay.noff, lay.nw, lay.seg, KMAX, h.top, buf, st, rec, pk, sgn,
-              plan.cdef8, plan.node_def)
+              plan.cdef8, plan.node_def, prior=not h.reversible)
     if not h.reversible:
         return _picture97(rec, pk, sgn, plan, h.height, h.width, h.colour, rotation)
     cfloor = plan.cfloor

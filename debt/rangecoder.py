@@ -84,6 +84,16 @@ def new_model(ncontexts: int) -> np.ndarray:
     return np.full(ncontexts, MODEL_INIT, dtype=np.int64)
 
 
+def prior_model(zero_32nds: np.ndarray, seen: int) -> np.ndarray:
+    """Adaptive state for one context per entry of `zero_32nds` (the chance of
+    a 0, in 32nds): both estimates start there and, where it is not 16 (an
+    even chance: no prior), as if `seen` decisions had been made, so that the
+    first ones do not sweep the prior away."""
+    p = np.asarray(zero_32nds, dtype=np.int64) << (PROB_BITS - 5)
+    n = np.where(p != PROB_ONE // 2, seen, 0).astype(np.int64)
+    return p | (p << 16) | (n << 32)
+
+
 @_inline
 def _code(mode, a0, a1, a2, a3, a4, lim, buf, model, ctx, bit):
     """Encode `bit` (mode 0) or decode one (mode 1) in context `ctx`.
