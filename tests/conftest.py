@@ -7,7 +7,17 @@ before any test, so that tests of the node, the console and the commands
 and so that their subprocesses find the cache ready.
 """
 
+import signal
+
 import pytest
+
+# A shell without job control starts a background job with SIGINT ignored, and its
+# children inherit that: the tests that stop `rovlink sim`, `channel`, `rov` and
+# `console` with Ctrl-C (SIGINT) then waited out their timeouts (a newcomer's run of
+# `.ci/run &` under nohup: five failures, every time).  The suite's own processes take
+# SIGINT as a terminal gives it, so the programs it starts do too.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)
