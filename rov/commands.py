@@ -126,6 +126,18 @@ class CommandTracker:
         self.deadline_s = deadline_s
         self.in_progress_s = in_progress_s
         self.requests: list[Request] = []
+        # ACKs still owed to requests that are over (each send of a request may be
+        # answered, and MAVLink's ACK names only the command): [command, count, until].
+        # They come before any answer to a newer request of the command, so they are
+        # taken as theirs, never as its (a POSHOLD sent twice and refused twice once
+        # failed the ALT_HOLD sent after the first refusal).
+        self._owed: list[list] = []
+
+    def _over(self, request: Request, answered: bool, now: float) -> None:
+        """`request` is over; the answers still owed to its sends are expected."""
+        owed = request.sends - (1 if answered else 0)
+        if owed > 0:
+            self._owed.append([request.command, owed, max(now, request.sent_s) + self.deadline_s])
 
     def request(
         self,
@@ -171,19 +183,27 @@ class CommandTracker:
         return out
 
     def on_ack(self, command: int, result: int, now: float, detail: str = "") -> Request | None:
-        """A COMMAND_ACK: resolve the oldest open request of that command; return it."""
+        """A COMMAND_ACK: resolve the oldest open request of that command; return it.
+        An answer still owed to a request that is over is taken as its own (None)."""
+        self._owed = [o for o in self._owed if o[2] > now and o[1] > 0]
+        for owed in self._owed:
+            if owed[0] == command:
+                owed[1] -= 1
+                return None
         for request in self.requests:
             if request.command != command or request.sends == 0:
                 continue
             if result == mavlink.MAV_RESULT_ACCEPTED:
                 request.ticket._resolve(Ticket.ACCEPTED)
                 self.requests.remove(request)
+                self._over(request, True, now)
             elif result == mavlink.MAV_RESULT_IN_PROGRESS:
                 request.acked = True
             else:
                 words = f"autopilot answered {MAV_RESULT_NAMES.get(result, result)}"
                 request.ticket.fail(f"{words}: {detail}" if detail else words, Reason.REFUSED)
                 self.requests.remove(request)
+                self._over(request, True, now)
             return request
         return None
 
@@ -197,6 +217,7 @@ class CommandTracker:
             if shown and request.sends > 0:
                 request.ticket._resolve(Ticket.ACCEPTED)
                 self.requests.remove(request)
+                self._over(request, request.acked, request.sent_s)
                 done.append(request)
         return done
 
@@ -213,6 +234,7 @@ class CommandTracker:
                 else:
                     request.ticket.fail("autopilot not reachable", Reason.IMPOSSIBLE)
                 self.requests.remove(request)
+                self._over(request, request.acked, now)
                 expired.append(request)
         return expired
 
@@ -221,6 +243,7 @@ class CommandTracker:
             if request.kind == kind:
                 request.ticket._resolve(Ticket.CANCELLED, why)
                 self.requests.remove(request)
+                self._over(request, request.acked, request.sent_s)
 
     def discard(self, request: Request | None) -> None:
         if request is not None and request in self.requests:

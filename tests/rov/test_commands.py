@@ -35,6 +35,24 @@ def test_a_request_is_sent_at_once_then_every_half_second_until_acknowledged():
     assert tracker.due(11.6) == []
 
 
+def test_an_answer_to_a_resend_of_a_request_that_is_over_is_not_taken_as_a_newer_ones():
+    """MAVLink's ACK names only the command.  A POSHOLD sent twice (its first answer late,
+    a loaded machine) is refused twice; the brake's ALT_HOLD, sent after the first
+    refusal, must not be failed by the second (a newcomer's run saw exactly that)."""
+    tracker = CommandTracker()
+    poshold, alt_hold = Ticket("mode POSHOLD"), Ticket("mode ALT_HOLD")
+    tracker.mode(poshold, SubMode.POSHOLD, now=0.0)
+    assert tracker.due(0.0) and tracker.due(0.5)  # sent, then sent again
+    tracker.on_ack(SET_MODE, FAILED, 0.6, "POSHOLD requires position")
+    assert poshold.status == Ticket.FAILED
+    tracker.mode(alt_hold, SubMode.ALT_HOLD, now=0.6)
+    assert tracker.due(0.6)
+    assert tracker.on_ack(SET_MODE, FAILED, 0.65, "POSHOLD requires position") is None  # the resend's
+    assert alt_hold.status == Ticket.PENDING
+    assert tracker.on_ack(SET_MODE, OK, 0.7) is not None
+    assert alt_hold.status == Ticket.ACCEPTED
+
+
 def test_a_refusal_fails_the_request_as_reason_2_with_the_autopilots_words():
     tracker = CommandTracker()
     ticket = Ticket("mode")
