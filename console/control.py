@@ -73,6 +73,9 @@ DEADMAN_S = 1.0           # a streamed velocity (keys, gamepad) goes neutral whe
 LEASE_S = 30.0            # a script holding control and silent this long loses it
 STATUS_WAIT_S = 0.05      # a status waits this long for the lock, then reads without it
 UNATTENDED_WARN_S = 60.0  # armed with nobody in control this long: every page is warned
+# A page whose WebSocket failed (not closed by the page) is given control back when that
+# same page (its key, one per page load) reconnects within this; meanwhile nobody drives.
+RESUME_S = 10.0
 # The picture budget's limit is the link's (`Capabilities.image_budget_max`), not one here.
 LIMITS = {"velocity": (-1.0, 1.0), "shift": (0, 15)}
 DEFAULT_ROI_SHIFT = 4     # bit planes an ROI is raised by when none was chosen
@@ -314,9 +317,9 @@ def page_config(*, image_budget_max: int, **extra) -> dict:
 class ControlDesk:
     def __init__(self, operator: VehicleSession, *, lease_s: float = LEASE_S, deadman_s: float = DEADMAN_S,
                  unattended_warn_s: float = UNATTENDED_WARN_S, disarm_unattended_s: float | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 resume_s: float = RESUME_S, clock: Callable[[], float] = time.monotonic) -> None:
         for name, value in (("lease_s", lease_s), ("deadman_s", deadman_s),
-                            ("unattended_warn_s", unattended_warn_s)):
+                            ("unattended_warn_s", unattended_warn_s), ("resume_s", resume_s)):
             if not value > 0:
                 raise ValueError(f"{name} must be positive, got {value!r}")
         if disarm_unattended_s is not None and not disarm_unattended_s > 0:
@@ -326,6 +329,7 @@ class ControlDesk:
         self.deadman_s = deadman_s
         self.unattended_warn_s = unattended_warn_s
         self.disarm_unattended_s = disarm_unattended_s
+        self.resume_s = resume_s
         self._clock = clock
         self._lock = threading.RLock()
         self._clients: dict[str, Client] = {}
@@ -333,6 +337,9 @@ class ControlDesk:
         self._held_since: float | None = None
         self._unheld_since: float = clock()
         self._disarmed_unattended = False
+        # (page key, name, until): the holder whose WebSocket failed, given control back
+        # if that page reconnects in time (nobody took it meanwhile).
+        self._resume: tuple[str, str, float] | None = None
         self.target: Target | None = None
         self.version = 0  # bumped at every change of holder, so WebSockets know to tell their pages
         self._effects: dict[type, Callable] = {
@@ -530,22 +537,37 @@ class ControlDesk:
     def connect(self, name: str = "", scene_key: str | None = None) -> Client:
         """A browser page's WebSocket opened: a new watcher.  `scene_key`: the
         key its 3D scene was opened with (ignored unless 16-64 characters of
-        letters, digits, - and _)."""
+        letters, digits, - and _); one per page load, it also says that a page
+        whose connection failed has come back (it is given its control back)."""
         if scene_key is not None and not SCENE_KEY.fullmatch(scene_key):
             scene_key = None
         with self._lock:
             client = Client(secrets.token_urlsafe(16), "browser", name or "browser", self._clock(),
                             scene_key=scene_key)
             self._clients[client.id] = client
-            return client
+            back = self._resume is not None and scene_key is not None and self._resume[0] == scene_key \
+                and self._holder is None and self._clock() <= self._resume[2] and not self.operator.replaying
+            if back:
+                self._resume = None
+                self._give(client, None)
+        if back:
+            self.operator.note(f"control given back to {client.name}: its page reconnected")
+            self._publish_control()
+        return client
 
-    def disconnect(self, client_id: str, how: str = "") -> None:
+    def disconnect(self, client_id: str, how: str = "", *, failed: bool = False) -> None:
         """A WebSocket closed: its page is gone, and control with it.  `how`:
-        what ended it, for the log ("closed by the page (1001)", ...)."""
+        what ended it, for the log ("closed by the page (1001)", ...).  `failed`:
+        the connection failed rather than the page closing it: if this page held
+        control and reconnects within `resume_s`, it is given control back."""
         with self._lock:
             client = self._clients.pop(client_id, None)
             if client is not None and self._holder == client_id:
-                self._release(f"control released: {client.name} left" + (f" ({how})" if how else ""))
+                back = failed and client.scene_key is not None
+                self._release(f"control released: {client.name} left" + (f" ({how})" if how else "")
+                              + (f"; given back if the page reconnects within {self.resume_s:g} s" if back else ""))
+                if back:
+                    self._resume = (client.scene_key, client.name, self._clock() + self.resume_s)
 
     def _lookup(self, client_id: str) -> Client:
         client = self._clients.get(client_id)
@@ -574,16 +596,22 @@ class ControlDesk:
         if self.operator.replaying:
             raise Replaying("this console replays a recording: there is no ROV to order")
 
-    def take(self, client_id: str | None, name: str = "", *, streams_input: bool | None = None) -> Client:
+    def take(self, client_id: str | None, name: str = "", *, streams_input: bool | None = None,
+             unless_held: bool = False) -> Client:
         """Give control to `client_id`, or to a new script client if None.
 
         `streams_input`: its input is a stream that may already be held off
         neutral (a page's keys and gamepad, a ground station's joystick): it
         drives only once that input has been neutral since this taking.  By
         default a page streams, a script does not (it has sent nothing yet,
-        and each of its wishes is a deliberate new one)."""
+        and each of its wishes is a deliberate new one).  `unless_held`: only if
+        nobody else holds control (NotHolder if someone does), decided under the
+        desk's lock: a ground station that takes control when it is free never
+        takes it from a page that took it a moment before."""
         self.check_live()
         with self._lock:
+            if unless_held and self._holder is not None and self._holder != client_id:
+                raise NotHolder(f"control is held by {self._clients[self._holder].name}")
             if client_id is None:
                 client = Client(secrets.token_urlsafe(16), "script", name or "script", self._clock())
                 self._clients[client.id] = client
@@ -594,21 +622,27 @@ class ControlDesk:
                     client.name = name
             if self._holder == client.id:
                 return client
-            previous = self._holder_client()
-            self._set_neutral()
-            self._holder, self._held_since = client.id, self._clock()
-            self.operator.set_attended(True)
-            self._disarmed_unattended = False
-            client.streamed_at = None
-            client.streams = client.kind == "browser" if streams_input is None else streams_input
-            self._uncentre(client)
-            if not client.streams:
-                self._centred(client)  # a script's first wish is a deliberate new one
-            self.version += 1
+            previous = self._give(client, streams_input)
         taken = f" from {previous.name}" if previous else ""
         self.operator.note(f"control taken by {client.name}{taken}")
         self._publish_control()
         return client
+
+    def _give(self, client: Client, streams_input: bool | None) -> Client | None:
+        # (lock held) Control to `client`; the previous holder's Client, if any.
+        previous = self._holder_client()
+        self._set_neutral()
+        self._holder, self._held_since = client.id, self._clock()
+        self._resume = None  # taken: nobody is given it back
+        self.operator.set_attended(True)
+        self._disarmed_unattended = False
+        client.streamed_at = None
+        client.streams = client.kind == "browser" if streams_input is None else streams_input
+        self._uncentre(client)
+        if not client.streams:
+            self._centred(client)  # a script's first wish is a deliberate new one
+        self.version += 1
+        return previous
 
     def release(self, client_id: str | None) -> None:
         with self._lock:
@@ -618,6 +652,7 @@ class ControlDesk:
 
     def _release(self, why: str) -> None:
         # Caller holds the lock.
+        self._resume = None
         self._set_neutral()
         self._holder, self._held_since = None, None
         self.operator.set_pilot_in_force(False)
@@ -701,6 +736,10 @@ class ControlDesk:
             self._uncentre(holder)  # the stick's state is unknown until its next neutral
             self.operator.note(f"velocity from {holder.name} stopped arriving: neutral", "warn")
             self._publish_control()
+        if self._resume is not None and now > self._resume[2]:
+            self.operator.note(f"control not given back: {self._resume[1]} did not reconnect within "
+                               f"{self.resume_s:g} s")
+            self._resume = None
         if holder is not None and holder.kind == "script" and now - holder.last_seen > self.lease_s:
             self._release(f"control released: {holder.name} silent for {self.lease_s:g} s")
             holder = None

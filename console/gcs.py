@@ -65,7 +65,7 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega
 
-from rovlink.console.control import Arm, Caller, Drive, GoTo, SetMode, Stop
+from rovlink.console.control import Arm, Caller, Drive, GoTo, NotHolder, SetMode, Stop, UnknownClient
 from rovlink.console.session.fates import Fate, words
 from rovlink.link.vocabulary import Mode
 from rovlink.rov.ardusub import PROTOCOL_TO_SUB, SUB_TO_PROTOCOL, mode_name
@@ -112,11 +112,17 @@ class DeskCommands:
             status = self.desk.status(self._client_id)
             if not need_control or status.get("you"):
                 return Caller(self._client_id, via="gcs")
-            if status.get("held"):
-                raise CommandRefused(m.MAV_RESULT_DENIED,
-                                     f"control is held by {status.get('holder') or 'another client'}")
-            # The joystick may be held off neutral already: it drives once it has been centred.
-            self._client_id = self.desk.take(self._client_id, self.name, streams_input=True).id
+            # Taken only if nobody holds it, decided under the desk's lock (a page may take it
+            # between the status and here).  The joystick may be held off neutral already: it
+            # drives once it has been centred.
+            try:
+                try:
+                    client = self.desk.take(self._client_id, self.name, streams_input=True, unless_held=True)
+                except UnknownClient:  # forgotten while it held nothing (idle): a new client
+                    client = self.desk.take(None, self.name, streams_input=True, unless_held=True)
+            except NotHolder as exc:
+                raise CommandRefused(m.MAV_RESULT_DENIED, str(exc)) from None
+            self._client_id = client.id
             return Caller(self._client_id, via="gcs")
 
     def heard(self) -> None:

@@ -33,6 +33,20 @@ def _get(url: str):
         return json.loads(r.read())
 
 
+def holds_control(page, base: str, timeout_ms: float = 30000) -> None:
+    """Until the page holds control (again: a connection that failed gives it back); if it
+    does not, a RuntimeError saying what the page and the console said of its control."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    try:
+        page.wait_for_function("document.body.classList.contains('holder')", timeout=timeout_ms)
+    except PlaywrightTimeout:
+        closes = page.evaluate("document.body.dataset.socketCloses || 'none'")
+        said = [e["text"] for e in _get(base + "/api/log") if "control" in e["text"] or "WebSocket" in e["text"]]
+        raise RuntimeError(f"the page does not hold control; its socket's closes: {closes}; "
+                           f"the console's log: {said[-6:]}") from None
+
+
 def _free_port() -> int:
     import socket
 
@@ -115,6 +129,8 @@ def measure_pilot(minutes: float = 10.0) -> dict:
                     if len(thumbs) > 2:
                         thumbs[2].click()
             alarms = int(page.evaluate("+document.body.dataset.alerts || 0"))
+            closes = page.evaluate("document.body.dataset.socketCloses || ''")
+            holds_control(page, base)
             page.click("#disarm")
             browser.close()
         stop.set()
@@ -138,6 +154,8 @@ def measure_pilot(minutes: float = 10.0) -> dict:
         "link_lost_alerts": sum(1 for e in log if e["level"] == "alert" and e["text"].startswith("LINK LOST")),
         "failsafe_alerts": sum(1 for e in log if e["level"] == "alert" and "FAILSAFE" in e["text"]),
         "page_alarms": alarms,
+        # The page's WebSocket ending meanwhile (count and last code), "" if never.
+        "page_socket_closes": closes,
         "odometry_age_s_median": round(statistics.median(ages), 3) if ages else None,
         "odometry_age_s_p95": round(ages[int(0.95 * (len(ages) - 1))], 3) if ages else None,
         "polls_sent": link["sent"],
@@ -160,6 +178,7 @@ def pilot_lines(r: dict) -> list[str]:
                 ["LINK LOST alerts", r["link_lost_alerts"]],
                 ["ROV FAILSAFE alerts", r["failsafe_alerts"]],
                 ["page alarms sounded", r["page_alarms"]],
+                ["page's WebSocket ended (times, last code)", r["page_socket_closes"] or "never"],
                 ["odometry age s, median / p95", f"{r['odometry_age_s_median']} / {r['odometry_age_s_p95']}"],
                 ["polls sent, replies lost", f"{r['polls_sent']}, {r['replies_lost']}"],
                 ["  of which not by the radio (late)", r["replies_lost_not_by_channel"]],

@@ -22,6 +22,7 @@ import time
 import numpy as np
 import pytest
 
+from rovlink.console.bench.pilot import holds_control
 from rovlink.link.emulators.m64 import M64Params
 from rovlink.link.transports.transport import free_udp_port
 
@@ -298,6 +299,7 @@ def test_the_acoustic_pilot_follows_an_roi_from_thumbnail_to_thumbnail(acoustic)
         assert sent.get("follow") is True and sent.get("drawn_on") == drawn_on, sent
 
         def turn(by_deg: float) -> None:
+            holds_control(page, base)  # (if not: what its socket and the console's log said)
             pose = get(base + "/api/pose")["received"]
             for field, value in (("x", pose["x_m"]), ("y", pose["y_m"]), ("z", pose["z_m"]),
                                  ("yaw", pose["yaw_deg"] + by_deg)):

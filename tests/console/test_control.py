@@ -391,3 +391,76 @@ def test_a_script_drives_at_once_and_a_ground_station_only_once_centred(operator
     desk.submit(control.Drive(0.6, streamed=True), Caller(gcs.id, via="gcs"))
     assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
     assert desk.status()["centre_to_drive"] and desk.status()["holder"] == "ground station"
+
+
+def test_a_page_whose_connection_failed_is_given_control_back_when_it_reconnects_in_time(operator, clock):
+    """Control dies with its page's socket; a socket that failed (1006, 1011: not one the
+    page closed) belongs to a page that may reconnect, and the same page (its key, one
+    per page load) is given control back within `resume_s`, with its sticks to centre
+    again. Meanwhile nobody drives; another page that takes control keeps it; the
+    page that closed its socket itself, or that comes back too late, is not given it."""
+    desk = ControlDesk(operator, clock=clock, resume_s=10.0)
+    page = desk.connect("pilot", scene_key=KEY)
+    take_centred(desk, page.id)
+    desk.submit(control.Drive(0.5), Caller(page.id))
+    desk.disconnect(page.id, "the connection failed, code 1011", failed=True)
+    assert not desk.status()["held"] and operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    clock.t += 3.0
+    other = desk.connect("another page", scene_key="x" * 32)  # not the same page: a watcher
+    assert not desk.status(other.id)["held"]
+    again = desk.connect("pilot", scene_key=KEY)
+    status = desk.status(again.id)
+    assert status["you"] and status["centre_to_drive"], status
+    desk.submit(control.Drive(0.5), Caller(again.id))  # the stick held through the gap: no drive
+    assert operator.velocity_wish() == (0.0, 0.0, 0.0, 0.0)
+    texts = [e["text"] for e in operator.state()["log"]]
+    assert any("given back if the page reconnects within 10 s" in t for t in texts), texts
+    assert any(t == "control given back to pilot: its page reconnected" for t in texts), texts
+
+    # Taken by another page meanwhile: it keeps it.
+    desk.disconnect(again.id, "the connection broke, code 1006", failed=True)
+    take_centred(desk, other.id)
+    third = desk.connect("pilot", scene_key=KEY)
+    assert desk.status(other.id)["you"] and not desk.status(third.id)["you"]
+
+    # Closed by the page (1001): nothing to give back.
+    desk.disconnect(other.id, "the page went away, code 1001")
+    take_centred(desk, third.id)
+    desk.disconnect(third.id, "the page went away, code 1001", failed=False)
+    assert not desk.status(desk.connect("pilot", scene_key=KEY).id)["held"]
+
+    # Too late: not given back, and the log says so.
+    late = desk.connect("pilot", scene_key=KEY)
+    take_centred(desk, late.id)
+    desk.disconnect(late.id, "the connection broke, code 1006", failed=True)
+    clock.t += 10.5
+    desk.tick()
+    assert not desk.status(desk.connect("pilot", scene_key=KEY).id)["held"]
+    assert "control not given back: pilot did not reconnect within 10 s" in [e["text"] for e in operator.state()["log"]]
+
+
+def test_a_ground_station_takes_control_only_when_nobody_holds_it_even_when_forgotten(operator, clock):
+    """The gateway's orders take control when it is free, decided under the desk's lock,
+    and are DENIED while a page holds it; a gateway idle long enough for the desk to forget
+    its client id takes control again with a new one, rather than failing."""
+    from pymavlink.dialects.v20 import ardupilotmega as m
+
+    from rovlink.console.gcs import CommandRefused, DeskCommands
+
+    desk = ControlDesk(operator, clock=clock, lease_s=5.0)
+    gcs = DeskCommands(desk)
+    gcs.mode("MANUAL")
+    assert desk.status()["holder"] == "ground station"
+    page = desk.connect("pilot")
+    take_centred(desk, page.id)  # taken from the ground station
+    with pytest.raises(CommandRefused) as refused:
+        gcs.mode("MANUAL")
+    assert refused.value.result == m.MAV_RESULT_DENIED and "held by pilot" in refused.value.reason
+    with pytest.raises(NotHolder):
+        desk.take(None, "ground station", unless_held=True)
+    assert desk.status(page.id)["you"]
+    desk.release(page.id)
+    clock.t += 6.0
+    desk.tick()  # the idle gateway's client is forgotten
+    gcs.mode("MANUAL")  # free: taken, with a new client
+    assert desk.status()["holder"] == "ground station"

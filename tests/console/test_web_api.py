@@ -537,3 +537,52 @@ def test_live_websocket_streams_link_health_and_pictures(live):
     # Leaving released control.
     with httpx.Client(base_url=live.url) as http:
         assert wait_for(lambda: not http.get("/api/control").json()["held"], 5)
+
+
+def test_live_a_page_whose_connection_fails_is_given_control_back_when_it_reconnects(live):
+    """A page's socket dropped without a closing handshake (a network that fails, a
+    keepalive that times out) releases control, then gives it back to the same page
+    (its key) reconnecting; a page that closes its socket itself gets nothing back."""
+    from websockets.sync.client import connect
+
+    key = "p" * 32
+    url = f"{live.ws_url}?name=pilot%20page&scene_key={key}"
+    with httpx.Client(base_url=live.url) as http:
+        ws = connect(url, open_timeout=10)
+        hello = json.loads(ws.recv(timeout=5))
+        assert http.post("/api/control/take", headers={HEADER: hello["client_id"]}).status_code == 200
+        ws.socket.shutdown(socket.SHUT_RDWR)  # gone, no close frame
+        ws.socket.close()
+        assert wait_for(lambda: not http.get("/api/control").json()["held"], 5), "control outlived its socket"
+        with connect(url, open_timeout=10) as again:
+            assert json.loads(again.recv(timeout=5))["type"] == "hello"
+            assert wait_for(lambda: http.get("/api/control").json()["holder"] == "pilot page", 5)
+            texts = [e["text"] for e in http.get("/api/log").json()]
+            assert any("given back if the page reconnects within" in t for t in texts), texts[-5:]
+            assert "control given back to pilot page: its page reconnected" in texts, texts[-5:]
+        # Closed by the page (1000): released, and not given back.
+        assert wait_for(lambda: not http.get("/api/control").json()["held"], 5)
+        with connect(url, open_timeout=10) as third:
+            hello = json.loads(third.recv(timeout=5))
+            time.sleep(0.3)
+            assert not http.get("/api/control", headers={HEADER: hello["client_id"]}).json()["held"]
+
+
+def test_live_a_value_json_cannot_write_never_cuts_a_page_off(live):
+    """An event carrying NumPy numbers (a session part's slip) reaches the page as plain
+    numbers; its socket stays open and telemetry goes on."""
+    from websockets.sync.client import connect
+
+    with connect(live.ws_url, open_timeout=10) as ws:
+        assert json.loads(ws.recv(timeout=5))["type"] == "hello"
+        live.operator.publish("target", {"x_m": np.float32(1.5), "points": np.arange(3), "n": np.int64(7)})
+        target, telemetry_after = None, 0
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not (target and telemetry_after >= 3):
+            message = json.loads(ws.recv(timeout=5))
+            if message["type"] == "target" and message["target"] and "n" in message["target"]:
+                target = message["target"]
+            elif message["type"] == "telemetry" and target:
+                telemetry_after += 1
+        assert target == {"x_m": 1.5, "points": [0, 1, 2], "n": 7}, target
+        assert telemetry_after >= 3

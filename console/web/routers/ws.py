@@ -27,8 +27,12 @@ Plan: one task sends, the receive loop only reads: a socket has one writer.
 Operator events arrive on any thread and reach the sender through a bounded
 queue fed with call_soon_threadsafe; when a slow page lets it fill, the
 oldest event goes (the next telemetry carries the truth anyway).  Closing
-the socket releases control if this client held it.  Pages of other sites
-(Origin not ours) are refused before the hello.
+the socket releases control if this client held it; a connection that failed
+(not closed by the page) gives it back when the same page (its `scene_key`)
+reconnects within the desk's `resume_s`.  A value json cannot write is sent
+as its Python value or in words, never cuts the page off; a telemetry tick
+that fails is skipped and logged.  Pages of other sites (Origin not ours) are
+refused before the hello.
 """
 
 from __future__ import annotations
@@ -55,6 +59,8 @@ log = logging.getLogger("rovlink.console.web.ws")
 router = APIRouter(tags=["ws"])
 
 INBOX_MAX = 64  # a page's messages waiting to be carried out, at most (velocities coalesce)
+PAGE_CLOSED = (1000, 1001)  # the page closed its socket (closed, navigated away): nothing failed
+TELEMETRY_FAILING_S = 3.0  # telemetry that cannot be made this long ends the page's socket
 
 EVENT_TOPICS = {"image": "image", "log": "entry", "order": "order", "wish": "wish", "target": "target"}
 
@@ -109,8 +115,9 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
     async def send_loop() -> None:
         period = 1.0 / config["telemetry_hz"]
         control_version = desk.version
-        await websocket.send_text(json.dumps({"type": "hello", "client_id": client.id, "config": config}))
+        await websocket.send_text(_dumps({"type": "hello", "client_id": client.id, "config": config}))
         next_at = loop.time()
+        failing_since = None
         while True:
             # Events between telemetry ticks; a busy outbox never delays a tick.
             wait = next_at - loop.time()
@@ -118,25 +125,40 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
                 try:
                     async with asyncio.timeout(wait):
                         message = await outbox.get()
-                    await websocket.send_text(json.dumps(message))
+                    await websocket.send_text(_dumps(message))
                     continue
                 except TimeoutError:
                     pass
+            next_at = max(next_at + period, loop.time())
             version = desk.version
-            control, state = await asyncio.to_thread(tick_and_state, control_version)
+            try:
+                control, state = await asyncio.to_thread(tick_and_state, control_version)
+            except Exception:
+                # A tick that failed is skipped, and said; one that keeps failing ends the
+                # socket (a page without telemetry must not look alive).
+                if failing_since is None:
+                    log.exception("telemetry to %s failed", client.name)
+                    failing_since = loop.time()
+                elif loop.time() - failing_since > TELEMETRY_FAILING_S:
+                    log.error("telemetry to %s failing for %g s: closing its socket", client.name,
+                              TELEMETRY_FAILING_S)
+                    await websocket.close(1011)
+                    return
+                continue
+            failing_since = None
             if control is not None:
                 control_version = version
-                await websocket.send_text(json.dumps({"type": "control", "control": control}))
-            await websocket.send_text(json.dumps({"type": "telemetry", **state}))
-            next_at = max(next_at + period, loop.time())
+                await websocket.send_text(_dumps({"type": "control", "control": control}))
+            await websocket.send_text(_dumps({"type": "telemetry", **state}))
 
     async def send_or_close() -> None:
         try:
             await send_loop()
-        except (WebSocketDisconnect, RuntimeError, OSError):
+        except (WebSocketDisconnect, OSError):
             pass  # the page is gone; the receive loop learns it too
+        except RuntimeError as exc:  # Starlette: a send after the socket closed
+            log.debug("telemetry to %s ended: %s", client.name, exc)
         except Exception:
-            # A page without telemetry must not look alive.
             log.exception("telemetry to %s failed", client.name)
             await websocket.close(1011)
 
@@ -160,7 +182,11 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
             arrived.clear()
             while inbox:
                 text = inbox.popleft()
-                await asyncio.to_thread(_handle, text, client.id, operator, desk, threadsafe_post)
+                try:
+                    await asyncio.to_thread(_handle, text, client.id, operator, desk, threadsafe_post)
+                except Exception as exc:  # said, and the next message is carried out
+                    log.exception("a message from %s failed", client.name)
+                    post({"type": "error", "message": f"{_kind(text) or 'message'} failed: {exc}"})
 
     def take(text: str) -> None:
         kind = _kind(text)
@@ -179,28 +205,54 @@ async def telemetry_socket(websocket: WebSocket, operator: OperatorDep, desk: De
     unsubscribe = operator.subscribe(on_event)
     sender = asyncio.create_task(send_or_close(), name=f"ws sender {client.name}")
     worker = asyncio.create_task(carry_out(), name=f"ws orders {client.name}")
-    how = "its WebSocket ended"
+    how, code = "its WebSocket ended", None
     try:
         while True:
             # A page gone while the sender writes also ends this receive.
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
-                how = _how_it_closed(message.get("code"), message.get("reason"))
+                code = message.get("code")
+                how = _how_it_closed(code, message.get("reason"))
                 break
             if message.get("text") is None:
                 post({"type": "error", "message": "binary messages are not understood; send JSON text"})
                 continue
             take(message["text"])
     except WebSocketDisconnect as exc:
+        code = exc.code
         how = _how_it_closed(exc.code, exc.reason)
     finally:
-        # Release before any await: a cancelled handler must still let go.
-        desk.disconnect(client.id, how)
+        # Release before any await: a cancelled handler must still let go.  A connection
+        # that failed (not one the page closed) gives the page its control back if it
+        # reconnects in time (control.RESUME_S).
+        desk.disconnect(client.id, how, failed=code is not None and code not in PAGE_CLOSED)
         log.info("WebSocket of %s ended: %s", client.name, how)
         unsubscribe()
         sender.cancel()
         worker.cancel()
         await asyncio.gather(sender, worker, return_exceptions=True)
+
+
+_IN_WORDS: set[type] = set()  # the types already said in the log
+
+
+def _jsonable(value):
+    """What json cannot write as it is: a NumPy number or array as its Python value,
+    anything else in words (a page is told the state, never cut off for one value)."""
+    for name in ("tolist", "item"):  # NumPy arrays, then NumPy numbers
+        method = getattr(value, name, None)
+        if callable(method):
+            return method()
+    if isinstance(value, (set, frozenset)):
+        return sorted(value, key=str)
+    if type(value) not in _IN_WORDS:
+        _IN_WORDS.add(type(value))
+        log.warning("a value of type %s is sent to the pages in words", type(value).__name__)
+    return str(value)
+
+
+def _dumps(message: dict) -> str:
+    return json.dumps(message, default=_jsonable)
 
 
 def _kind(text: str) -> str | None:
@@ -217,7 +269,7 @@ def _how_it_closed(code: int | None, reason: str | None) -> str:
     connection that failed (1006, or 1011 when the server's keepalive ping
     went unanswered)."""
     words = {1000: "closed by the page", 1001: "the page went away", 1006: "the connection broke",
-             1011: "the connection failed"}.get(code, "its WebSocket closed")
+             1005: "the connection ended without a closing handshake", 1011: "the connection failed"}.get(code, "its WebSocket closed")
     return f"{words}, code {code}" + (f": {reason}" if reason else "")
 
 
