@@ -238,16 +238,18 @@ _IN_WORDS: set[type] = set()  # the types already said in the log
 
 def _jsonable(value):
     """What json cannot write as it is: a NumPy number or array as its Python value,
-    anything else in words (a page is told the state, never cut off for one value)."""
+    anything else in words (a page is told the state, never cut off for one value).
+    Each such type is said once in the log: it is a slip of whoever made the value."""
+    if type(value) not in _IN_WORDS:
+        _IN_WORDS.add(type(value))
+        log.warning("a value of type %s in a message to the pages (sent as %s)", type(value).__name__,
+                    "its Python value" if hasattr(value, "item") else "words")
     for name in ("tolist", "item"):  # NumPy arrays, then NumPy numbers
         method = getattr(value, name, None)
         if callable(method):
             return method()
     if isinstance(value, (set, frozenset)):
         return sorted(value, key=str)
-    if type(value) not in _IN_WORDS:
-        _IN_WORDS.add(type(value))
-        log.warning("a value of type %s is sent to the pages in words", type(value).__name__)
     return str(value)
 
 
