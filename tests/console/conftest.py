@@ -160,17 +160,20 @@ def _viser_blob(message) -> bool:
 @pytest.fixture
 def open_page(browser, live):
     """Opens operator pages on the module's `live` console, each in a context of its own;
-    fails the test if a page logged a script error."""
+    fails the test if a page logged a script error.  Without its 3-D scene (?scene=off)
+    unless `scene`: drawn without a graphics card it costs Chromium a core, which the
+    tests of the page itself starve the rest of the suite of (tests/console/test_scene*.py,
+    test_cockpit.py, test_truth.py and the acoustic cockpit's test draw it)."""
     contexts, errors = [], []
 
-    def open_():
+    def open_(scene: bool = False):
         context = browser.new_context()
         contexts.append(context)
         page = context.new_page()
         page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
         page.on("console", lambda m: errors.append(f"console: {m.text}")
                 if m.type == "error" and not _viser_blob(m) else None)
-        page.goto(live.url)
+        page.goto(live.url + ("/" if scene else "/?scene=off"))
         page.wait_for_function("document.body.dataset.clientId !== undefined")
         return page
 

@@ -68,10 +68,11 @@ def acoustic(tmp_path_factory):
         console_log.close()
 
 
-def open_cockpit(browser, base: str):
-    """The operator page at 1366x768, configured, its link up."""
+def open_cockpit(browser, base: str, scene: bool = False):
+    """The operator page at 1366x768, configured, its link up; its 3-D scene drawn only
+    if `scene` (drawn without a graphics card, it takes a core from the rest of the suite)."""
     page = browser.new_page(viewport={"width": 1366, "height": 768})
-    page.goto(base + "/")
+    page.goto(base + ("/" if scene else "/?scene=off"))
     page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
                            timeout=30000)
     return page
@@ -89,7 +90,7 @@ def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
     base, radio, rov, console, _, _ = acoustic
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        page = open_cockpit(browser, base)
+        page = open_cockpit(browser, base, scene=True)
         # The same page as the radio link's, with the 3-D scene embedded ...
         assert page.evaluate("document.body.dataset.profile") == "acoustic"
         scene = page.locator("#scene")
@@ -131,7 +132,7 @@ def test_the_acoustic_pilot_meets_the_one_cockpit_with_its_3d_scene(acoustic):
 
         # A second page: refused an order while the first holds control; its STOP is taken.
         second = browser.new_page(viewport={"width": 1366, "height": 768})
-        second.goto(base + "/")
+        second.goto(base + "/?scene=off")
         second.wait_for_function("document.body.dataset.clientId !== undefined", timeout=30000)
         status = second.evaluate("""async () => (await fetch('/api/orders/arm', {method: 'POST',
             headers: {'Content-Type': 'application/json', 'X-Rovlink-Client': document.body.dataset.clientId},

@@ -61,7 +61,7 @@ def test_quiet_water_a_failsafe_and_a_rov_restart_are_told_on_every_page(tmp_pat
             browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             pages = [browser.new_page(viewport={"width": 1366, "height": 768}) for _ in range(2)]
             for page in pages:
-                page.goto(base + "/")
+                page.goto(base + "/?scene=off")
                 page.wait_for_function("document.body.dataset.link === 'up'", timeout=30000)
                 # The ROV's own failsafe time, from its SYNC, in the log.
                 page.wait_for_function(f"document.getElementById('log').textContent.includes('after {FAILSAFE_S} s')",

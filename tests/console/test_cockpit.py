@@ -76,12 +76,14 @@ def browser():
 def open_page(browser, live):
     contexts, errors = [], []
 
-    def open_(width=1366, height=768):
+    def open_(width=1366, height=768, scene=False):
+        # The scene drawn where the layout is the point; elsewhere off (?scene=off): drawn
+        # without a graphics card it takes a core from the rest of the suite.
         context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
         contexts.append(context)
         page = context.new_page()
         page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
-        page.goto(live.url)
+        page.goto(live.url + ("/" if scene else "/?scene=off"))
         page.wait_for_function("document.body.dataset.clientId !== undefined")
         return page
 
@@ -123,7 +125,7 @@ def overlap(a, b) -> bool:
 def test_everything_a_pilot_acts_on_is_on_screen_without_scrolling(open_page, live, size):
     width, height = size
     complete_pictures(live, 1)
-    page = open_page(width, height)
+    page = open_page(width, height, scene=True)
     take_control(page)
     page.wait_for_function("document.getElementById('image-done').naturalWidth > 0", timeout=30000)
     page.wait_for_function("document.getElementById('inst-attitude').dataset.valid === '1'")
@@ -364,7 +366,7 @@ def in_sight(page, selector: str) -> list[str]:
 
 def test_every_orders_fate_is_read_beside_its_control_at_1366x768_without_scrolling(open_page, live):
     complete_pictures(live, 1)
-    page = open_page(1366, 768)
+    page = open_page(1366, 768, scene=True)
     take_control(page)
     page.wait_for_function("document.getElementById('image-done').naturalWidth > 0", timeout=30000)
     # Each control clicked where it is (a script's click, which scrolls nothing), then its fate read.
@@ -484,7 +486,7 @@ def test_next_image_says_what_it_skipped_beside_the_button_and_the_log_says_the_
     import httpx
 
     complete_pictures(live, 1)
-    page = open_page(1366, 768)
+    page = open_page(1366, 768, scene=True)
     take_control(page)
     # A picture part-way in (they come every second or two here): skip it.
     page.wait_for_function("(() => { const c = document.getElementById('image-card').dataset;"
@@ -523,3 +525,18 @@ def test_before_the_first_picture_the_page_shows_no_byte_count_of_nothing(open_p
         return document.getElementById('image-bytes').textContent;
     }""")
     assert shown == "", shown
+
+
+def test_a_page_opened_with_scene_off_offers_the_scene_on_its_own_to_watch(open_page, live):
+    """?scene=off: the 3-D scene is not drawn in the page (a laptop without a graphics card
+    spends a core on it), only offered in a tab of its own, without the page's key (it
+    watches); the rest of the cockpit is the same."""
+    page = open_page()
+    page.wait_for_function("document.body.dataset.scene === 'off'")
+    assert page.is_hidden("#scene") and page.is_visible("#no-scene")
+    assert "3-D scene is off" in page.text_content("#no-scene")
+    href = page.get_attribute("#no-scene a", "href")
+    port = live.scene.url.rsplit(":", 1)[1].strip("/")
+    assert href == f"http://localhost:{port}/", href
+    take_control(page)
+    assert page.is_enabled("#arm")

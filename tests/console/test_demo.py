@@ -81,6 +81,11 @@ def test_demo_in_the_browser(demo, tmp_path):
             return np.asarray(Image.open(shot).convert("L"), dtype=float).std() > 10
 
         assert wait_for(drawn, 60, 0.5), "the 3D view is blank"
+        # ... drawn in a process of its own (another site: localhost beside the page's
+        # 127.0.0.1), so that the page's own thread never waits on the scene's drawing.
+        targets = browser.new_browser_cdp_session().send("Target.getTargets")["targetInfos"]
+        assert any(t["type"] == "iframe" and t["url"].startswith("http://localhost:") and "/rovlink/" in t["url"]
+                   for t in targets), [(t["type"], t["url"][:60]) for t in targets]
 
         # An image arrives and visibly refines.
         page.wait_for_selector("#image[data-decoded-bytes]", state="visible", timeout=90000)

@@ -69,7 +69,7 @@ def ready(page, live, *, reload: bool = False) -> None:
     if reload:
         page.reload()
     else:
-        page.goto(live.url)
+        page.goto(live.url + "/?scene=off")
     page.wait_for_function("document.body.dataset.clientId !== undefined")
     page.click("#take")
     page.wait_for_function("document.getElementById('control-text').textContent === 'You have control.'")

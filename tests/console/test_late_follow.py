@@ -129,7 +129,7 @@ def test_the_page_shows_an_arm_the_vehicle_follows_late_waiting_then_armed(brows
         try:
             page = context.new_page()
             page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
-            page.goto(live.url)
+            page.goto(live.url + "/?scene=off")
             page.wait_for_function("document.body.dataset.clientId !== undefined")
             page.click("#take")
             page.wait_for_function("document.getElementById('control-text').textContent.includes('You have control')")

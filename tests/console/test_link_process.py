@@ -71,7 +71,7 @@ def test_the_link_process_killed_is_said_at_once_started_again_and_nothing_it_he
             browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
                 page = browser.new_context(viewport={"width": 1366, "height": 768}).new_page()
-                page.goto(procs.base)
+                page.goto(procs.base + "/?scene=off")
                 page.wait_for_function("document.body.dataset.configured === '1'", timeout=60000)
                 page.wait_for_function("document.body.dataset.link === 'up'", timeout=30000)
 

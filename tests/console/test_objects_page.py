@@ -61,7 +61,7 @@ def fate_text(page, oid: int) -> str:
 @needs_chromium
 def test_a_pilot_goes_to_an_object_and_frames_it(open_page, live):
     op, scene, desk = live.operator, live.scene, live.app.state.desk
-    page = open_page()
+    page = open_page(scene=True)  # (its own viewer of the scene orders)
     take_control(page)
     # An object appears in the page's list and in the scene, a box on the measured floor.
     page.wait_for_selector("#objects li .object-goto", timeout=90000)

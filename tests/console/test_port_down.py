@@ -114,7 +114,7 @@ def test_the_pilot_is_told_at_once_when_the_consoles_modem_port_goes_and_comes_b
         browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1366, "height": 768})
-            page.goto(base + "/")
+            page.goto(base + "/?scene=off")
             page.wait_for_function("document.body.dataset.link === 'up'", timeout=30000)
             assert page.is_hidden("#link-banner")
             alerts = page.evaluate("+document.body.dataset.alerts || 0")

@@ -359,7 +359,7 @@ def test_the_bar_pauses_seeks_and_says_replay(recording):
                 page = browser.new_page(viewport={"width": 1366, "height": 768})
                 page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
                 page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
-                page.goto(url)
+                page.goto(url + "/?scene=off")
                 page.wait_for_selector("#replay-bar", state="visible", timeout=20000)
                 page.wait_for_function("document.body.dataset.link === 'replay'", timeout=20000)
                 assert page.text_content("#link-banner-title") == "REPLAY"

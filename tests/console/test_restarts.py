@@ -299,7 +299,7 @@ def test_a_page_taking_control_with_its_stick_held_drives_only_once_it_is_centre
             browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
             try:
                 page = browser.new_context(viewport={"width": 1400, "height": 900}).new_page()
-                page.goto(procs.base)
+                page.goto(procs.base + "/?scene=off")  # (the held stick is what this is about)
                 page.wait_for_function("document.body.dataset.configured === '1'", timeout=60000)
                 page.evaluate(HELD_PAD)
                 # The page's input loop reads the held pad before control is taken: a neutral

@@ -1361,11 +1361,30 @@ function setupScene(config) {
   const url = new URL(config.viser_url, location.href);
   const loopback = ["127.0.0.1", "localhost", "[::1]", "0.0.0.0"];
   if (loopback.includes(url.hostname) && !loopback.includes(location.hostname)) url.hostname = location.hostname;
+  // On this machine, the scene from the other name of loopback than this page's: another
+  // site, so Chromium draws it in a process of its own, and this page's thread (its socket
+  // and keepalive, its keys, STOP) never waits on the scene's drawing (without a graphics
+  // card it takes a core; a page sharing its thread lost its socket, and control).
+  else if (loopback.includes(url.hostname)) url.hostname = location.hostname === "localhost" ? "127.0.0.1" : "localhost";
   // viser's page connects to the WebSocket named by ?websocket=; its path
   // carries our scene key (console/scene/app.py reads it).
   const wsScheme = url.protocol === "https:" ? "wss:" : "ws:";
   url.pathname = "/";
   url.search = `?websocket=${wsScheme}//${url.host}/rovlink/${SCENE_KEY}`;
+  // Opened with ?scene=off: the 3-D scene is not drawn here (without a graphics card
+  // it costs a core of a laptop), only offered, watching, in a tab of its own.
+  if (new URLSearchParams(location.search).get("scene") === "off") {
+    const box = $("no-scene");
+    box.textContent = "The 3-D scene is off on this page (opened with ?scene=off): ";
+    const own = new URL(url.href);
+    own.search = "";  // without this page's key: it watches
+    const link = Object.assign(document.createElement("a"), { href: own.href, target: "_blank",
+                                                              textContent: "open it on its own (watch only)" });
+    box.append(link);
+    box.hidden = false;
+    document.body.dataset.scene = "off";
+    return;
+  }
   frame.src = url.href;
   frame.hidden = false;
 }
