@@ -298,7 +298,9 @@ class Master:
         ROV shows HOLD, VELOCITY polls carry four zero axes until a reply to one
         comes, so that the re-centring reaches the ROV even if the sticks move
         again before the next poll; a neutral the console sets itself (STOP,
-        nobody holding) never does this."""
+        nobody holding) never does this.  Owed only for a HOLD that began before
+        it: a STOP sent or a failsafe reported after it forgets it (the stick held
+        since then would otherwise drive as the HOLD goes)."""
         self._recentre_owed = True
 
     def request_arm(self, arm: bool, now: float) -> None:
@@ -334,6 +336,8 @@ class Master:
         if self._stop is not None:
             self._stop.order_ids.append(order_id)  # the same STOP, confirmed together
             return
+        # A re-centring before the STOP is not one for the HOLD it brings (§5, decided).
+        self._recentre_owed = False
         orphan = None
         for p in self._orders:
             if p.sent:
@@ -464,7 +468,10 @@ class Master:
         if isinstance(order, Velocity):
             if self._nobodys_neutral(order):
                 order = self._nobodys_poll()
-            elif self._recentre_owed and self._last_reply is not None and self._last_reply.hold:
+            elif self._recentre_owed and self._last_reply is not None and self._last_reply.hold \
+                    and not self._lost_last:
+                # (after a lost reply, not until a reply says whether the ROV failed safe
+                # meanwhile: a re-centring from before a failsafe is not one for its HOLD)
                 order = Velocity(0, 0, 0, 0, order.arm, order.mode)
         if isinstance(order, Velocity) and self.repeat_by_none and not order.arm and not order.mode \
                 and order == self._velocity_taken:
@@ -716,6 +723,9 @@ class Master:
 
     def _update_requests(self, reply: Reply, poll: Poll | None, now: float) -> None:
         if reply.failsafe:
+            # §5 (decided): the ROV braked and holds since a silence; a re-centring owed
+            # from before it is not one for this HOLD (the stick may have moved since).
+            self._recentre_owed = False
             # §2 (decided): the ROV failed safe before it took this poll, and its
             # reference went with it.  A VELOCITY poll only set it anew: a request
             # riding in it was swallowed, and goes again after a 0 (a disarm acted).

@@ -771,3 +771,86 @@ def test_a_second_stop_while_one_is_sent_joins_it():
     events = answer(master, 3.2, hold=True, autopilot=True, mode=Mode.POS_HOLD)
     assert [e.order_id for e in of(events, StopConfirmed)] == [first, second]
     assert not of(events, OrderCancelled)
+
+
+def hold_kept_with_the_stick_held(master, slave, t0: float, seconds: float = 2.0) -> None:
+    """Polls and replies for `seconds` from `t0`, the wish forward: the ROV never
+    leaves its HOLD and never drives."""
+    t = t0
+    while t < t0 + seconds:
+        poll = polls_of(master, t)
+        reply, events = send(slave, poll, t + 0.02)
+        assert slave.hold, f"HOLD left at {t:.2f} s with the stick held (poll {poll.order})"
+        assert all(e.velocity.is_neutral for e in of(events, VelocityCommanded)), events
+        master.receive_bytes(encode_frame(reply.encode()), t + 0.05)
+        t += 0.1
+
+
+def test_a_recentring_before_a_failsafe_never_releases_its_hold_with_the_stick_held():
+    """§5 (decided): the pilot centred (its re-centring owed to a HOLD then shown), pushed
+    the stick, and the link went silent before any reply came: the ROV failed safe and
+    holds. The re-centring from before is not one for this HOLD: the VELOCITY polls after
+    the link returns carry the held stick, and the ROV keeps holding until the pilot
+    centres again (tests/console/test_cockpit.py's key held through a failsafe: the ROV
+    drove off, when the page had become quick enough to press the key before a reply)."""
+    master, slave = started_master(), ready_slave()
+    master.set_pilot_in_force(True)
+    centred(slave, 0.0)
+    t = 3.0
+    for _ in range(3):  # polls answered, the stick centred
+        poll = polls_of(master, t)
+        reply, _ = send(slave, poll, t + 0.02)
+        master.receive_bytes(encode_frame(reply.encode()), t + 0.05)
+        t += 0.1
+    master.recentred()  # the pilot centres ...
+    master.set_velocity(64, 0, 0, 0, t)  # ... and pushes again, no reply in between
+    slave.tick(t + slave.failsafe_s + 0.1)  # the link silent: the ROV fails safe
+    assert slave.failsafe and slave.hold
+    hold_kept_with_the_stick_held(master, slave, t + slave.failsafe_s + 0.2)
+    # Centred: the HOLD goes.
+    master.set_velocity(0, 0, 0, 0, t + 10)
+    master.recentred()
+    for k in range(5):
+        poll = polls_of(master, t + 10 + 0.1 * k)
+        reply, _ = send(slave, poll, t + 10.02 + 0.1 * k)
+        master.receive_bytes(encode_frame(reply.encode()), t + 10.05 + 0.1 * k)
+    assert not slave.hold
+
+
+def test_a_recentring_before_a_stop_never_releases_its_hold_with_the_stick_held():
+    """The same for a STOP pressed with the stick pushed just after a centring: the STOP's
+    HOLD stays until the pilot centres after it."""
+    master, slave = started_master(), ready_slave()
+    master.set_pilot_in_force(True)
+    centred(slave, 0.0)
+    master.recentred()
+    master.set_velocity(64, 0, 0, 0, 3.0)
+    master.send_order(Stop())
+    hold_kept_with_the_stick_held(master, slave, 3.0)
+
+
+def test_a_recentring_owed_to_a_stop_never_releases_a_failsafe_hold_that_came_after_it():
+    """The pilot centred under a STOP's HOLD, the zero not yet sent, pushed the stick again,
+    and the link went silent: the ROV failed safe. The first poll after the silence is
+    made before any reply says so; it carries the held stick, not the zero owed to the
+    STOP's HOLD, and the failsafe's HOLD stays until the pilot centres again."""
+    master, slave = started_master(), ready_slave()
+    master.set_pilot_in_force(True)
+    centred(slave, 0.0)
+    master.set_velocity(64, 0, 0, 0, 3.0)
+    master.send_order(Stop())
+    slave.update_status(dataclasses.replace(READY, mode=Mode.POS_HOLD))  # (the autopilot's brake)
+    t = 3.0
+    while (master.stopping or not slave.hold) and t < 6.0:  # the STOP's HOLD, confirmed
+        poll = polls_of(master, t)
+        reply, _ = send(slave, poll, t + 0.02)
+        master.receive_bytes(encode_frame(reply.encode()), t + 0.05)
+        t += 0.1
+    assert not master.stopping and slave.hold, (master.stopping, slave.hold, poll)
+    master.set_velocity(0, 0, 0, 0, t)
+    master.recentred()  # centred under the HOLD ...
+    master.set_velocity(64, 0, 0, 0, t)  # ... and pushed again before the zero went
+    polls_of(master, t)  # a poll lost: no reply
+    slave.tick(t + slave.failsafe_s + 0.1)  # the ROV fails safe
+    assert slave.failsafe and slave.hold
+    hold_kept_with_the_stick_held(master, slave, t + slave.failsafe_s + 0.2)

@@ -120,6 +120,10 @@ function onMessage(msg) {
       showError(msg.message);
       break;
     case "failsafe":
+      // The ROV failed safe: a HOLD of its own begins, even if an earlier one (a STOP's)
+      // was still shown; a centring before it does not count for it (a key held since
+      // is told to centre, as the ROV ignores it until then).
+      if (msg.failsafe && !page.failsafeActive) page.neutralSinceHold = isNeutral(wish());
       page.failsafeActive = msg.failsafe;
       renderFailsafe(msg.failsafe);
       break;
