@@ -58,6 +58,19 @@ class PictureRequest:
     follow: ClassVar[bool] = False  # the ROI stays where it is in the picture
 
 
+@dataclass(frozen=True)
+class FollowRequest(PictureRequest):
+    """A picture request whose ROI follows what it framed in picture `drawn_on` (its
+    IMG, §10); `keep`: a lost track keeps its last ROI, else the pictures go without one
+    until it holds again.  The radio's FOLLOW order (FollowSettings) and the acoustic
+    link's THUMB with its FOLLOW bit are its wire forms."""
+
+    keep: bool = True
+    drawn_on: int = 0
+
+    follow: ClassVar[bool] = True
+
+
 class TrackState(enum.IntEnum):
     """STATE of a picture's TRACK record (§10)."""
 

@@ -55,7 +55,7 @@ from rovlink.link.process import LinkProcessDown, LinkProcessSlow
 from rovlink.link.report import VehicleReport, report_from_status
 from rovlink.link.transports.transport import port_down_reason
 from rovlink.link.units import acoustic_goto
-from rovlink.link.vocabulary import PictureRequest
+from rovlink.link.vocabulary import FollowRequest, PictureRequest
 
 log = logging.getLogger("rovlink.console.acoustic")
 
@@ -590,7 +590,9 @@ class AcousticSession(SessionBase):
         bad = request.invalid()
         if bad:
             raise OrderError(f"thumbnail: {bad}")
-        settings = PictureRequest(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget)
+        settings = PictureRequest(roi=roi, shift=shift if roi else current.shift, mono=True, budget_bytes=budget) \
+            if follow is None else FollowRequest(roi=roi, shift=shift, mono=True, budget_bytes=budget, keep=keep,
+                                                 drawn_on=drawn_on)
         detail = {"roi": list(roi) if roi else None, "shift": settings.shift, "mono": True, "budget_bytes": budget}
         if follow is not None:
             detail.update(follow=True, keep=keep, drawn_on=drawn_on)

@@ -45,7 +45,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import ClassVar, Union
 
-from ..vocabulary import REQUESTABLE_MODES, Mode, PictureRequest, TrackState  # noqa: F401 (the radio names them here too)
+from ..vocabulary import REQUESTABLE_MODES, FollowRequest, Mode, PictureRequest, TrackState  # noqa: F401 (the radio names them here too)
 from .frame import MAX_PAYLOAD, OVERHEAD
 
 NO_IMAGE_DATA = 8191  # OFFSET that asks for no image data
@@ -284,13 +284,11 @@ class Stop:
 
 
 @dataclass(frozen=True)
-class FollowSettings(ImageSettings):
-    """FOLLOW (§10): IMAGE settings whose ROI follows what it framed in picture
-    `drawn_on` (its IMG); `keep`: a lost track keeps its last ROI, else the
-    pictures go without one until it holds again."""
-
-    keep: bool = True
-    drawn_on: int = 0
+class FollowSettings(ImageSettings, FollowRequest):
+    """FOLLOW (§10): a follow request (link/vocabulary.py) as the radio carries it:
+    IMAGE settings whose ROI follows what it framed in picture `drawn_on` (its IMG);
+    `keep`: a lost track keeps its last ROI, else the pictures go without one until
+    it holds again."""
 
     code: ClassVar[int] = OrderCode.FOLLOW
     follow: ClassVar[bool] = True
