@@ -25,7 +25,7 @@ from rovlink.link.transports.transport import free_udp_port
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from .acoustic_rig import end_processes, wait_for
 from .conftest import _listening_socket, _viser_blob
-from .test_objects_page import STANDOFF_M, holds, true_box
+from .test_objects_page import at_the_standoff, holds, true_box
 
 pytestmark = [pytest.mark.browser, pytest.mark.processes, pytest.mark.slow, needs_chromium]
 ROVLINK = [sys.executable, "-m", "rovlink"]
@@ -126,13 +126,7 @@ def test_an_acoustic_pilot_goes_to_an_object_frames_it_and_the_replay_lays_it_ag
         page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=90000)
         page.click("#goto-go")
         page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=150000)
-        there = session.vehicle()
-        obj = next(o for o in session.world_state()["objects"] if o["id"] == oid)
-        assert math.hypot(there.x_m - target.x_m, there.y_m - target.y_m) < 0.6, (there, target)
-        off = math.hypot(obj["north_m"] - there.x_m, obj["east_m"] - there.y_m)
-        assert STANDOFF_M - 0.3 < off < STANDOFF_M + obj["length_m"] / 2 + 0.7, (off, obj)
-        bearing = math.degrees(math.atan2(obj["east_m"] - there.y_m, obj["north_m"] - there.x_m))
-        assert abs((there.yaw_deg - bearing + 180) % 360 - 180) < 15, (there.yaw_deg, bearing)
+        at_the_standoff(session, target, oid, within_m=0.6, beyond_m=0.7)
         # Frame it: a thumbnail asked with its ROI on the object, following from the ROV's newest frame.
         serial = session.image_state()["serial"]
         page.click(f'#objects li[data-id="{oid}"] .object-frame')

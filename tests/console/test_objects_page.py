@@ -59,6 +59,19 @@ def fate_text(page, oid: int) -> str:
 
 @pytest.mark.browser
 @needs_chromium
+def at_the_standoff(session, target, oid: int, *, within_m: float, beyond_m: float) -> None:
+    """The vehicle where a go-to to object `oid` put it: within `within_m` of the target,
+    at the stand-off from the object as last told (up to `beyond_m` past its half
+    length), facing it within 15 degrees."""
+    there = session.vehicle()
+    obj = next(o for o in session.world_state()["objects"] if o["id"] == oid)
+    assert math.hypot(there.x_m - target.x_m, there.y_m - target.y_m) < within_m, (there, target)
+    off = math.hypot(obj["north_m"] - there.x_m, obj["east_m"] - there.y_m)
+    assert STANDOFF_M - 0.3 < off < STANDOFF_M + obj["length_m"] / 2 + beyond_m, (off, obj)
+    bearing = math.degrees(math.atan2(obj["east_m"] - there.y_m, obj["north_m"] - there.x_m))
+    assert abs((there.yaw_deg - bearing + 180) % 360 - 180) < 15, (there.yaw_deg, bearing)
+
+
 def test_a_pilot_goes_to_an_object_and_frames_it(open_page, live):
     op, scene, desk = live.operator, live.scene, live.app.state.desk
     page = open_page(scene=True)  # (its own viewer of the scene orders)
@@ -85,13 +98,7 @@ def test_a_pilot_goes_to_an_object_and_frames_it(open_page, live):
     page.wait_for_function("document.getElementById('arm-fate').dataset.state === 'followed'", timeout=30000)
     page.click("#goto-go")
     page.wait_for_function("document.getElementById('goto-fate').dataset.state === 'arrived'", timeout=120000)
-    there = op.vehicle()
-    obj = next(o for o in op.world_state()["objects"] if o["id"] == oid)  # its place as last told
-    assert math.hypot(there.x_m - target.x_m, there.y_m - target.y_m) < 0.5, (there, target)
-    off = math.hypot(obj["north_m"] - there.x_m, obj["east_m"] - there.y_m)
-    assert STANDOFF_M - 0.3 < off < STANDOFF_M + obj["length_m"] / 2 + 0.6, (off, obj)
-    bearing = math.degrees(math.atan2(obj["east_m"] - there.y_m, obj["north_m"] - there.x_m))
-    assert abs((there.yaw_deg - bearing + 180) % 360 - 180) < 15, (there.yaw_deg, bearing)
+    at_the_standoff(op, target, oid, within_m=0.5, beyond_m=0.6)
 
     # "Frame it": the next picture is coded with an ROI that holds the object.
     serial = op.image_state()["serial"]
