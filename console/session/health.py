@@ -17,6 +17,7 @@ link is back; reading never logs.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -62,6 +63,8 @@ class LinkHealth:
         self._crc_seen = 0
         self._auth_alerted_at: float | None = None
         self._shown: str | None = None       # the condition last told the pilot
+        self._watch_lock = threading.Lock()
+        self._watched_t = -math.inf           # the time the condition was last judged for
         # Degraded: since when, and why in a sentence and in a few words (None while not).
         self._degraded_lock = threading.Lock()
         self._degraded_at: float | None = None
@@ -189,7 +192,17 @@ class LinkHealth:
         return state, since if since is not None else (t if state == "lost" else None)
 
     def watch(self, t: float) -> None:
-        """Link lost and back into the log, once per change (the driver calls it)."""
+        """Link lost and back into the log, once per change (the driver calls it).  A call
+        for a time before one already judged is ignored, and calls are taken one at a
+        time: the condition at an earlier time (a report's own time, another thread's
+        clock read) must not take back what was told (LINK LOST cleared while it lasts)."""
+        with self._watch_lock:
+            if t < self._watched_t:
+                return
+            self._watched_t = t
+            self._watch(t)
+
+    def _watch(self, t: float) -> None:
         state, silent = self.silent_s(t)
         was, self._shown = self._shown, state
         if was == state or state in ("starting", "replay"):
