@@ -548,8 +548,7 @@ class ControlDesk:
             back = self._resume is not None and scene_key is not None and self._resume[0] == scene_key \
                 and self._holder is None and self._clock() <= self._resume[2] and not self.operator.replaying
             if back:
-                self._resume = None
-                self._give(client, None)
+                self._give(client, None)  # (forgets the page to give back to)
         if back:
             self.operator.note(f"control given back to {client.name}: its page reconnected")
             self._publish_control()
