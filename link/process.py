@@ -64,6 +64,7 @@ log = logging.getLogger("rovlink.link.process")
 STOP_AFTER_PARENT_S = 5.0   # the console gone: STOP is sent this long at most, then polling stops
 RESTART_AFTER_S = 0.5       # a link process that ended is started again after this
 CALL_TIMEOUT_S = 2.0        # a command the link process has not answered in this time failed
+READ_SLICE_S = 0.02         # the link process's messages taken at most this long before the loop's other work
 TURN_S = 0.05               # the session's own timers (`on_turn`) while the link process runs
 
 # What the master's methods the session calls may be (the rest are refused).
@@ -537,9 +538,17 @@ class LinkProcess:
             ended = loop.create_future()
 
             def readable(ended=ended) -> None:
+                # A slice at a time: a link process whose messages come faster than they
+                # are taken (a fast link, a loaded console) must not keep the loop here,
+                # or the session's timers and the answers to its calls wait; unread
+                # answers then fill their pipe and the child's command thread, blocked on
+                # it, takes no more wishes (seen: a stick not taken for 20 s).
+                until = time.monotonic() + READ_SLICE_S
                 try:
                     while self._events.poll():
                         self._dispatch(self._events.recv(), take, up)
+                        if time.monotonic() >= until:
+                            break
                 except (EOFError, OSError):
                     if not ended.done():
                         ended.set_result(None)

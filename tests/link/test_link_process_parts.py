@@ -215,3 +215,89 @@ def test_a_late_answer_is_read_between_calls_and_a_process_that_ends_first_loses
     finally:
         master.go_on.set()
         served.end()
+
+
+def test_the_pilots_wish_is_taken_while_the_link_process_says_more_than_the_console_can_read(monkeypatch):
+    """A link process whose messages come faster than the console takes them (a fast link,
+    a console loaded by a browser): the console reads them a slice at a time, so that its
+    own timers run between and read the answers to its calls.  Before, it read for as long
+    as any message waited: the answers to the wishes it cast piled up unread, the child's
+    command thread blocked writing them, and a held stick was not taken for 20 s."""
+    import asyncio
+    import time
+
+    link = MasterProcess("udp://127.0.0.1:9?peer=127.0.0.1:9", bitrate_bps=1900.0, delay_s=0.085,
+                         max_frame=None, t0=0.0)
+    master = Master(bitrate_bps=1900.0, delay_s=0.085)
+    flooding = threading.Event()
+    flooding.set()
+    threads: list[threading.Thread] = []
+
+    class Child:  # the process's place, for the supervisor's join
+        exitcode = 0
+
+        def join(self, timeout=None) -> None:
+            for thread in threads:
+                thread.join(timeout)
+
+    def spawn() -> None:
+        commands, child_commands = multiprocessing.Pipe(duplex=True)
+        child_events, events = multiprocessing.Pipe(duplex=False)
+
+        def flood() -> None:  # what a link process polling a fast link says: for 15 s at most
+            events.send(("up", 1))             # (a console stuck reading would hang the test)
+            n, until = 0, time.monotonic() + 15.0
+            try:
+                while flooding.is_set() and time.monotonic() < until:
+                    n += 1
+                    events.send(("rx", bytes(24), float(n)))
+            except OSError:
+                pass  # the console's end closed at the test's end
+            flooding.clear()
+            events.close()
+
+        threads[:] = [threading.Thread(target=flood, daemon=True),
+                      threading.Thread(target=_serve_calls, args=(child_commands,), daemon=True, kwargs={
+                          "what": "link", "calls": CALLS, "machine": master, "lock": threading.Lock(),
+                          "status": lambda: radio_status(master), "gone": lambda: None})]
+        for thread in threads:
+            thread.start()
+        link._process, link._commands, link._events = Child(), commands, child_events
+
+    monkeypatch.setattr(link, "_spawn", spawn)
+    taken = [0]
+
+    def take(message: tuple) -> None:  # a console slower than the link process
+        taken[0] += 1
+        time.sleep(0.0002)
+
+    sent = [0]
+
+    def turn() -> None:  # the session's timers: the pilot's pad, read and cast every turn (twenty here)
+        if link.up and sent[0] < 20:
+            sent[0] += 1
+            link.set_velocity(sent[0], 0, 0, 0, float(sent[0]))
+
+    async def main() -> None:
+        task = asyncio.ensure_future(link._supervise(take, turn=turn, up=lambda pid: None, down=lambda why: None))
+        try:
+            deadline = time.monotonic() + 12.0
+            # Twenty wishes cast and taken by the master, all answers read, while the flood goes on.
+            while time.monotonic() < deadline and not (master.velocity.vx == 20 and not link._late):
+                await asyncio.sleep(0.05)
+            assert flooding.is_set() and taken[0] > 1000, \
+                f"the flood ended first ({taken[0]} messages taken, {sent[0]} wishes cast): the console's timers did not run"
+            assert master.velocity.vx == 20 and not link._late, \
+                (sent, master.velocity, len(link._late), taken)
+        finally:
+            flooding.clear()
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+
+    try:
+        asyncio.run(main())
+    finally:
+        flooding.clear()
+        link._tell_to_end()
+        link._close_pipes()
