@@ -24,7 +24,7 @@ from rovlink.link.transports.transport import free_udp_port
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, free_tcp_port, needs_chromium
 from .acoustic_rig import end_processes, wait_for
-from .conftest import _listening_socket, _viser_blob
+from .conftest import _listening_socket, console_error
 from .test_objects_page import at_the_standoff, holds, true_box
 
 pytestmark = [pytest.mark.browser, pytest.mark.processes, pytest.mark.slow, needs_chromium]
@@ -101,7 +101,7 @@ def test_an_acoustic_pilot_goes_to_an_object_frames_it_and_the_replay_lays_it_ag
         errors: list[str] = []
         page = browser.new_page(viewport={"width": 1366, "height": 768})
         page.on("pageerror", lambda exc: errors.append(f"uncaught: {exc}"))
-        page.on("console", lambda m: errors.append(m.text) if m.type == "error" and not _viser_blob(m) else None)
+        page.on("console", lambda m: errors.append(text) if (text := console_error(m)) else None)
         page.goto(base + "/?scene=off")  # (the scene's objects are read from the scene itself)
         page.wait_for_function("document.body.dataset.configured === '1' && document.body.dataset.link === 'up'",
                                timeout=60000)
