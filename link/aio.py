@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 from typing import Callable
 
 from .emulators.channel import Channel
@@ -24,6 +25,12 @@ from .transports.transport import Endpoint
 log = logging.getLogger("rovlink.link")
 
 EventSink = Callable[[list, float], None]
+
+# The console polls no sooner than this after its previous poll (docs/PROTOCOL.md §5,
+# decided): over a link faster than a radio (a tether, a test's loopback) it would cycle
+# every millisecond, far more often than the autopilot's odometry changes, and spend both
+# ends' CPU on it.  A radio's cycle (100 ms and more) or an acoustic one never meets it.
+CONSOLE_POLL_FLOOR_S = 0.02
 
 
 def _now() -> float:
@@ -68,6 +75,7 @@ async def run_master(
     lock: contextlib.AbstractContextManager | None = None,
     on_bytes: Callable[[bytes, float], None] | None = None,
     on_turn: Callable[[float], None] | None = None,
+    poll_floor_s: float = 0.0,
 ) -> None:
     """Poll, wait for the reply or its timeout, repeat.  Cancel to stop.
 
@@ -75,14 +83,21 @@ async def run_master(
     time the master is fed (default the event loop's); `lock`: held around every
     call into the master (other threads order through it); `on_bytes(data,
     now)`: bytes received, before the master sees them (a recording);
-    `on_turn(now)`: once per turn of the loop (timers of the caller's own)."""
+    `on_turn(now)`: once per turn of the loop (timers of the caller's own);
+    `poll_floor_s`: no poll starts sooner than this after the one before
+    (docs/PROTOCOL.md §5, the console's CONSOLE_POLL_FLOOR_S)."""
     clock = clock or _now
     guard = lock if lock is not None else contextlib.nullcontext()
+    last_poll_at = -math.inf
     while True:
         now = clock()
-        with guard:
-            frame = master.next_poll(now)
-            events = master.take_events()
+        frame, events = None, []
+        if now >= last_poll_at + poll_floor_s:
+            with guard:
+                frame = master.next_poll(now)
+                events = master.take_events()
+            if frame is not None:
+                last_poll_at = now
         # The poll first: its timer runs from `now`, and whatever the callbacks take
         # (a busy console, a pipe to it) must not come out of its reply's time.
         if frame is not None:
@@ -91,6 +106,8 @@ async def run_master(
         _safely(on_turn, now)
         with guard:
             deadline = master.deadline()
+        if deadline is None and poll_floor_s > 0:
+            deadline = last_poll_at + poll_floor_s  # the token is ours: the next poll once the floor passed
         wait = idle_poll_s if deadline is None else max(0.0, deadline - clock())
         data = await recv_within(endpoint, wait)
         # Whatever else already arrived too, before polling again.

@@ -301,7 +301,7 @@ def child_main(commands, events, spec: dict) -> None:
 
 
 async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) -> int:
-    from .aio import run_master
+    from .aio import CONSOLE_POLL_FLOOR_S, run_master
     from .transports.transport import port_change, port_down_reason
 
     t0 = spec["t0"]
@@ -348,7 +348,8 @@ async def _child(commands, send: Callable[[tuple], None], endpoint, spec: dict) 
             send(("port", port_seen[0], news, port_down_reason(endpoint)))
 
     runner = run_master(master, endpoint, on_events, clock=clock, lock=lock,
-                        on_bytes=lambda data, t: send(("rx", data, t)), on_turn=on_turn)
+                        on_bytes=lambda data, t: send(("rx", data, t)), on_turn=on_turn,
+                        poll_floor_s=CONSOLE_POLL_FLOOR_S)
     tasks = await serve_until_console_gone(commands, send, endpoint, [runner], what="link", calls=CALLS,
                                            machine=master, lock=lock, status=lambda: _status(master))
     if tasks is None:

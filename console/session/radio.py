@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 from typing import Callable, Iterator
 
-from rovlink.link.aio import run_master
+from rovlink.link.aio import CONSOLE_POLL_FLOOR_S, run_master
 from rovlink.link.process import LinkProcessDown, LinkProcessSlow, MasterProcess
 from rovlink.link.radio.events import AltitudeReported, ObjectRecordIgnored, ObjectRemoved, ObjectReported
 from rovlink.link.radio.frame import MAX_FRAME
@@ -183,7 +183,7 @@ class Operator(SessionBase):
             raise RuntimeError("no link endpoint: this operator only replays")
         try:
             await run_master(self.master, self.endpoint, self.handle_events, clock=self.now, lock=self._lock,
-                             on_bytes=self.bytes_received, on_turn=self._turn)
+                             on_bytes=self.bytes_received, on_turn=self._turn, poll_floor_s=CONSOLE_POLL_FLOOR_S)
         finally:
             self._decoder.shutdown()
 

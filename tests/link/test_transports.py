@@ -75,6 +75,51 @@ def test_udp_loopback_master_and_slave():
     assert got["executed"] == [ImageSettings(budget_bytes=300)]
 
 
+def test_over_a_fast_link_the_console_polls_no_sooner_than_its_floor_and_a_lost_reply_still_times_out():
+    """docs/PROTOCOL.md §5 (decided): the console's loop starts a poll no sooner than
+    CONSOLE_POLL_FLOOR_S after the one before.  Over UDP loopback a reply comes within a
+    millisecond: without the floor the polls went a thousand a second."""
+    from rovlink.link.aio import CONSOLE_POLL_FLOOR_S
+    from rovlink.link.radio.events import PollSent, ReplyLost
+
+    async def main():
+        pm, ps = free_udp_port(), free_udp_port()
+        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
+        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
+        await m.start()
+        await s.start()
+        master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2)
+        slave = Slave(image_source=lambda img, settings: b"s" * 300)
+        slave.update_status(HOLDING)
+        polls, lost, replies = [], [], [0]
+
+        def on_master(events, now):
+            polls.extend(now for e in events if isinstance(e, PollSent))
+            lost.extend(now for e in events if isinstance(e, ReplyLost))
+            replies[0] += sum(isinstance(e, PoseReceived) for e in events)
+
+        tasks = [asyncio.create_task(run_master(master, m, on_master, poll_floor_s=CONSOLE_POLL_FLOOR_S)),
+                 asyncio.create_task(run_slave(slave, s))]
+        try:
+            await asyncio.sleep(1.0)
+            answered = replies[0]
+            tasks[1].cancel()  # the ROV goes silent: the reply's timeout, not the floor, says lost
+            await asyncio.sleep(0.6)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await m.close()
+            await s.close()
+        return polls, lost, answered
+
+    polls, lost, answered = run(main())
+    gaps = [b - a for a, b in zip(polls, polls[1:])]
+    assert answered >= 10 and len(polls) > 10, (answered, len(polls))
+    assert min(gaps) >= CONSOLE_POLL_FLOOR_S - 1e-9, min(gaps)
+    assert lost, "the silent ROV's replies were counted lost"
+
+
 def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a_stop_ack(caplog):
     """Issue 11: a second sender's polls flipped ACK so that STOP showed acknowledged and never ran."""
 
