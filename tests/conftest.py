@@ -29,19 +29,30 @@ def debt_compiled():
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the group marks
 def pytest_collection_modifyitems(items):
-    """With pytest-xdist (`-n 3 --dist loadgroup`, as .ci/run runs): every
-    browser test in one group, so that two software-rendered Chromiums never
-    compete for this 2-core machine (a pilot's drag or held stick then lags),
-    and every other module in a group of its own (its module-scoped fixtures
-    start once).  The browser group takes one worker from the start and sets
-    the suite's wall time; the other two workers share the rest.  Without
-    xdist the marks do nothing.
+    """With pytest-xdist (`-n 3 --dist loadgroup`, as .ci/run runs): the browser
+    tests in two groups, and every other module in a group of its own (its
+    module-scoped fixtures start once).  Each browser group runs one Chromium at a
+    time, so at most two run at once: `browser-processes` (the tests that run the
+    system as processes: rovlink rov and console, the benches' children) and
+    `browser` (the page and the scene against an in-process console).  Until stop
+    45 one group held them all, for fear of two software-rendered scenes on two
+    cores; the scene is drawn now only by the tests about it (?scene=off for the
+    rest: 0.4 of a core a page instead of 1.25), and the one group had become the
+    suite's wall time (800 s of 820).  Without xdist the marks do nothing.
 
-    Most tests wait on the link's real time (two workers kept the two cores
-    about 40 % busy), hence three workers.  The marks must be on the items
-    before xdist's hook turns them into groups (tryfirst): added after it, as
-    they were until stop 31, they grouped nothing and the browser tests ran
-    two at a time."""
+    Most tests wait on the link's real time, hence three workers on two cores.
+    The marks must be on the items before xdist's hook turns them into groups
+    (tryfirst): added after it, as they were until stop 31, they grouped
+    nothing."""
     for item in items:
-        group = "browser" if item.get_closest_marker("browser") else item.module.__name__
+        if item.get_closest_marker("browser"):
+            group = "browser-processes" if item.module.__name__.rsplit(".", 1)[-1] in BROWSER_PROCESSES else "browser"
+        else:
+            group = item.module.__name__
         item.add_marker(pytest.mark.xdist_group(group))
+
+
+# The browser tests that run the system as processes (about half the browser tests' time;
+# test_demo's, though it starts `rovlink demo`, goes with the others for the balance).
+BROWSER_PROCESSES = {"test_acoustic_bad_day", "test_bench_children", "test_acoustic", "test_restarts",
+                     "test_link_process", "test_port_down", "test_late_follow", "test_objects_acoustic"}
