@@ -73,19 +73,33 @@ CALLS = ("set_velocity", "set_pilot_in_force", "set_attended", "recentred", "req
 
 
 LINK_NICE = -10            # the link process's priority where the system allows it (CAP_SYS_NICE, root)
+LINK_RT_PRIORITY = 1       # and its real-time priority (SCHED_RR's lowest) where the system allows that
 
 
-def raise_priority(nice: int = LINK_NICE) -> int:
-    """Ask for a scheduling priority above the machine's other work (a poll's deadline is
-    tens of milliseconds; a CPU-bound process beside it takes whole time slices), and
-    return the nice value the process has.  Refused (no CAP_SYS_NICE): said once, and it
-    runs at the console's priority."""
+def raise_priority(nice: int = LINK_NICE) -> str:
+    """Ask for a scheduling priority above the machine's other work, and say what it got.
+
+    A poll's deadline is tens of milliseconds, and a CPU-bound process beside the link
+    takes whole time slices: at nice -10 a loaded core still answered 2 or 3 polls in 256
+    late (issue 39; 0 in 249 under SCHED_RR).  So real-time round-robin at its lowest
+    priority, before any thread starts (they inherit it).  Safe because the link's work is
+    bounded: a poll at most every CONSOLE_POLL_FLOOR_S, a wait on the link between (and the
+    kernel keeps 5 % of each core for the rest).  Refused (no CAP_SYS_NICE, no RLIMIT_RTPRIO,
+    a container without real-time time): nice -10; refused too, said once, and it runs at
+    the console's priority."""
     try:
         os.setpriority(os.PRIO_PROCESS, 0, nice)
     except (PermissionError, OSError) as exc:
         log.warning("could not raise the link process's priority to nice %d (%s): it runs at the console's; "
                     "a busy machine may delay its polls", nice, exc)
-    return os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(LINK_RT_PRIORITY))
+    except (PermissionError, OSError) as exc:
+        got = f"nice {os.getpriority(os.PRIO_PROCESS, 0)}"
+        log.warning("no real-time priority for the link process (%s): it runs at %s; a busy machine may delay "
+                    "its polls", exc.strerror or exc, got)
+        return got
+    return f"real-time (round-robin, priority {LINK_RT_PRIORITY})"
 
 
 class LinkProcessDown(RuntimeError):

@@ -40,6 +40,16 @@ def _nice(pid: int) -> int | None:
         return None
 
 
+def _scheduling(pid: int) -> str | None:
+    """The process's scheduling policy by its name (SCHED_RR, SCHED_OTHER, ...)."""
+    try:
+        policy = os.sched_getscheduler(pid)
+    except OSError:
+        return None
+    return next((name for name in ("SCHED_OTHER", "SCHED_FIFO", "SCHED_RR", "SCHED_BATCH", "SCHED_IDLE")
+                 if getattr(os, name, None) == policy), str(policy))
+
+
 def _pinned(cores: set[int]):
     def pin() -> None:
         die_with_parent()
@@ -150,6 +160,7 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
                 browser.close()
         link_pid = after.get("link_process_pid")
         link_nice = _nice(link_pid) if link_pid else None
+        link_scheduling = _scheduling(link_pid) if link_pid else None
     finally:
         stop.set()
         os.sched_setaffinity(0, own_affinity)
@@ -167,6 +178,7 @@ def measure_loaded(minutes: float = 10.0, *, link_thread: bool = False, burners:
         "link_process_pid": link_pid,
         # Its scheduling priority (link/process.py raises it where the system allows).
         "link_process_nice": link_nice,
+        "link_process_scheduling": link_scheduling,  # SCHED_RR where the system allows it
         "console_pid": console.pid,
         "polls": polls,
         "replies_not_in_time": lost,
@@ -255,9 +267,10 @@ def loaded_lines(rows: list[dict]) -> list[str]:
             f"{rows[0]['cores']['vehicle']}; on {rows[0]['cores']['console']} rovlink console, {rows[0]['burners']} "
             f"CPU-bound processes, {READS_PER_S:g} API reads a second and headless Chromium showing the page; "
             f"{rows[0]['minutes']:g} min after {WARM_UP_S:g} s of warm-up",
-            format_table(["the link runs in", "nice", "polls", "not answered in time", "%", "LINK LOST", "FAILSAFE",
-                          "up / degraded / lost %"], [
-                [r["link"], r.get("link_process_nice", "—") if r.get("link_process_pid") else "—",
+            format_table(["the link runs in", "priority", "polls", "not answered in time", "%", "LINK LOST",
+                          "FAILSAFE", "up / degraded / lost %"], [
+                [r["link"], (f"nice {r.get('link_process_nice')}, {r.get('link_process_scheduling')}"
+                             if r.get("link_process_pid") else "—"),
                  r["polls"], r["replies_not_in_time"], r["late_percent"], r["link_lost_alerts"],
                  r["failsafe_alerts"],
                  f"{r['state_percent']['up']} / {r['state_percent']['degraded']} / {r['state_percent']['lost']}"]

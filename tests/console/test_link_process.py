@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
+import sys
 import time
 
 import pytest
@@ -148,12 +150,21 @@ def test_the_console_killed_its_link_process_sends_stop_then_stops_polling(tmp_p
         assert wait_until_up(lambda: _up(procs) and procs.pose()["autopilot"], 120), procs.logs_text()
         link_pid = _link(procs)["link_process_pid"]
         # It asks for a priority above the machine's other work; root may have it.
-        from rovlink.link.process import LINK_NICE
+        from rovlink.link.process import LINK_NICE, LINK_RT_PRIORITY
 
         nice = _nice(link_pid)
         assert nice <= _nice(procs.procs["console"].pid)
         if os.geteuid() == 0:
             assert nice == LINK_NICE, nice
+        # And real-time round-robin where this machine allows it (asked of a process of our own).
+        probe = subprocess.run([sys.executable, "-c", "import os; os.sched_setscheduler(0, os.SCHED_RR, "
+                                "os.sched_param(1))"], capture_output=True)
+        if probe.returncode == 0:
+            assert os.sched_getscheduler(link_pid) == os.SCHED_RR
+            assert os.sched_getparam(link_pid).sched_priority == LINK_RT_PRIORITY
+        else:
+            assert os.sched_getscheduler(link_pid) == os.SCHED_OTHER
+            assert "no real-time priority for the link process" in (tmp_path / "console.log").read_text()
         procs.kill_console()
         # The link process outlives the console only to stop the vehicle.
         assert wait_until_up(lambda: not _alive(link_pid), 20), procs.logs_text()

@@ -301,3 +301,28 @@ def test_the_pilots_wish_is_taken_while_the_link_process_says_more_than_the_cons
         flooding.clear()
         link._tell_to_end()
         link._close_pipes()
+
+
+def test_a_link_process_refused_real_time_says_so_and_keeps_the_nice_it_got(monkeypatch, caplog):
+    """raise_priority where the system refuses real-time scheduling (a container without
+    CAP_SYS_NICE or real-time time): nice -10 if allowed, and one warning that says why."""
+    import os
+
+    from rovlink.link import process
+
+    calls = []
+
+    def refuse(pid, policy, param):
+        calls.append((pid, policy, param.sched_priority))
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "setpriority", lambda which, who, prio: calls.append(("nice", prio)))
+    monkeypatch.setattr(os, "getpriority", lambda which, who: process.LINK_NICE)
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with caplog.at_level("WARNING", logger="rovlink.link.process"):
+        got = process.raise_priority()
+    assert calls == [("nice", process.LINK_NICE), (0, os.SCHED_RR, process.LINK_RT_PRIORITY)]
+    assert got == f"nice {process.LINK_NICE}"
+    assert [r.getMessage() for r in caplog.records] == [
+        f"no real-time priority for the link process (Operation not permitted): it runs at nice {process.LINK_NICE}; "
+        "a busy machine may delay its polls"]
