@@ -442,7 +442,10 @@ def debt_mode(data: bytes) -> str:
     if h.mask_and_residual:
         return "mask+residual"
     if h.packets:
-        return "packets " + ",".join(map(str, codec.PACKET_CHOICES[(data[h.size] >> 6) - 1]))
+        packets = codec.packets_of_field(data[h.size] >> 6)
+        if packets == codec.ALONG:
+            return "packets along"
+        return "packets " + ",".join(map(str, packets))
     return "lossless" if h.reversible else "wavelet"
 
 

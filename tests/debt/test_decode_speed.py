@@ -240,7 +240,7 @@ def test_packets_in_one_pass_are_one_call_per_region(packets, forward):
     want = a.copy()
     none = np.zeros(4, dtype=np.int64)
     for c in range(3):
-        for (y0, x0), (bh, bw), _depth in (plan.splits if forward else reversed(plan.splits)):
+        for (y0, x0), (bh, bw), _depth, _kind in (plan.splits if forward else reversed(plan.splits)):
             region = np.ascontiguousarray(want[c, y0:y0 + bh, x0:x0 + bw])
             (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
             want[c, y0:y0 + bh, x0:x0 + bw] = region
