@@ -88,9 +88,10 @@ def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple
     leaf's orientation is its last detail step's (the band's own when every
     step took the low half).
 
-    A level -j in `packets` splits the detail bands of level j once more in
-    one direction only, along their edges (`along` below; HH bands are left
-    whole), as many times as -j appears.
+    An entry -(ALONG_STEP * orient + j) in `packets` splits the level-j
+    detail band of that orientation (1 LH, 2 HL) once more in one direction
+    only, along its edges (`along` below; HH bands are left whole), as many
+    times as it appears (`along_splits`).
 
     Splits: (origin, shape, depth, kind) of every region split once more,
     coarse ones (depth 0) before the regions they hold; kind 0 both ways, 1
@@ -122,7 +123,7 @@ def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple
 
     def walk(i, path, shape, origin, depth, orient):
         if depth == 0:
-            along(i, path, shape, origin, packets.count(-res[i]) if i else 0, orient)
+            along(i, path, shape, origin, packets.count(-(ALONG_STEP * orient + res[i])) if i else 0, orient)
             return
         splits.append((origin, shape, len(path), 0))
         bh, bw = shape
@@ -136,6 +137,22 @@ def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple
     for i, shape in enumerate(shapes):
         walk(i, (), shape, origins[i], packets.count(res[i]) if i else 0, band_orient(i))
     return tuple(bands), tuple(sorted(splits, key=lambda s: s[2]))
+
+
+ALONG_STEP = 16          # see packet_tree: -(ALONG_STEP * orient + level), a level below it
+
+
+def along_splits(lh: int, hl: int, levels: int) -> tuple:
+    """The `packets` of a layout whose LH bands are split `lh` times down
+    their columns and HL bands `hl` times along their rows, at every level
+    up to `levels`."""
+    return tuple(-(ALONG_STEP * orient + j) for j in range(1, levels + 1)
+                 for orient, depth in ((1, lh), (2, hl)) for _ in range(depth))
+
+
+def packet_level(entry: int) -> int:
+    """The level a `packets` entry splits (see packet_tree)."""
+    return entry if entry > 0 else -entry % ALONG_STEP
 
 
 def packet_bands(height: int, width: int, levels: int, packets=()) -> tuple:
@@ -375,7 +392,7 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     # (9/7 without an ROI only; see packet_tree).
     if levels is None:
         levels = levels_for(height, width)
-    packets = tuple(j for j in packets if 1 <= abs(j) <= levels)
+    packets = tuple(j for j in packets if 1 <= packet_level(j) <= levels)
     if packets and (reversible or roi is not None):
         raise ValueError("wavelet packets are for 9/7 streams without a region of interest")
     probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)
