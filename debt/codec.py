@@ -548,8 +548,14 @@ ALONG_MAJOR, ALONG_MINOR, ALONG_EVEN = 3, 1, 2
 # edges (the gain above, of the orientation that gathers more) is a texture
 # worth the packet streams' trial too, even where no 2-D split gathers
 # enough (TEXTURE_GAIN).  The 52 photograph variants of `rovlink bench
-# debt`: brick 2.85 (scaled down) and 2.35 (crop), every other at most 1.41
-# (rocket's crop); set between them.
+# debt`: brick 2.85 (scaled down) and 2.35 (crop), clock 1.82 and 1.71 (its
+# HL bands: blurred along the rows), every other at most 1.41 (rocket's
+# crop).  Set just under clock scaled down, where the trial paid too (the
+# 2-D split at 1000 B, +0.15 dB; nothing changed elsewhere).  A trial that
+# does not pay costs time only: the streams are told apart by their error.
+# The gain falls fast as the edges slant (synthetic upright seams: 2.4 at a
+# slope of 0.04, 1.6 at 0.1, 1.4 at 0.2): the splits follow the columns and
+# rows, not the edges' own direction.
 ALONG_TEXTURE = 1.8
 
 
