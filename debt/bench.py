@@ -442,7 +442,11 @@ def debt_mode(data: bytes) -> str:
     if h.mask_and_residual:
         return "mask+residual"
     if h.packets:
-        return "packets " + ",".join(map(str, codec.PACKET_CHOICES[(data[h.size] >> 6) - 1]))
+        field = data[h.size] >> 6
+        if field == 0:
+            lh, hl = data[h.size + 1] >> 4, data[h.size + 1] & 15
+            return f"along {lh},{hl}"
+        return "packets " + ",".join(map(str, codec.PACKET_CHOICES[field - 1]))
     return "lossless" if h.reversible else "wavelet"
 
 

@@ -12,8 +12,10 @@
 # TOP = 63 with REVERSIBLE = 1 and no ROI marks a two-level stream (`twolevel`:
 # pictures of exactly two colours), TOP = 62 a two-level mask followed by a
 # residual stream (pictures of mostly two colours), TOP = 61 a 9/7 stream with
-# wavelet packets (its own top plane in the byte after the header): plane
-# counts the wavelet never reaches.
+# wavelet packets (its own top plane in the byte after the header, with the
+# split it names; splits along the edges, named 0 there, say how many in
+# one byte more: `codec._packet_stream`): plane counts the wavelet never
+# reaches.
 
 from __future__ import annotations
 

@@ -289,12 +289,14 @@ def inverse97(a, levels, roi):
 @_jit
 def packets97(a, splits, forward):
     """Wavelet packets in place in Mallat arrays `a` (components, height,
-    width): each region of `splits` (rows y0, x0, height, width) one more
-    9/7 level (`forward97`; `inverse97` when not `forward`, the regions in
-    reverse order), the same operations in the same order as one call per
-    region on a contiguous copy, so the same values.  Lifted where it lies
-    (`_forward_region`, `_inverse_region`): one copy a region instead of
-    five, and the work arrays made once."""
+    width): each region of `splits` (rows y0, x0, height, width, and
+    optionally a kind: 0 or absent one more 9/7 level, 1 its column steps
+    alone (low rows above, high below), 2 its row steps alone (low columns
+    left, high right)) split once (`forward97`; `inverse97` when not
+    `forward`, the regions in reverse order), the same operations in the
+    same order as one call per region on a contiguous copy, so the same
+    values.  Lifted where it lies (`_forward_region`, `_inverse_region`):
+    one copy a region instead of five, and the work arrays made once."""
     n = splits.shape[0]
     side = 1
     for k in range(n):
@@ -307,10 +309,11 @@ def packets97(a, splits, forward):
         for k in range(n):
             i = k if forward else n - 1 - k
             y0, x0, bh, bw = splits[i, 0], splits[i, 1], splits[i, 2], splits[i, 3]
+            kind = splits[i, 4] if splits.shape[1] > 4 else 0
             if forward:
-                _forward_region(comp, y0, x0, bh, bw, rows, lo, hi)
+                _forward_region(comp, y0, x0, bh, bw, rows, lo, hi, kind != 2, kind != 1)
             else:
-                _inverse_region(comp, y0, x0, bh, bw, rows, lo, hi)
+                _inverse_region(comp, y0, x0, bh, bw, rows, lo, hi, kind != 2, kind != 1)
 
 
 @_jit_plain
@@ -325,14 +328,18 @@ def _split_row(src, w, wl, lo, hi):
 
 
 @_jit_plain
-def _forward_region(comp, y0, x0, h, w, rows, lo, hi):
+def _forward_region(comp, y0, x0, h, w, rows, lo, hi, down, along):
     # One analysis level (`forward97`, levels 1, no region) of the block
     # comp[y0:y0+h, x0:x0+w], in place: the column steps on the block itself
     # (the same segments, mirrored at its edges), each row's step read in
-    # the de-interleaved order into `rows`, copied back once.
+    # the de-interleaved order into `rows`, copied back once.  Without
+    # `down` no column steps (the rows stay in their order), without `along`
+    # no row steps: a split in one direction only.
     hl = (h + 1) // 2
     wl = (w + 1) // 2
-    if h > 1:
+    down = down and h > 1
+    along = along and w > 1
+    if down:
         y1 = y0 + h
         x1 = x0 + w
         _rows_step(comp, y0, y1, x0, x1, y0 + 1, _A)
@@ -342,7 +349,7 @@ def _forward_region(comp, y0, x0, h, w, rows, lo, hi):
         for r in range(h):
             src = comp[y0 + (2 * r if r < hl else 2 * (r - hl) + 1), x0:x1]
             dst = rows[r]
-            if w > 1:
+            if along:
                 _split_row(src, w, wl, lo, hi)
                 _forward_row(lo, hi, 0, w)
                 for i in range(wl):
@@ -350,36 +357,40 @@ def _forward_region(comp, y0, x0, h, w, rows, lo, hi):
                 for i in range(w - wl):
                     dst[wl + i] = hi[i]
             else:
-                dst[0] = src[0]
+                for i in range(w):
+                    dst[i] = src[i]
         for r in range(h):
             _copy_run(rows[r, :w], comp[y0 + r, x0:x1])
-    elif w > 1:
-        row = comp[y0, x0:x0 + w]
-        _split_row(row, w, wl, lo, hi)
-        _forward_row(lo, hi, 0, w)
-        for i in range(wl):
-            row[i] = lo[i]
-        for i in range(w - wl):
-            row[wl + i] = hi[i]
+    elif along:
+        for r in range(h):
+            row = comp[y0 + r, x0:x0 + w]
+            _split_row(row, w, wl, lo, hi)
+            _forward_row(lo, hi, 0, w)
+            for i in range(wl):
+                row[i] = lo[i]
+            for i in range(w - wl):
+                row[wl + i] = hi[i]
 
 
 @_jit_plain
-def _inverse_region(comp, y0, x0, h, w, rows, lo, hi):
+def _inverse_region(comp, y0, x0, h, w, rows, lo, hi, down, along):
     # `inverse97` (levels 1, no region) of the block comp[y0:y0+h, x0:x0+w],
     # in place: each row's inverse step written interleaved into the row of
     # `rows` the columns' interleaving puts it at (or back into its own row
-    # when the block has one row), copied back once, the column steps on
-    # the block itself.
+    # when there are no column steps), copied back once, the column steps on
+    # the block itself.  `down`, `along`: as `_forward_region`.
     hl = (h + 1) // 2
     wl = (w + 1) // 2
     nh = w - wl
     x1 = x0 + w
+    down = down and h > 1
+    along = along and w > 1
     for r in range(h):
         src = comp[y0 + r, x0:x1]
         dst = src
-        if h > 1:
+        if down:
             dst = rows[2 * r if r < hl else 2 * (r - hl) + 1, :w]
-        if w > 1:
+        if along:
             for i in range(wl):
                 lo[i] = src[i]
             for i in range(nh):
@@ -390,9 +401,10 @@ def _inverse_region(comp, y0, x0, h, w, rows, lo, hi):
                 dst[2 * i + 1] = hi[i]
             if wl > nh:
                 dst[2 * nh] = lo[nh]
-        elif h > 1:
-            dst[0] = src[0]
-    if h > 1:
+        elif down:
+            for i in range(w):
+                dst[i] = src[i]
+    if down:
         y1 = y0 + h
         for r in range(h):
             _copy_run(rows[r, :w], comp[y0 + r, x0:x1])

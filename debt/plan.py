@@ -88,18 +88,44 @@ def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple
     leaf's orientation is its last detail step's (the band's own when every
     step took the low half).
 
-    Splits: (origin, shape, depth) of every region split once more, coarse
-    ones (depth 0) before the regions they hold."""
+    An entry -(ALONG_STEP * orient + j) in `packets` splits the level-j
+    detail band of that orientation (1 LH, 2 HL) once more in one direction
+    only, along its edges (`along` below; HH bands are left whole), as many
+    times as it appears (`along_splits`).
+
+    Splits: (origin, shape, depth, kind) of every region split once more,
+    coarse ones (depth 0) before the regions they hold; kind 0 both ways, 1
+    down the columns only, 2 along the rows only (`kernels.packets97`)."""
     shapes = band_shapes(height, width, levels)
     res = band_levels(levels)
     origins = mallat_origins(height, width, levels)
     bands, splits = [], []
 
-    def walk(i, path, shape, origin, depth, orient):
-        if depth == 0:
+    def along(i, path, shape, origin, depth, orient):
+        # A detail band split `depth` times in one direction, along its
+        # edges (down the columns for LH, whose edges stand upright; along
+        # the rows for HL), each time its low half again: path steps 4 (the
+        # low half) and 5 (the high half), the low leaf first.
+        if depth == 0 or orient not in (1, 2):
             bands.append((i, path, shape, origin, res[i], orient))
             return
-        splits.append((origin, shape, len(path)))
+        kind = 1 if orient == 1 else 2
+        splits.append((origin, shape, len(path), kind))
+        bh, bw = shape
+        if kind == 1:
+            low, high = (-(-bh // 2), bw), (bh // 2, bw)
+            high_origin = (origin[0] + low[0], origin[1])
+        else:
+            low, high = (bh, -(-bw // 2)), (bh, bw // 2)
+            high_origin = (origin[0], origin[1] + low[1])
+        along(i, path + (4,), low, origin, depth - 1, orient)
+        bands.append((i, path + (5,), high, high_origin, res[i], orient))
+
+    def walk(i, path, shape, origin, depth, orient):
+        if depth == 0:
+            along(i, path, shape, origin, packets.count(-(ALONG_STEP * orient + res[i])) if i else 0, orient)
+            return
+        splits.append((origin, shape, len(path), 0))
         bh, bw = shape
         hl, wl = -(-bh // 2), -(-bw // 2)
         sub_origins = [(0, 0), (0, wl), (hl, 0), (hl, wl)]
@@ -111,6 +137,22 @@ def packet_tree(height: int, width: int, levels: int, packets=()) -> tuple[tuple
     for i, shape in enumerate(shapes):
         walk(i, (), shape, origins[i], packets.count(res[i]) if i else 0, band_orient(i))
     return tuple(bands), tuple(sorted(splits, key=lambda s: s[2]))
+
+
+ALONG_STEP = 16          # see packet_tree: -(ALONG_STEP * orient + level), a level below it
+
+
+def along_splits(lh: int, hl: int, levels: int) -> tuple:
+    """The `packets` of a layout whose LH bands are split `lh` times down
+    their columns and HL bands `hl` times along their rows, at every level
+    up to `levels`."""
+    return tuple(-(ALONG_STEP * orient + j) for j in range(1, levels + 1)
+                 for orient, depth in ((1, lh), (2, hl)) for _ in range(depth))
+
+
+def packet_level(entry: int) -> int:
+    """The level a `packets` entry splits (see packet_tree)."""
+    return entry if entry > 0 else -entry % ALONG_STEP
 
 
 def packet_bands(height: int, width: int, levels: int, packets=()) -> tuple:
@@ -127,7 +169,7 @@ def packet_group(level: int, orient: int, path: tuple) -> int:
     orientation.  (Measured on brick, crop and scaled down, 1000-8000 B, one
     split: grouping them by the split band's orientation, with the dyadic
     groups, or all four with the split band: within +-0.04 dB.)"""
-    if not any(path):
+    if not any(s & 3 for s in path):
         return context_group(level, orient)
     return PACKET_GROUP + orient - 1
 
@@ -170,13 +212,16 @@ def layout_for(height: int, width: int, levels: int, ncomp: int, packets=()) -> 
                 parent = index[(i - 3, path[:-1])] * ncomp + c
                 step = 0
         group = packet_group(level, orient, path)
-        if path and path[-1] >= 1:
+        step_o = ncomp
+        if any(s >= 4 for s in path):
+            first, step_o = n, 0                # split one way: no other orientation at its place
+        elif path and path[-1] >= 1:
             first = n - (path[-1] - 1)          # the other detail leaves of this split
         else:
             o = band_orient(i)
             first = index.get((i - (o - 1), path), n) if o else n
         binfo[b] = (off, h, w, k_root, (1 if c else 0) * 8 + group, orient, parent,
-                    first * ncomp + c, ncomp, step, b - c if c else -1)
+                    first * ncomp + c, step_o, step, b - c if c else -1)
         off += h * w
         if h and w:
             count[0] += h * w
@@ -347,7 +392,7 @@ def plan_for(height: int, width: int, ncomp: int, reversible: bool, roi, shift: 
     # (9/7 without an ROI only; see packet_tree).
     if levels is None:
         levels = levels_for(height, width)
-    packets = tuple(j for j in packets if 1 <= j <= levels)
+    packets = tuple(j for j in packets if 1 <= packet_level(j) <= levels)
     if packets and (reversible or roi is not None):
         raise ValueError("wavelet packets are for 9/7 streams without a region of interest")
     probe = Header(width, height, ncomp == 3, reversible, 0, roi, shift)

@@ -273,8 +273,10 @@ def packet_weight(level: int, orient: int, path: tuple) -> float:
     product of the vertical and horizontal 1-D norms."""
     v_high = orient in (2, 3)       # HL, HH: high-pass down the columns
     h_high = orient in (1, 3)       # LH, HH: high-pass along the rows
-    v_steps = tuple(s in (2, 3) for s in path)
-    h_steps = tuple(s in (1, 3) for s in path)
+    # Steps 4 and 5 (low, high half) split one way only: down the columns
+    # for LH, along the rows for HL (plan.packet_tree's `along`).
+    v_steps = tuple(s in (2, 3) if s < 4 else s == 5 for s in path if s < 4 or orient == 1)
+    h_steps = tuple(s in (1, 3) if s < 4 else s == 5 for s in path if s < 4 or orient == 2)
     leaf = _leaf_norm_1d(level, v_high, v_steps) * _leaf_norm_1d(level, h_high, h_steps)
     band = _leaf_norm_1d(level, v_high, ()) * _leaf_norm_1d(level, h_high, ())
     return leaf / band

@@ -6,7 +6,10 @@ the mask with its residual), with and without a region of interest,
 against digests made by the code before the decoder was sped up (issue
 23), made anew when the coder's contexts began from the photographs'
 statistics (issue 40: `coder.PRIOR_MODEL`; every 9/7 stream changed, the
-two-level one did not); and the rewritten kernels against step-by-step references kept here
+two-level one did not), and once more for the rippled texture at 4000 B
+when the encoder began to try splits along the edges (issue 40: it chooses
+them there, 26.98 -> 28.18 dB; the streams made before still decode bit
+for bit as they did); and the rewritten kernels against step-by-step references kept here
 (the inverse 9/7 lifting as it was, the colour conversion in numpy)."""
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ DIGESTS = {
     ('ripples', 500, True): ('e209ef0ca54c63de', '625480a48ed3fede', '4be33af31e4d6e38'),
     ('ripples', 2000, False): ('9903cf200abedcf4', '49426785453410b8', '81be31d3a2aabe31'),
     ('ripples', 2000, True): ('5a1696fc0dce9bd5', 'f3e22d429f091a07', 'fa474a7932744dfd'),
-    ('ripples', 4000, False): ('78b585bb7e7d511c', 'c8c43e3f8faf91ea', '997e45ec71f9f6a3'),
+    ('ripples', 4000, False): ('72cc606ab09befbd', 'bb0beb7db6baf7e7', '98443e3b2355ee11'),
     ('ripples', 4000, True): ('a37e1e3515bab54f', '64e68cd17edca77e', '3fe6d4dfa3d7a310'),
     ('ripples colour', 500, False): ('282b46ce292a5862', '377e9891a1b56b60', '25174c9fbdf9e0db'),
     ('ripples colour', 500, True): ('70d912ecabc91d1b', '3fd889abfe02f7a0', '745fccf316446078'),
@@ -240,7 +243,7 @@ def test_packets_in_one_pass_are_one_call_per_region(packets, forward):
     want = a.copy()
     none = np.zeros(4, dtype=np.int64)
     for c in range(3):
-        for (y0, x0), (bh, bw), _depth in (plan.splits if forward else reversed(plan.splits)):
+        for (y0, x0), (bh, bw), _depth, _kind in (plan.splits if forward else reversed(plan.splits)):
             region = np.ascontiguousarray(want[c, y0:y0 + bh, x0:x0 + bw])
             (kernels.forward97 if forward else kernels.inverse97)(region, 1, none)
             want[c, y0:y0 + bh, x0:x0 + bw] = region
