@@ -582,8 +582,7 @@ def header_bytes(data: bytes) -> int:
     """DEBT's header and side bytes: what it spends before the first coded coefficient."""
     from rovlink.debt import codec
 
-    h = codec.unpack_header(data)
-    return h.size + (1 if h.packets else 0)
+    return codec.split_bytes_end(data)
 
 
 def losses(quality: list[dict], images: dict) -> list[dict]:

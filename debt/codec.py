@@ -632,6 +632,15 @@ def along_depths_of(packets: tuple) -> tuple[int, int]:
     return packets.count(-(ALONG_STEP + 1)), packets.count(-(2 * ALONG_STEP + 1))
 
 
+def split_bytes_end(data: bytes) -> int:
+    """Where a stream's header and the bytes naming its wavelet packet split end: the
+    packet byte, and for a split along the edges (field 0) the byte after it."""
+    h = unpack_header(data)
+    if not h.packets or len(data) <= h.size:
+        return h.size
+    return h.size + (2 if data[h.size] >> 6 == 0 else 1)
+
+
 def packets_of(field: int, extra: int | None) -> tuple:
     """The split a packet stream names by its field and, for field 0, the
     byte after it (`_packet_stream`)."""

@@ -419,12 +419,13 @@ def test_corrupted_payload_decodes_to_a_picture(payload, seed):
     # The payload has no redundancy to check (every prefix must decode), so a
     # corrupted payload gives a wrong picture of the right shape, never a
     # crash; the link's frame CRC is what keeps corrupt bytes out.  (A noisy
-    # picture may be coded with wavelet packets: the byte naming the split is
-    # kept, a damaged one is a clear error, see test_packets.)
+    # picture may be coded with wavelet packets: the bytes naming the split are
+    # kept, damaged ones are a clear error, see test_packets.)
+    from rovlink.debt.codec import split_bytes_end
+
     img = random_image(np.random.default_rng(seed), 40, 50, bool(seed % 2))
     data = debt.encode(img, 400)
-    hsize = unpack_header(data).size + (1 if unpack_header(data).packets else 0)
-    out = debt.decode(data[:hsize] + payload)
+    out = debt.decode(data[:split_bytes_end(data)] + payload)
     assert out.shape == img.shape and out.dtype == np.uint8
 
 
