@@ -519,6 +519,11 @@ class Master:
             value, since, needs_gap = request
             if needs_gap:
                 continue  # 0 until a reply to a poll with 0 comes
+            if self._stop is not None and self._ack is not None:
+                # §2 (decided): the polls carry the STOP, not the request; its 3 s begin
+                # with the first VELOCITY after it (a disarm asked during a STOP is sent).
+                request[1] = now
+                continue
             if self._reference_unset and not (what == "arm" and value == Arm.DISARM):
                 request[1] = now  # held back: its 3 s start when it goes out
                 continue

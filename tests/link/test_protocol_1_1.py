@@ -624,6 +624,28 @@ def test_a_request_right_after_a_stop_waits_for_the_rovs_new_reference():
     assert not of(master.take_events(), RequestExpired)
 
 
+def test_a_disarm_asked_while_a_stop_is_sent_waits_for_it_and_never_lapses_unsent():
+    """§2 (decided): a STOP that the autopilot takes 5 s to confirm (its replies show the
+    HOLD but not yet the braking mode); the pilot's DISARM asked just after it goes with the
+    first VELOCITY after the confirmation, not lapsed behind the STOP's polls."""
+    master = started_master()
+    master.send_order(Stop())
+    master.request_arm(False, 3.1)
+    t = 3.1
+    while t < 8.0:
+        assert isinstance(polls_of(master, t).order, Stop)
+        assert not of(answer(master, t + 0.05, hold=True, autopilot=True, armed=True, mode=Mode.MANUAL),
+                      StopConfirmed)
+        t += 0.25
+    polls_of(master, t)
+    assert of(answer(master, t + 0.05, hold=True, autopilot=True, armed=True, mode=Mode.POS_HOLD), StopConfirmed)
+    poll = polls_of(master, t + 0.1)
+    assert isinstance(poll.order, Velocity) and poll.order.arm == Arm.DISARM
+    assert not of(master.take_events(), RequestExpired)
+    answer(master, t + 0.15, hold=True, autopilot=True, armed=False, mode=Mode.POS_HOLD)
+    assert polls_of(master, t + 0.2).order.arm == Arm.NONE  # done: the vehicle disarmed
+
+
 def test_a_request_in_the_first_poll_after_a_failsafe_goes_again_after_a_0():
     """§2 (decided): the ROV's failsafe resets its ARM/MODE reference, so the first
     VELOCITY it takes after one only sets it.  The ARM that rode in it (the console
