@@ -57,8 +57,6 @@ def fate_text(page, oid: int) -> str:
     return page.text_content(f'#objects li[data-id="{oid}"] .object-frame-fate') or ""
 
 
-@pytest.mark.browser
-@needs_chromium
 def at_the_standoff(session, target, oid: int, *, within_m: float, beyond_m: float) -> None:
     """The vehicle where a go-to to object `oid` put it: within `within_m` of the target,
     at the stand-off from the object as last told (up to `beyond_m` past its half
@@ -72,6 +70,8 @@ def at_the_standoff(session, target, oid: int, *, within_m: float, beyond_m: flo
     assert abs((there.yaw_deg - bearing + 180) % 360 - 180) < 15, (there.yaw_deg, bearing)
 
 
+@pytest.mark.browser
+@needs_chromium
 def test_a_pilot_goes_to_an_object_and_frames_it(open_page, live):
     op, scene, desk = live.operator, live.scene, live.app.state.desk
     page = open_page(scene=True)  # (its own viewer of the scene orders)
