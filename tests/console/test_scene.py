@@ -486,8 +486,11 @@ def test_browser_renders_the_scene_and_a_mouse_drag_sets_the_roi(live, tmp_path)
             # vehicle and the camera follows it: a vehicle still settling from the
             # tests before moves the picture under the mouse).
             def corners():
-                return (project(camera, screen_point(scene, 30.0, 25.0), box),
-                        project(camera, screen_point(scene, 150.0, 110.0), box))
+                # The canvas measured anew each time: the panel opened just before may still
+                # be moving it (a loaded run's drag landed 24 px low, measured on a stale box).
+                now = canvas.bounding_box()
+                return (project(camera, screen_point(scene, 30.0, 25.0), now),
+                        project(camera, screen_point(scene, 150.0, 110.0), now))
 
             def still():
                 before = corners()
