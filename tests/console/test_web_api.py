@@ -429,8 +429,13 @@ def test_a_taken_over_page_is_told_at_once(client, operator):
         client.post("/api/control/take", headers={HEADER: pilot_ws.receive_json()["client_id"]})
         assert next_of(pilot_ws, "control")["control"]["you"] is True
         take(client, "co-pilot")
-        told = next_of(pilot_ws, "control")["control"]
-        assert told["you"] is False and told["holder"] == "co-pilot"
+        # Within the next few control messages: one made before the take (a centring
+        # told after the page's own take) may come first, never more than a few.
+        for _ in range(5):
+            told = next_of(pilot_ws, "control")["control"]
+            if told["you"] is not True:
+                break
+        assert told["you"] is False and told["holder"] == "co-pilot", told
 
 
 # ----------------------------------------------------------------------
