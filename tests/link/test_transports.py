@@ -56,13 +56,19 @@ async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None):
     return got, master, slave
 
 
+async def udp_pair():
+    """Two started UDP endpoints on loopback, each the other's peer: (master's, ROV's)."""
+    pm, ps = free_udp_port(), free_udp_port()
+    m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
+    s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
+    await m.start()
+    await s.start()
+    return m, s
+
+
 def test_udp_loopback_master_and_slave():
     async def main():
-        pm, ps = free_udp_port(), free_udp_port()
-        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
-        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
-        await m.start()
-        await s.start()
+        m, s = await udp_pair()
         try:
             return await drive(m, s, 1.5, order=ImageSettings(budget_bytes=300))
         finally:
@@ -83,11 +89,7 @@ def test_over_a_fast_link_the_console_polls_no_sooner_than_its_floor_and_a_lost_
     from rovlink.link.radio.events import PollSent, ReplyLost
 
     async def main():
-        pm, ps = free_udp_port(), free_udp_port()
-        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
-        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
-        await m.start()
-        await s.start()
+        m, s = await udp_pair()
         master = Master(rng=random.Random(0), bitrate_bps=1e6, delay_s=0.0, margin_s=0.2)
         slave = Slave(image_source=lambda img, settings: b"s" * 300)
         slave.update_status(HOLDING)
