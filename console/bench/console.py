@@ -229,11 +229,13 @@ def run(args) -> int:
     if not args.no_loaded and os.path.exists(CHROMIUM):
         from .loaded import loaded_lines, loaded_target, measure_loaded
 
-        rows = [measure_loaded(args.loaded_minutes, burners=args.loaded_burners)]
+        rows = [measure_loaded(args.loaded_minutes, burners=args.loaded_burners,
+                               channel_nice=args.loaded_channel_nice)]
         # The first row printed at once: the comparison takes as long again.
         print(json.dumps({"loaded_row": rows[0]}), file=sys.stderr, flush=True)
         if args.loaded_compare:
-            rows.append(measure_loaded(args.loaded_minutes, link_thread=True, burners=args.loaded_burners))
+            rows.append(measure_loaded(args.loaded_minutes, link_thread=True, burners=args.loaded_burners,
+                                       channel_nice=args.loaded_channel_nice))
         doc["loaded"] = rows
         doc["targets"]["link_in_time_on_a_busy_machine"] = loaded_target(rows[0])
         lines += ["", *loaded_lines(rows)]
@@ -313,6 +315,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--loaded-burners", type=int, default=2, metavar="N",
                    help="CPU-bound processes beside the console in the busy machine's row (2; the target is judged "
                         "with 2 or more)")
+    p.add_argument("--loaded-channel-nice", type=int, default=0, metavar="N",
+                   help="nice of the channel emulator in the busy machine's row (0; an outside run set it above "
+                        "the vehicle side's, -5)")
     p.add_argument("--loaded-compare", action="store_true",
                    help="the busy machine's row also with the link in a thread of the console (as before issue 33)")
     p.add_argument("--no-load", action="store_true",
