@@ -31,19 +31,19 @@ def _ground_station(port: int):
 
 
 def _ack(gcs, command: int, timeout_s: float = 15.0):
-    """The final COMMAND_ACK of `command` (after IN_PROGRESS), and every result seen
-    with the STATUSTEXTs that came meanwhile (said when the final one does not come)."""
-    results = []
+    """The final COMMAND_ACK of `command` (after IN_PROGRESS), every result seen, and
+    the STATUSTEXTs that came meanwhile (for a failure's message)."""
+    results, texts = [], []
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         m = gcs.recv_match(type=["COMMAND_ACK", "STATUSTEXT"], blocking=True, timeout=1)
         if m is not None and m.get_type() == "STATUSTEXT":
-            results.append(m.text)
+            texts.append(m.text)
         elif m is not None and m.command == command:
             results.append(m.result)
             if m.result != M.MAV_RESULT_IN_PROGRESS:
-                return m.result, results
-    return None, results
+                return m.result, results, texts
+    return None, results, texts
 
 
 def _orders(web: str) -> list:
@@ -104,14 +104,14 @@ def test_the_ground_station_sees_an_ardusub_submarine(demo):
 def test_arm_mode_and_drive_from_the_ground_station(demo):
     gcs, web = demo
     gcs.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-    result, seen = _ack(gcs, M.MAV_CMD_COMPONENT_ARM_DISARM)
-    assert result == M.MAV_RESULT_ACCEPTED and seen[0] == M.MAV_RESULT_IN_PROGRESS, (seen, _orders(web))
+    result, seen, texts = _ack(gcs, M.MAV_CMD_COMPONENT_ARM_DISARM)
+    assert result == M.MAV_RESULT_ACCEPTED and seen[0] == M.MAV_RESULT_IN_PROGRESS, (seen, texts, _orders(web))
     assert _heartbeat(gcs, lambda hb: hb.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
     alt_hold = {v: k for k, v in mavutil.mode_mapping_sub.items()}["ALT_HOLD"]
     gcs.mav.command_long_send(1, 1, M.MAV_CMD_DO_SET_MODE, 0, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, alt_hold,
                               0, 0, 0, 0, 0)
-    result, seen = _ack(gcs, M.MAV_CMD_DO_SET_MODE)
-    assert result == M.MAV_RESULT_ACCEPTED, (seen, _orders(web))
+    result, seen, texts = _ack(gcs, M.MAV_CMD_DO_SET_MODE)
+    assert result == M.MAV_RESULT_ACCEPTED, (seen, texts, _orders(web))
     assert _heartbeat(gcs, lambda hb: hb.custom_mode == alt_hold)
     # The console says so too: one truth.
     state = json.load(urllib.request.urlopen(f"{web}/api/state", timeout=10))
