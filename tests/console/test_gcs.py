@@ -150,6 +150,10 @@ def test_mavproxy_arms_and_changes_mode():
     threading.Thread(target=lambda: lines.extend(mavproxy.stdout), daemon=True).start()
     try:
         assert wait_for(lambda: any("online system 1" in line for line in lines), 240), "".join(lines)
+        # The gateway's HEARTBEATs come before the link to the ROV is up; a pilot waits for
+        # it (MAVProxy shows "link to ROV lost" until then; a loaded run's ARM went first
+        # and was, rightly, TEMPORARILY_REJECTED).
+        assert wait_for(lambda: _link_state(f"http://127.0.0.1:{web}") == "up", 120), "".join(lines)
         mavproxy.stdin.write("arm throttle\n")
         mavproxy.stdin.flush()
         assert wait_for(lambda: any("ARMED" in line for line in lines), 20), "".join(lines)
@@ -163,6 +167,13 @@ def test_mavproxy_arms_and_changes_mode():
         demo.terminate()
         mavproxy.wait(20)
         demo.wait(30)
+
+
+def _link_state(web: str) -> str | None:
+    try:
+        return json.load(urllib.request.urlopen(f"{web}/api/link", timeout=5))["state"]
+    except OSError:
+        return None
 
 
 def _tmp_dir():
