@@ -56,9 +56,10 @@ async def drive(master_ep, slave_ep, seconds, *, stream=b"s" * 300, order=None):
     return got, master, slave
 
 
-async def udp_pair():
-    """Two started UDP endpoints on loopback, each the other's peer: (master's, ROV's)."""
-    pm, ps = free_udp_port(), free_udp_port()
+async def udp_pair(pm: int | None = None, ps: int | None = None):
+    """Two started UDP endpoints on loopback, each the other's peer: (master's, ROV's),
+    on the ports given (free ones otherwise)."""
+    pm, ps = pm or free_udp_port(), ps or free_udp_port()
     m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
     s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
     await m.start()
@@ -126,11 +127,8 @@ def test_udp_takes_datagrams_only_from_its_peer_so_a_second_sender_cannot_fake_a
     """Issue 11: a second sender's polls flipped ACK so that STOP showed acknowledged and never ran."""
 
     async def main():
-        pm, ps = free_udp_port(), free_udp_port()
-        m = open_transport(f"udp://127.0.0.1:{pm}?peer=127.0.0.1:{ps}")
-        s = open_transport(f"udp://127.0.0.1:{ps}?peer=127.0.0.1:{pm}")
-        await m.start()
-        await s.start()
+        ps = free_udp_port()  # the ROV's port: the intruder sends to it
+        m, s = await udp_pair(ps=ps)
         intruder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         intruder.bind(("127.0.0.1", 0))
         stop_flag = asyncio.Event()
