@@ -52,6 +52,7 @@ from rovlink.rov.vehicle import BlueRovParams
 
 from .session.base import OrderError
 from .session.contract import VehicleSession
+from .session.fates import Fate
 
 NEUTRAL = (0.0, 0.0, 0.0, 0.0)
 SCENE_KEY = re.compile(r"[A-Za-z0-9_-]{16,64}")
@@ -496,10 +497,37 @@ class ControlDesk:
         roi = tuple(plan["roi"])
         if plan["follow"]:
             order_id = self._follow(FollowRoi(roi=roi, keep=True, drawn_on=plan["drawn_on"]), caller)
+            self.operator.when_settled(order_id, lambda fate, reason: self._frame_unfollowed(order_id, roi, caller,
+                                                                                         fate, reason))
         else:
             order_id = self._image(ChangeImage(roi=roi), caller)
         self.operator.note(f"Frame it: {plan['text']}; ROI {roi}, order #{order_id}")
         return {**plan, "id": order_id, "kind": "IMAGE"}
+
+    def _frame_unfollowed(self, follow_id: int, roi: tuple, caller: Caller, fate: Fate, reason: str) -> None:
+        """A Frame it's FOLLOW the ROV rejected: it does not follow (docs/PROTOCOL.md §10, a ROV
+        without a tracker).  Its ROI still frames the object: it goes alone, as an IMAGE order
+        from the same caller (on a thread of its own: this runs where the link settles
+        orders), and later Frame its send the ROI alone."""
+        if fate is not Fate.REJECTED:
+            return
+        self.operator.follow_rejected(reason)
+        threading.Thread(target=self._frame_roi_alone, args=(follow_id, roi, caller, reason), daemon=True,
+                         name="frame-it").start()
+
+    def _frame_roi_alone(self, follow_id: int, roi: tuple, caller: Caller, reason: str) -> None:
+        why = f"Frame it: the ROV does not follow (FOLLOW rejected: {reason})"
+        asked = self.operator.requested_settings
+        if asked.roi is None or tuple(asked.roi) != roi or not getattr(asked, "follow", False):
+            self.operator.note(f"{why}; the ROI alone was not sent: other image settings were asked since", "warn")
+            return
+        try:
+            order_id = self.submit(ChangeImage(roi=roi), caller)
+        except (OrderError, NotHolder, UnknownClient) as exc:
+            self.operator.note(f"{why}; the ROI alone was not sent: {exc}", "warn")
+            return
+        self.operator.order_followed_by(follow_id, order_id)
+        self.operator.note(f"{why}; the ROI {roi} alone on the next picture, order #{order_id}")
 
     def _next_image(self, order: NextImage, caller: Caller) -> None:
         self.operator.next_image()

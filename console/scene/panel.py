@@ -533,9 +533,14 @@ class ControlPanel:
             return
         self._show_object(next((o for o in w["objects"] if o["id"] == self.selected_object), None))
         if self._frame_order is not None:
-            order = next((o for o in self.operator.orders_state() if o["id"] == self._frame_order), None)
+            orders = {o["id"]: o for o in self.operator.orders_state()}
+            order = orders.get(self._frame_order)
             if order is not None:
-                self.object_fate_md.content = f"{self._frame_text} · order #{order['id']} {order['text']}"
+                text = f"{self._frame_text} · order #{order['id']} {order['text']}"
+                if order.get("then"):  # a FOLLOW the ROV rejected: its ROI sent alone
+                    then = orders.get(order["then"])
+                    text += f"; the ROI alone: order #{order['then']} {then['text'] if then else 'queued'}"
+                self.object_fate_md.content = text
 
     # ------------------------------------------------------------------
     # Link health

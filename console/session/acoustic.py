@@ -270,6 +270,7 @@ class AcousticSession(SessionBase):
                 self.recorder.write({"k": "synced", "t": round(t, 4), "restarted": e.restarted,
                                      "failsafe_s": e.failsafe_s, "failsafe_action": self.failsafe_action})
                 if e.restarted:
+                    self.follow_refused = None
                     self.note("ROV restarted (new BOOT): the fate of an order in flight is unknown", "alert")
                 else:
                     self.note(f"link synchronised (the ROV {'surfaces' if self.failsafe_action == 'surface' else 'holds'}"

@@ -213,6 +213,9 @@ class SessionBase:
     # -- why there is no picture yet -------------------------------------------
 
     _first_report = "report"  # what the ROV's first word is called on this link
+    # Why the ROV rejected a FOLLOW that "Frame it" sent (it has no tracker): later ones frame
+    # with the ROI alone, until the ROV restarts (it may come back with one).
+    follow_refused: str | None = None
 
     def picture_wait(self) -> str | None:
         """Why there is no picture yet, in the pilot's words; None once there is one."""
@@ -365,6 +368,22 @@ class SessionBase:
             return None
         return self.world.approach(object_id, fix.pose.x_m, fix.pose.y_m, fix.pose.z_m)
 
+    def when_settled(self, order_id: int, then) -> None:
+        """`then(fate, reason)` once order `order_id` is no longer pending (OrderBook.when_settled)."""
+        self.orders.when_settled(order_id, then)
+
+    def follow_rejected(self, reason: str) -> None:
+        """The ROV rejected a FOLLOW "Frame it" sent: it does not follow (§10). Said once;
+        later Frame its send the ROI alone until the ROV restarts."""
+        if not self.follow_refused:
+            self.note(f"the ROV does not follow (FOLLOW rejected: {reason}): Frame it sends the ROI alone", "warn")
+        self.follow_refused = reason or "rejected"
+
+    def order_followed_by(self, order_id: int, then_id: int) -> None:
+        """Order `order_id` was followed by order `then_id` that carries on its purpose (a
+        rejected FOLLOW's ROI, sent alone): the page shows the second's fate beside the first."""
+        self.orders.update(order_id, then=then_id)
+
     def object_frame(self, object_id: int) -> dict:
         """How "Frame it" frames object `object_id` in the next picture (console/control.py
         FrameObject): the ROI where it lies in the picture taken from where the ROV is now,
@@ -388,6 +407,9 @@ class SessionBase:
                 "text": words}
         if not caps.follow:
             plan["text"] += ": the ROI on the next picture (this link carries no FOLLOW)"
+            return plan
+        if self.follow_refused:
+            plan["text"] += f": the ROI on the next picture (the ROV rejected FOLLOW: {self.follow_refused})"
             return plan
         shown = self.image_state()
         capture = (shown.get("capture") or {}).get("pose")

@@ -50,6 +50,7 @@ class OrderBook:
         self._early: dict[int, list[tuple]] = {}
         self._requests: dict[str, int] = {}  # "arm"/"mode" -> our id of the request awaiting its effect
         self._image_settings: dict[int, Any] = {}  # IMAGE orders -> the settings they carry
+        self._when_settled: dict[int, Callable[[Fate, str], None]] = {}  # order id -> told its first fate past pending
 
     # -- new orders -------------------------------------------------------
 
@@ -65,6 +66,7 @@ class OrderBook:
             if len(self._orders) > ORDERS_KEPT:
                 for old in sorted(self._orders)[:-ORDERS_KEPT]:
                     del self._orders[old]
+                    self._when_settled.pop(old, None)
             if len(self._by_master_id) > 2 * ORDERS_KEPT:
                 for old in sorted(self._by_master_id)[:-ORDERS_KEPT]:
                     del self._by_master_id[old]
@@ -152,6 +154,20 @@ class OrderBook:
                 return settings
         return None
 
+    def when_settled(self, order_id: int, then: Callable[[Fate, str], None]) -> None:
+        """`then(fate, reason)` once order `order_id` is no longer pending (at once if it is
+        not), on the thread that settles it: a `then` that gives orders hands them to a thread
+        of its own."""
+        with self._lock:
+            info = self._orders.get(order_id)
+            if info is None:
+                return
+            fate = Fate(info["state"])
+            if fate.pending:
+                self._when_settled[order_id] = then
+                return
+        then(fate, info["reason"])
+
     def set_state(self, order_id: int, fate: Fate, t: float, reason: str = "") -> dict | None:
         assert isinstance(fate, Fate), fate
         with self._lock:
@@ -162,11 +178,14 @@ class OrderBook:
             info["t_" + fate.value] = t
             info["version"] = next(_VERSIONS)
             info = dict(info)
+            then = None if fate.pending else self._when_settled.pop(order_id, None)
         self._record({"k": "order_state", "t": round(t, 4), "id": order_id, "kind": info["kind"],
                       "state": fate.value, "reason": reason})
         self._publish("order", info)
         if fate.alert:
             self._note(f"{info['kind']} order {order_id} {words(fate, reason)}", "alert")
+        if then is not None:
+            then(fate, reason)
         return info
 
     def fate(self, order_id: int | None) -> Fate | None:

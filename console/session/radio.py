@@ -314,6 +314,7 @@ class Operator(SessionBase):
                 self.note("ROV restarted (new BOOT): link synchronised again" if restarted else "link synchronised",
                           "alert" if restarted else "info")
                 if restarted:
+                    self.follow_refused = None
                     self._resend_image_settings()
             elif isinstance(event, RequestExpired):
                 orders.request_unrepeated(event.what, t, "the link repeated it for its 3 s")

@@ -216,7 +216,9 @@ class VelocityWish(BaseModel):
 
 
 class OrderInfo(BaseModel):
-    """An order's progress; its kind-specific details ride along as extra fields."""
+    """An order's progress; its kind-specific details ride along as extra fields (and `then`:
+    the order that carries its purpose on after it ended, a Frame it's FOLLOW the ROV
+    rejected followed by its ROI sent alone)."""
 
     model_config = ConfigDict(extra="allow")
 

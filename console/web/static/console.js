@@ -676,7 +676,10 @@ function renderOrder(o, quiet) {
   page.orders[o.id] = o;
   if (page.roiSent && page.roiSent.id === o.id && before !== o.state) renderRoiStatus();
   if (page.follow && page.follow.id === o.id && before !== o.state) renderTrack(lastImageState);
-  for (const [id, f] of Object.entries(page.frames)) if (f.orderId === o.id) renderFrameFate(id);
+  for (const [id, f] of Object.entries(page.frames)) {
+    const first = f.orderId === null ? null : page.orders[f.orderId];
+    if (f.orderId === o.id || (first && first.then === o.id)) renderFrameFate(id);
+  }
   const bad = o.outcome === "bad" && o.state !== "unknown";  // unknown: in the log, not a pop-up
   if (bad && before !== o.state && !quiet) showError(`${o.kind} order #${o.id} ${o.text}`);
   if (!quiet) {
@@ -761,12 +764,17 @@ function renderFrameFate(id, el) {
   el = el || document.querySelector(`#objects li[data-id="${id}"] .object-frame-fate`);
   const f = page.frames[id];
   if (!el || !f) return;
-  const o = f.orderId === null ? null : page.orders[f.orderId];
-  const fate = o ? ` · order #${o.id} ${o.text}` : "";
+  const first = f.orderId === null ? null : page.orders[f.orderId];
+  // A FOLLOW the ROV rejected (it does not follow) is followed by its ROI sent alone: that
+  // order's fate is the frame's.
+  const then = first && first.then ? page.orders[first.then] : null;
+  const o = then || first;
+  let fate = first ? ` · order #${first.id} ${first.text}` : "";
+  if (first && first.then) fate += `; the ROI alone: order #${first.then} ${then ? then.text : "queued"}`;
   el.textContent = f.text + fate;
   el.className = `fate object-frame-fate ${o ? fateClass(o) : f.outcome}`;
   el.dataset.outcome = o ? o.outcome : f.outcome;
-  el.dataset.order = f.orderId === null ? "" : f.orderId;
+  el.dataset.order = o ? o.id : (f.orderId === null ? "" : f.orderId);
 }
 
 async function approachObject(id) {
