@@ -322,6 +322,8 @@ class ConsoleScene:
         if floor_z != self.floor_z:
             if floor_z is None:
                 self.floor_node.visible = False
+                for _floor, node in self._mosaic.values():  # with it, at once: nothing laid on no floor
+                    node.visible = False
             else:
                 x, y, _ = self.floor_node.position
                 self.floor_node.position = (x, y, floor_z)

@@ -190,9 +190,14 @@ def test_with_no_rangefinder_the_page_and_the_scene_say_seabed_depth_unknown_and
         page.wait_for_function("document.getElementById('seabed-text').textContent === "
                                "'seabed depth unknown: the ROV reports no altitude (no rangefinder)'", timeout=30000)
         assert "stale" in page.get_attribute("#seabed-text", "class")
-        assert wait_for(lambda: scene.floor_z is None and not scene.floor_node.visible, 10), "the floor is drawn"
-        assert all(not node.visible for node in scene._object_nodes.values())
-        assert all(not node.visible for _floor, node in scene._mosaic.values())
+        # (The scene's loop hides the floor, then lays its objects again, then the pictures:
+        # each is waited for, not caught between two steps.)
+        def drawn() -> dict:
+            return {"floor": scene.floor_z is not None or scene.floor_node.visible,
+                    "objects": [oid for oid, node in scene._object_nodes.items() if node.visible],
+                    "pictures": [n for n, (_floor, node) in scene._mosaic.items() if node.visible]}
+
+        assert wait_for(lambda: not any(drawn().values()), 10), drawn()
         assert any("seabed depth unknown: the ROV reports no altitude" in e["text"] for e in op.log_entries(50))
         viewer = next(iter(scene.panels.values()), None)
         if viewer is not None:  # the page's embedded scene, when its viewer is connected
