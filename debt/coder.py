@@ -50,9 +50,20 @@ from .rangecoder import _code, _save, new_model, prior_model
 # times 8 plus resolution level (0 = low band, j = level-j details), plus 16
 # for sets and coefficients inside the region of interest.
 NCLS = 32
-CTX_SIG = 0                      # + cls * 20 + neighbourhood context (0..9), + 10 beside a significant first component
-CTX_SET = CTX_SIG + NCLS * 20    # + cls * 128 + min(k, 7) * 16 + set context (0..7) + 8 beside a significant first component
-CTX_SIGN = CTX_SET + NCLS * 128   # + cls * 7 + sign context (0..4; 5, 6 from the first component)
+# Where a decision comes from (its "source"): a set or coefficient retested
+# from its list (SRC_LIST), or a quadrant of a set just found significant,
+# before any of its siblings was (SRC_SPLIT) or after one was (SRC_SPLIT_SIG).
+SRC_LIST = 0
+SRC_SPLIT = 1
+SRC_SPLIT_SIG = 2
+NSRC = 3
+# Significance: + (cls * NSRC + source) * 20 + neighbourhood context (0..9),
+# + 10 beside a significant first component.  Sets: + (cls * NSRC + source) *
+# 128 + min(k, 7) * 16 + set context (0..7), + 8 beside a significant first
+# component.
+CTX_SIG = 0
+CTX_SET = CTX_SIG + NCLS * NSRC * 20
+CTX_SIGN = CTX_SET + NCLS * NSRC * 128   # + cls * 7 + sign context (0..4; 5, 6 from the first component)
 CTX_REF = CTX_SIGN + NCLS * 7    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
 # A decoder stopped inside a pass forgets the unfinished group of new
@@ -94,10 +105,18 @@ SIG_GROUP = 4
 # of 0.70/1.45/2.01/3.09 at 0/1/2/4 (test_a_flat_colour_picture_takes_
 # brightness_first asks for < 2).  One context per band class and size
 # instead of the pooled table: +0.005 dB more, for 900 entries.
-PRIOR_SIG = ((23, 26, 24, 24, 22, 22, 22, 19, 17, 23, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma
-             (26, 29, 27, 28, 26, 26, 25, 23, 17, 27, 17, 23, 20, 21, 20, 19, 19, 17, 14, 19))    # chroma
-PRIOR_SET = ((26, 26, 19, 15, 15, 10, 21, 20, 16, 16, 16, 16, 16, 16, 16, 16),
-             (30, 29, 25, 20, 23, 20, 26, 25, 23, 22, 15, 14, 13, 10, 17, 16))
+PRIOR_SIG = (((29, 26, 23, 24, 22, 21, 22, 19, 18, 27, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
+              (21, 20, 19, 16, 16, 13, 15, 13, 16, 20, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split
+              (16, 29, 27, 27, 24, 26, 25, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split, a sibling significant
+             ((30, 29, 27, 28, 27, 25, 26, 23, 18, 30, 24, 24, 21, 22, 21, 19, 20, 17, 16, 25),    # chroma, from a list
+              (26, 28, 26, 24, 23, 19, 22, 16, 16, 25, 16, 17, 15, 15, 15, 11, 13, 11, 16, 16),    # chroma, split
+              (16, 31, 29, 29, 26, 29, 27, 26, 14, 16, 16, 27, 23, 24, 21, 22, 21, 19, 11, 16)))    # chroma, split, a sibling significant
+PRIOR_SET = (((29, 26, 20, 15, 12, 7, 22, 19, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
+              (25, 20, 14, 14, 10, 8, 20, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split
+              (30, 28, 20, 22, 19, 12, 25, 23, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split, a sibling significant
+             ((31, 30, 29, 16, 22, 22, 28, 27, 27, 22, 16, 16, 11, 7, 17, 15),    # chroma, from a list
+              (30, 27, 16, 20, 21, 16, 27, 22, 20, 17, 13, 12, 9, 7, 16, 13),    # chroma, split
+              (31, 31, 26, 25, 26, 20, 28, 27, 26, 24, 15, 18, 16, 10, 21, 19)))    # chroma, split, a sibling significant
 PRIOR_SIGN = (16, 15, 16, 15, 15, 24, 26)
 PRIOR_REF = (19, 24)
 PRIOR_SEEN = 1
@@ -107,8 +126,10 @@ def _prior_table() -> np.ndarray:
     zero = np.full(NCTX, 16, dtype=np.int64)
     for cls in range(NCLS):
         chroma = (cls % 16) // 8
-        zero[CTX_SIG + cls * 20:CTX_SIG + (cls + 1) * 20] = PRIOR_SIG[chroma]
-        zero[CTX_SET + cls * 128:CTX_SET + (cls + 1) * 128] = np.tile(PRIOR_SET[chroma], 8)
+        for src in range(NSRC):
+            i = cls * NSRC + src
+            zero[CTX_SIG + i * 20:CTX_SIG + (i + 1) * 20] = PRIOR_SIG[chroma][src]
+            zero[CTX_SET + i * 128:CTX_SET + (i + 1) * 128] = np.tile(PRIOR_SET[chroma][src], 8)
         zero[CTX_SIGN + cls * 7:CTX_SIGN + (cls + 1) * 7] = PRIOR_SIGN
         zero[CTX_REF + cls * 2:CTX_REF + (cls + 1) * 2] = PRIOR_REF
     return prior_model(zero, PRIOR_SEEN)
@@ -476,7 +497,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     bit = 1 if _node_at(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
-                    ctx = CTX_SIG + cls * 20 + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
+                    ctx = CTX_SIG + cls * (NSRC * 20) + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                    ctx, bit)
                     if r < 0:
@@ -504,7 +525,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                 if forced:
                     r = 1
                 else:
-                    ctx = CTX_SET + cls * 128 + kk * 16 + sctx + _first_block(nsig, sig, noff, nw, binfo, b, k, y, x)
+                    ctx = CTX_SET + cls * (NSRC * 128) + kk * 16 + sctx + _first_block(nsig, sig, noff, nw, binfo, b, k, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                   ctx, bit)
                 if r < 0:
@@ -573,12 +594,13 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             if mode == 0:
                                 m = _node_at(mag, node_max, binfo, noff, nw, b, ck, yy, xx)
                                 cbit = 1 if m >= thr else 0
+                            src = SRC_LIST if forced else (SRC_SPLIT_SIG if any_sig else SRC_SPLIT)
                             if ck == 0:
-                                ctx = CTX_SIG + cls * 20 + _sig_context_parent(sig, binfo, b, off,
-                                                                               h, w, yy, xx)
+                                ctx = CTX_SIG + (cls * NSRC + src) * 20 + _sig_context_parent(
+                                    sig, binfo, b, off, h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
-                                ctx = CTX_SET + cls * 128 + kk * 16 + _set_context(
+                                ctx = CTX_SET + (cls * NSRC + src) * 128 + kk * 16 + _set_context(
                                     nsig, sig, noff, nw, binfo, b, ck, yy, xx) + _first_block(
                                     nsig, sig, noff, nw, binfo, b, ck, yy, xx)
                             a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
