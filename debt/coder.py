@@ -54,9 +54,9 @@ NCLS = 32
 # from its list (SRC_LIST), or a quadrant of a set just found significant,
 # before any of its siblings was (SRC_SPLIT) or after one was (SRC_SPLIT_SIG).
 SRC_LIST = 0
-SRC_SPLIT = 1
-SRC_SPLIT_SIG = 2
-NSRC = 3
+SRC_SPLIT = 1      # + insignificant siblings tested before (0..2)
+SRC_SPLIT_SIG = 4
+NSRC = 5
 # Significance: + (cls * NSRC + source) * 20 + neighbourhood context (0..9),
 # + 10 beside a significant first component.  Sets: + (cls * NSRC + source) *
 # 128 + min(k, 7) * 16 + set context (0..7), + 8 beside a significant first
@@ -106,17 +106,25 @@ SIG_GROUP = 4
 # brightness_first asks for < 2).  One context per band class and size
 # instead of the pooled table: +0.005 dB more, for 900 entries.
 PRIOR_SIG = (((29, 26, 23, 24, 22, 21, 22, 19, 18, 27, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
-              (21, 20, 19, 16, 16, 13, 15, 13, 16, 20, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split
-              (16, 29, 27, 27, 24, 26, 25, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split, a sibling significant
-             ((30, 29, 27, 28, 27, 25, 26, 23, 18, 30, 24, 24, 21, 22, 21, 19, 20, 17, 16, 25),    # chroma, from a list
-              (26, 28, 26, 24, 23, 19, 22, 16, 16, 25, 16, 17, 15, 15, 15, 11, 13, 11, 16, 16),    # chroma, split
-              (16, 31, 29, 29, 26, 29, 27, 26, 14, 16, 16, 27, 23, 24, 21, 22, 21, 19, 11, 16)))    # chroma, split, a sibling significant
-PRIOR_SET = (((29, 26, 20, 15, 12, 7, 22, 19, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
-              (25, 20, 14, 14, 10, 8, 20, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split
-              (30, 28, 20, 22, 19, 12, 25, 23, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split, a sibling significant
-             ((31, 30, 29, 16, 22, 22, 28, 27, 27, 22, 16, 16, 11, 7, 17, 15),    # chroma, from a list
-              (30, 27, 16, 20, 21, 16, 27, 22, 20, 17, 13, 12, 9, 7, 16, 13),    # chroma, split
-              (31, 31, 26, 25, 26, 20, 28, 27, 26, 24, 15, 18, 16, 10, 21, 19)))    # chroma, split, a sibling significant
+              (23, 21, 20, 17, 18, 13, 15, 13, 17, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split first
+              (21, 21, 18, 16, 14, 13, 14, 11, 13, 21, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 1 insignificant
+              (16, 17, 16, 12, 12, 9, 11, 10, 16, 15, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 2 insignificant
+              (16, 29, 27, 27, 24, 26, 25, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split after a significant
+             ((30, 29, 27, 28, 27, 25, 26, 23, 19, 30, 26, 24, 21, 22, 21, 19, 20, 17, 16, 26),    # chroma, from a list
+              (27, 29, 16, 23, 16, 17, 22, 16, 16, 26, 18, 17, 14, 15, 15, 10, 12, 9, 16, 17),    # chroma, split first
+              (27, 28, 16, 23, 16, 17, 21, 16, 16, 26, 16, 17, 16, 14, 16, 9, 12, 16, 16, 15),    # chroma, split after 1 insignificant
+              (24, 26, 16, 21, 16, 15, 20, 16, 16, 23, 12, 13, 16, 11, 16, 7, 11, 16, 16, 11),    # chroma, split after 2 insignificant
+              (16, 31, 29, 30, 26, 29, 27, 27, 13, 16, 16, 27, 24, 24, 22, 23, 21, 20, 10, 16)))    # chroma, split after a significant
+PRIOR_SET = (((29, 26, 20, 15, 11, 6, 22, 19, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
+              (26, 20, 13, 15, 11, 8, 21, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split first
+              (25, 19, 13, 14, 10, 8, 20, 15, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 1 insignificant
+              (21, 16, 11, 11, 8, 6, 17, 13, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 2 insignificant
+              (30, 28, 20, 23, 19, 12, 27, 23, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split after a significant
+             ((31, 30, 30, 16, 22, 23, 29, 27, 29, 22, 16, 17, 10, 6, 17, 15),    # chroma, from a list
+              (30, 27, 16, 21, 20, 16, 28, 16, 20, 16, 12, 12, 9, 7, 16, 14),    # chroma, split first
+              (30, 26, 16, 19, 21, 16, 26, 22, 20, 15, 16, 12, 8, 6, 16, 11),    # chroma, split after 1 insignificant
+              (29, 25, 16, 17, 19, 16, 25, 16, 17, 16, 16, 10, 7, 5, 14, 12),    # chroma, split after 2 insignificant
+              (31, 31, 27, 28, 27, 20, 29, 28, 28, 25, 15, 20, 17, 10, 23, 20)))    # chroma, split after a significant
 PRIOR_SIGN = (16, 15, 16, 15, 15, 24, 26)
 PRIOR_REF = (19, 24)
 PRIOR_SEEN = 1
@@ -577,6 +585,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             cv4[t] = v
                             last = t
                     any_sig = False
+                    nins = 0
                     for t in range(nchild):
                         yy = cy4[t]
                         xx = cx4[t]
@@ -594,7 +603,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                             if mode == 0:
                                 m = _node_at(mag, node_max, binfo, noff, nw, b, ck, yy, xx)
                                 cbit = 1 if m >= thr else 0
-                            src = SRC_LIST if forced else (SRC_SPLIT_SIG if any_sig else SRC_SPLIT)
+                            src = SRC_LIST if forced else (SRC_SPLIT_SIG if any_sig else SRC_SPLIT + (nins if nins < 2 else 2))
                             if ck == 0:
                                 ctx = CTX_SIG + (cls * NSRC + src) * 20 + _sig_context_parent(
                                     sig, binfo, b, off, h, w, yy, xx)
@@ -611,6 +620,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                         if r == 0:
                             lis[seg[ck] + lis_len[ck]] = packed
                             lis_len[ck] += 1
+                            nins += 1
                             continue
                         any_sig = True
                         if forced:
