@@ -61,8 +61,9 @@ NSRC = 5
 # + 10 beside a significant first component.  Sets: + (cls * NSRC + source) *
 # 128 + min(k, 7) * 16 + set context (0..7), + 8 beside a significant first
 # component.
+NSIG_CTX = 12
 CTX_SIG = 0
-CTX_SET = CTX_SIG + NCLS * NSRC * 20
+CTX_SET = CTX_SIG + NCLS * NSRC * 2 * NSIG_CTX
 CTX_SIGN = CTX_SET + NCLS * NSRC * 128   # + cls * 7 + sign context (0..4; 5, 6 from the first component)
 CTX_REF = CTX_SIGN + NCLS * 7    # + cls * 2 + (first refinement)
 NCTX = CTX_REF + NCLS * 2
@@ -105,26 +106,26 @@ SIG_GROUP = 4
 # of 0.70/1.45/2.01/3.09 at 0/1/2/4 (test_a_flat_colour_picture_takes_
 # brightness_first asks for < 2).  One context per band class and size
 # instead of the pooled table: +0.005 dB more, for 900 entries.
-PRIOR_SIG = (((29, 26, 23, 24, 22, 21, 22, 19, 18, 27, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
-              (23, 21, 20, 17, 18, 13, 15, 13, 17, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split first
-              (21, 21, 18, 16, 14, 13, 14, 11, 13, 21, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 1 insignificant
-              (16, 17, 16, 12, 12, 9, 11, 10, 16, 15, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 2 insignificant
-              (16, 29, 27, 27, 24, 26, 25, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split after a significant
-             ((30, 29, 27, 28, 27, 25, 26, 23, 19, 30, 26, 24, 21, 22, 21, 19, 20, 17, 16, 26),    # chroma, from a list
-              (27, 29, 16, 23, 16, 17, 22, 16, 16, 26, 18, 17, 14, 15, 15, 10, 12, 9, 16, 17),    # chroma, split first
-              (27, 28, 16, 23, 16, 17, 21, 16, 16, 26, 16, 17, 16, 14, 16, 9, 12, 16, 16, 15),    # chroma, split after 1 insignificant
-              (24, 26, 16, 21, 16, 15, 20, 16, 16, 23, 12, 13, 16, 11, 16, 7, 11, 16, 16, 11),    # chroma, split after 2 insignificant
-              (16, 31, 29, 30, 26, 29, 27, 27, 13, 16, 16, 27, 24, 24, 22, 23, 21, 20, 10, 16)))    # chroma, split after a significant
-PRIOR_SET = (((29, 26, 20, 15, 11, 6, 22, 19, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, from a list
-              (26, 20, 13, 15, 11, 8, 21, 16, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split first
-              (25, 19, 13, 14, 10, 8, 20, 15, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 1 insignificant
-              (21, 16, 11, 11, 8, 6, 17, 13, 16, 16, 16, 16, 16, 16, 16, 16),    # luma, split after 2 insignificant
-              (30, 28, 20, 23, 19, 12, 27, 23, 16, 16, 16, 16, 16, 16, 16, 16)),    # luma, split after a significant
-             ((31, 30, 30, 16, 22, 23, 29, 27, 29, 22, 16, 17, 10, 6, 17, 15),    # chroma, from a list
-              (30, 27, 16, 21, 20, 16, 28, 16, 20, 16, 12, 12, 9, 7, 16, 14),    # chroma, split first
-              (30, 26, 16, 19, 21, 16, 26, 22, 20, 15, 16, 12, 8, 6, 16, 11),    # chroma, split after 1 insignificant
-              (29, 25, 16, 17, 19, 16, 25, 16, 17, 16, 16, 10, 7, 5, 14, 12),    # chroma, split after 2 insignificant
-              (31, 31, 27, 28, 27, 20, 29, 28, 28, 25, 15, 20, 17, 10, 23, 20)))    # chroma, split after a significant
+PRIOR_SIG = (((29, 26, 23, 24, 22, 21, 22, 19, 18, 28, 27, 26, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, list
+              (23, 22, 20, 17, 18, 13, 15, 13, 17, 22, 21, 20, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 0
+              (22, 21, 17, 16, 14, 13, 14, 11, 13, 21, 20, 19, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 1
+              (16, 17, 14, 12, 11, 8, 10, 9, 16, 15, 14, 14, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 2+
+              (16, 29, 27, 27, 24, 26, 25, 22, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16, 16)),  # luma, split sig
+             ((31, 29, 27, 28, 27, 25, 26, 23, 19, 31, 29, 30, 27, 24, 21, 22, 21, 19, 20, 17, 16, 26, 24, 25),  # chroma, list
+              (27, 29, 16, 23, 16, 16, 22, 16, 16, 26, 27, 26, 18, 17, 13, 15, 15, 10, 11, 8, 16, 17, 18, 16),  # chroma, split 0
+              (27, 28, 16, 23, 16, 16, 20, 16, 16, 26, 24, 26, 17, 17, 16, 13, 16, 8, 11, 16, 16, 15, 14, 15),  # chroma, split 1
+              (24, 26, 16, 20, 16, 13, 19, 16, 16, 22, 22, 20, 11, 12, 16, 9, 16, 5, 9, 16, 16, 10, 13, 11),  # chroma, split 2+
+              (16, 31, 29, 30, 26, 29, 27, 27, 13, 16, 16, 16, 16, 27, 24, 24, 22, 23, 21, 20, 10, 16, 16, 16)))  # chroma, split sig
+PRIOR_SET = (((29, 26, 20, 15, 11, 6, 22, 19, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, list
+              (26, 20, 13, 15, 11, 8, 21, 16, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 0
+              (25, 19, 12, 14, 10, 8, 20, 14, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 1
+              (20, 14, 10, 11, 7, 5, 16, 12, 16, 16, 16, 16, 16, 16, 16, 16),  # luma, split 2+
+              (30, 28, 20, 23, 19, 12, 27, 23, 16, 16, 16, 16, 16, 16, 16, 16)),  # luma, split sig
+             ((31, 30, 31, 16, 22, 24, 30, 27, 29, 22, 16, 17, 10, 6, 17, 15),  # chroma, list
+              (30, 27, 16, 21, 20, 16, 28, 16, 20, 15, 11, 12, 9, 7, 16, 14),  # chroma, split 0
+              (30, 25, 16, 19, 21, 16, 26, 22, 20, 14, 16, 12, 7, 6, 16, 10),  # chroma, split 1
+              (28, 24, 16, 15, 17, 16, 24, 16, 16, 15, 16, 9, 6, 4, 13, 11),  # chroma, split 2+
+              (31, 31, 27, 29, 27, 20, 30, 28, 28, 25, 15, 21, 17, 10, 24, 20)))  # chroma, split sig
 PRIOR_SIGN = (16, 15, 16, 15, 15, 24, 26)
 PRIOR_REF = (19, 24)
 PRIOR_SEEN = 1
@@ -136,7 +137,7 @@ def _prior_table() -> np.ndarray:
         chroma = (cls % 16) // 8
         for src in range(NSRC):
             i = cls * NSRC + src
-            zero[CTX_SIG + i * 20:CTX_SIG + (i + 1) * 20] = PRIOR_SIG[chroma][src]
+            zero[CTX_SIG + i * 2 * NSIG_CTX:CTX_SIG + (i + 1) * 2 * NSIG_CTX] = PRIOR_SIG[chroma][src]
             zero[CTX_SET + i * 128:CTX_SET + (i + 1) * 128] = np.tile(PRIOR_SET[chroma][src], 8)
         zero[CTX_SIGN + cls * 7:CTX_SIGN + (cls + 1) * 7] = PRIOR_SIGN
         zero[CTX_REF + cls * 2:CTX_REF + (cls + 1) * 2] = PRIOR_REF
@@ -264,11 +265,11 @@ def _first_block(nsig, sig, noff, nw, binfo, b, k, y, x):
 
 @_inline
 def _sig_context_parent(sig, binfo, b, off, h, w, y, x):
-    # Plus 10 when the first colour component is significant at this place.
+    # Plus NSIG_CTX when the first colour component is significant at this place.
     ctx = _sig_context_parent0(sig, binfo, b, off, h, w, y, x)
     lc = _first_component(binfo, b, y, x)
     if lc >= 0 and sig[lc]:
-        return ctx + 10
+        return ctx + NSIG_CTX
     return ctx
 
 
@@ -278,13 +279,29 @@ def _sig_context_parent0(sig, binfo, b, off, h, w, y, x):
     # one level coarser) is significant still says much at low rates.
     ctx = _sig_context(sig, off, h, w, y, x, binfo[b, 5])
     if ctx == 0:
+        par = False
         pb = binfo[b, 6]
         if pb >= 0:
             py = y >> binfo[b, 9]
             px = x >> binfo[b, 9]
             if py < binfo[pb, 1] and px < binfo[pb, 2]:
                 if sig[binfo[pb, 0] + py * binfo[pb, 2] + px]:
-                    return 9
+                    par = True
+        # The same place in the two other orientations of this level: an
+        # isolated point or a corner is significant in all three.
+        oth = False
+        if binfo[b, 5] >= 1:
+            for t in range(3):
+                sb = binfo[b, 7] + t * binfo[b, 8]
+                if sb == b or sb >= binfo.shape[0]:
+                    continue
+                if y < binfo[sb, 1] and x < binfo[sb, 2]:
+                    if sig[binfo[sb, 0] + y * binfo[sb, 2] + x]:
+                        oth = True
+        if par:
+            return 11 if oth else 9
+        if oth:
+            return 10
     return ctx
 
 
@@ -505,7 +522,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                     bit = 1 if _node_at(mag, node_max, binfo, noff, nw, b, k, y, x) >= thr else 0
                 if k == 0:
                     c = off + y * w + x
-                    ctx = CTX_SIG + cls * (NSRC * 20) + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
+                    ctx = CTX_SIG + cls * (NSRC * 2 * NSIG_CTX) + _sig_context_parent(sig, binfo, b, off, h, w, y, x)
                     a0, a1, a2, a3, a4, r = _code(mode, a0, a1, a2, a3, a4, lim, buf, probs,
                                                    ctx, bit)
                     if r < 0:
@@ -605,7 +622,7 @@ def _traverse(mode, mag, neg, cfloor, ccls, node_max, node_floor, binfo, noff, n
                                 cbit = 1 if m >= thr else 0
                             src = SRC_LIST if forced else (SRC_SPLIT_SIG if any_sig else SRC_SPLIT + (nins if nins < 2 else 2))
                             if ck == 0:
-                                ctx = CTX_SIG + (cls * NSRC + src) * 20 + _sig_context_parent(
+                                ctx = CTX_SIG + (cls * NSRC + src) * (2 * NSIG_CTX) + _sig_context_parent(
                                     sig, binfo, b, off, h, w, yy, xx)
                             else:
                                 kk = ck if ck < 7 else 7
