@@ -1,7 +1,7 @@
 # The DEBT stream header: what the decoder must know before the first coded bit.
 #
 # Header, most significant bit first, then padded to a byte with a check:
-#     MAGIC:4 (1010)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
+#     MAGIC:4 (1001)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
 #     if ROI:  SHIFT:4  X0:10  Y0:10  X1:10  Y1:10
 #     CHECK: the remaining bits of the last byte (7 without ROI, 3 with),
 #            the low bits of a CRC-8 of the header with CHECK zero
@@ -23,12 +23,15 @@ from dataclasses import dataclass
 
 # The magic names the stream format: 1011 was format 1 (before colour
 # pictures were coded in their own rotation of RGB and the finest bands at
-# their synthesis norm, rovlink's DEBT before November 2026), 1010 is format
-# 2.  A decoder refuses a format it does not speak with a clear error instead
-# of showing a wrong picture (an old recording, or an ROV and a console of
-# different versions).
-MAGIC = 0b1010
-OLD_FORMATS = {0b1011: 1}
+# their synthesis norm, rovlink's DEBT before November 2026), 1010 format 2
+# (before issue 40's contexts: significance and set decisions by where they
+# come from, coder.py), 1001 is format 3.  A decoder refuses a format it does
+# not speak with a clear error instead of showing a wrong picture (an old
+# recording, or an ROV and a console of different versions).  No format may
+# begin 0110: a picture's TRACK record does (docs/PROTOCOL.md §10).
+MAGIC = 0b1001
+OLD_FORMATS = {0b1011: 1, 0b1010: 2}
+FORMAT = 3
 
 
 class IncompleteStream(ValueError):
@@ -105,7 +108,7 @@ def unpack_header(data: bytes) -> Header:
         raise IncompleteStream("empty DEBT stream")
     if data[0] >> 4 in OLD_FORMATS:
         raise ValueError(f"a DEBT stream of format {OLD_FORMATS[data[0] >> 4]} (an older rovlink's): "
-                         f"this version decodes format 2 only")
+                         f"this version decodes format {FORMAT} only")
     if data[0] >> 4 != MAGIC:
         raise ValueError("not a DEBT stream (bad magic)")
     has_roi = bool(data[0] & 0x02)

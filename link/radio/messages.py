@@ -319,7 +319,7 @@ class FollowSettings(ImageSettings, FollowRequest):
             return InvalidOrder(cls.code, bytes(body), str(exc))
 
 
-TRACK_MAGIC = 0b0110  # a stream's first four bits: a TRACK record, not a DEBT header (1010)
+TRACK_MAGIC = 0b0110  # a stream's first four bits: a TRACK record, never a DEBT header's (debt/header.py MAGIC)
 TRACK_RECORD_BYTES = 2
 TRACK_LOST_FOR_MAX_DS = 255  # LOST_FOR saturates: 25.5 s or more
 

@@ -434,6 +434,9 @@ def test_streams_of_another_format_are_refused_clearly(grey):
     older = bytes([0xB0 | (data[0] & 0x0F)]) + data[1:]     # format 1's magic
     with pytest.raises(ValueError, match="format 1"):
         debt.decode(older)
+    before_contexts = bytes([0xA0 | (data[0] & 0x0F)]) + data[1:]     # format 2's magic (1010)
+    with pytest.raises(ValueError, match="format 2 .*decodes format 3 only"):
+        debt.decode(before_contexts)
     with pytest.raises(ValueError, match="bad magic"):
         debt.decode(bytes([0x30]) + data[1:])
     for n in range(0, unpack_header(data).size):
