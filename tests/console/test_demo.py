@@ -134,7 +134,9 @@ def test_demo_in_the_browser(demo, tmp_path):
         for field, value in zip(("#goto-x", "#goto-y", "#goto-z", "#goto-yaw"), (*target, 45)):
             page.fill(field, str(value))
         page.click("#goto-preview")
-        page.wait_for_selector("#goto-plan", state="visible")
+        # The preview's own answer (its points), not the target's telemetry, which may come first
+        # and show the box with "previewed: not sent" before the points are known.
+        page.wait_for_function("document.getElementById('goto-plan').dataset.previewed === '1'", timeout=30000)
         assert "not sent" in page.text_content("#goto-plan")
         assert int(page.get_attribute("#goto-plan", "data-points")) > 3
         time.sleep(3)

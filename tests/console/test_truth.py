@@ -19,7 +19,7 @@ from rovlink import debt
 
 from ..helpers import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from .conftest import running_console, wait_for
-from .pages import after_updates, take_control, wish
+from .pages import after_ticks, after_updates, take_control, wish
 
 pytestmark = [pytest.mark.browser, needs_chromium]
 
@@ -183,6 +183,10 @@ def test_scene_keys_do_not_latch_and_never_resend_an_old_surge_after_stop(open_p
 def test_the_next_pilot_never_sends_the_previous_pilots_surge(open_page, live):
     first, second = open_page(), open_page()
     take_control(first)
+    # The page sends its sticks' neutral once on taking control (console.js sendVelocity):
+    # let it go before the surge, or it lands after it and takes it back (a loaded
+    # newcomer's run: the POST answered 200, the wish read 0).
+    after_ticks(first)
     client = first.evaluate("page.clientId")
     # The first pilot's standing surge (REST, no dead man).
     status = first.evaluate("""async (id) => (await fetch('/api/orders/velocity', {method: 'POST',
