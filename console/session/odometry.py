@@ -117,33 +117,50 @@ class Odometry:
     one before it.  (Before, each fix was differenced only
     against the last, and not at all under 50 ms apart: speeds read 0 on a fast
     link.)  Only measured poses count: a report without a valid position (the
-    autopilot's estimate not up yet) restarts the window."""
+    autopilot's estimate not up yet) restarts the position's window, one without a
+    valid attitude the turn rate's."""
 
     def __init__(self) -> None:
         self.fix: Fix | None = None
         self.fixes = 0
-        self._window: collections.deque[tuple[float, Pose]] = collections.deque()
+        self._window: collections.deque[tuple[float, Pose]] = collections.deque()  # measured positions
+        self._yaw_window: collections.deque[tuple[float, Pose]] = collections.deque()  # valid attitudes
 
     def take(self, report: VehicleReport, round_trip_s: float | None) -> Fix | None:
         """The report that arrived; returns the fix it replaces."""
         t, sampled = report.arrived_at, report.sampled_at
         previous = self.fix
-        velocity = (0.0, 0.0, 0.0, 0.0) if previous is None else previous.velocity
+        vn, ve, vd, vyaw = (0.0, 0.0, 0.0, 0.0) if previous is None else previous.velocity
         pose = Pose.from_report(report)
-        window = self._window
-        if not report.position_valid:
-            window.clear()
-            velocity = (0.0, 0.0, 0.0, 0.0)
-        else:
-            # Kept: the poses newer than the span, and the newest one older than it.
-            while len(window) > 1 and sampled - window[1][0] >= SPEED_SPAN_S:
-                window.popleft()
-            if window and sampled - window[0][0] >= SPEED_SPAN_S:
-                velocity = _slope([*window, (sampled, pose)])
-            window.append((sampled, pose))
+        # The position's speeds from measured positions, the turn rate from valid attitudes:
+        # a report whose position is a second old (a vehicle side starved for a moment)
+        # restarts the one, not the other (a suite's loaded run showed a steady turn as 0).
+        fitted = self._fit(self._window, report.position_valid, sampled, pose)
+        if fitted is not None:
+            vn, ve, vd, _ = fitted
+        fitted = self._fit(self._yaw_window, report.attitude_valid, sampled, pose)
+        if fitted is not None:
+            vyaw = fitted[3]
+        velocity = (vn, ve, vd, vyaw)
         self.fix = Fix(report, t, sampled, t - round_trip_s if round_trip_s is not None else None, velocity)
         self.fixes += 1
         return previous
+
+    @staticmethod
+    def _fit(window: collections.deque, valid: bool, sampled: float, pose: Pose):
+        """The slope over `window` and the new pose when `valid` (None while the window is
+        shorter than the span: the last speed stands); all zeros when not (no speed measured)."""
+        if not valid:
+            window.clear()
+            return (0.0, 0.0, 0.0, 0.0)
+        fitted = None
+        # Kept: the poses newer than the span, and the newest one older than it.
+        while len(window) > 1 and sampled - window[1][0] >= SPEED_SPAN_S:
+            window.popleft()
+        if window and sampled - window[0][0] >= SPEED_SPAN_S:
+            fitted = _slope([*window, (sampled, pose)])
+        window.append((sampled, pose))
+        return fitted
 
     def age_s(self, now: float) -> float | None:
         return None if self.fix is None else now - self.fix.sampled_at

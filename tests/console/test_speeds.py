@@ -45,6 +45,24 @@ def test_speeds_are_the_vehicles_at_any_reply_rate(period_s):
     assert v[0] == pytest.approx(forward_mps, rel=0.1), v
 
 
+def test_a_report_without_a_position_keeps_the_turn_rate_its_attitude_gives():
+    """A vehicle side starved for a moment reports its position as a second old (not
+    valid) while its attitude is: the turn rate stands, the position's speeds restart
+    (a loaded run of the suite showed a steady 25 deg/s turn as 0 for a second)."""
+    odo = Odometry()
+    t = 10.0
+    for _ in range(60):
+        odo.take(report(t, 0.4 * t, 25.0 * t), round_trip_s=0.05)
+        t += 0.05
+    odo.take(report(t, 0.4 * t, 25.0 * t, valid=False), round_trip_s=0.05)
+    v = odo.fix.velocity
+    assert v[3] == pytest.approx(25.0, rel=0.05) and v[:3] == (0.0, 0.0, 0.0), v
+    for _ in range(5):  # back: the turn goes on being fitted, the position's window refills
+        t += 0.05
+        odo.take(report(t, 0.4 * t, 25.0 * t), round_trip_s=0.05)
+    assert odo.fix.velocity[3] == pytest.approx(25.0, rel=0.05), odo.fix.velocity
+
+
 def test_a_report_without_a_position_is_no_speed():
     odo = Odometry()
     odo.take(report(1.0, 0.0, 0.0, valid=False), None)
