@@ -50,7 +50,8 @@ def test_bench_console_measures_a_pilot_on_the_demos_page():
     import json
 
     out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "30", "--sample-every",
-                          "30", "--no-prediction", "--no-page", "--no-load", "--no-loaded", "--pilot-minutes", "0.5", "--json"],
+                          "30", "--no-prediction", "--no-steering", "--no-page", "--no-load", "--no-loaded",
+                          "--pilot-minutes", "0.5", "--json"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     doc = json.loads(out.stdout)
@@ -72,7 +73,7 @@ def test_bench_console_measures_the_link_on_a_busy_machine_and_names_the_process
     import json
 
     out = subprocess.run([sys.executable, "-m", "rovlink", "bench", "console", "--duration", "30", "--sample-every",
-                          "30", "--no-prediction", "--no-page", "--no-load", "--no-pilot", "--loaded-minutes", "0.3",
+                          "30", "--no-prediction", "--no-steering", "--no-page", "--no-load", "--no-pilot", "--loaded-minutes", "0.3",
                           "--loaded-burners", "0", "--json"], capture_output=True, text=True, timeout=400)
     assert out.returncode == 0, out.stderr[-2000:]
     doc = json.loads(out.stdout)
