@@ -518,7 +518,7 @@ class ControlDesk:
     def _frame_roi_alone(self, follow_id: int, roi: tuple, caller: Caller, reason: str) -> None:
         why = f"Frame it: the ROV does not follow (FOLLOW rejected: {reason})"
         asked = self.operator.requested_settings
-        if asked.roi is None or tuple(asked.roi) != roi or not getattr(asked, "follow", False):
+        if asked.roi is None or tuple(asked.roi) != roi or not asked.follow:
             self.operator.note(f"{why}; the ROI alone was not sent: other image settings were asked since", "warn")
             return
         try:
