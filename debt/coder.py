@@ -15,6 +15,27 @@
 #   sends its bit of this plane (refinement).  A block of four whose
 #   neighbouring blocks are significant skips its set decision and tests its
 #   members one by one (dense texture: the set would be significant anyway).
+# - That order within a plane was measured against others (issue 40, the
+#   order of decisions as the lever of rate-distortion optimised truncation:
+#   the stream is cut inside a plane) and kept: none paid.  Mean PSNR change
+#   over the `rovlink bench debt` photographs at 1000/2000/4000 B (held-out
+#   pictures where given), each order coded by both sides alike:
+#   refinement first -0.10/-0.13/-0.20 dB (horse/down at 2000 B -0.93),
+#   refinement after the single coefficients and before the sets -0.03/
+#   -0.07/-0.09 (held-out -0.05/-0.05/-0.12, retina-grey/bl at 4000 B -1.52;
+#   8000 B -0.12): a refinement bit buys less than even the tests of sets
+#   without significant neighbours here.  EBCOT's three passes (coefficients
+#   and sets with a significant neighbour or parent, then refinement, then
+#   the rest) -0.002/+0.001/+0.002 (clock/down at 1000 B -0.13); the same
+#   split by the context's current chance of a 1 (1.5 % and up first)
+#   +0.000/-0.030/+0.003 (horse/down at 2000 B -1.53).  With refinement last:
+#   neighbourhood first +0.001/+0.002/+0.002 (8000 B +0.002, held-out +0.001/
+#   +0.002/-0.001, retina-grey/bl at 4000 B -0.13: a hair, for a second scan
+#   of every list in every plane); a chance of 3 % and up first -0.001/
+#   -0.000/+0.004; the low band and the coarse details first -0.008/-0.003/
+#   -0.002 dB, MS-SSIM +0.0005/+0.0002/+0.0001; the refinements of
+#   coefficients new in the plane above first -0.002/+0.006/+0.000 (today's
+#   refinement order is the order of significance, so those come last).
 # - A coefficient may carry a "floor" plane below which its bits are known to be
 #   zero (bands scaled up by a shift in the reversible mode, the region of
 #   interest there); sets whose every member lies above the plane are skipped,
