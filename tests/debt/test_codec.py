@@ -208,7 +208,7 @@ def test_prefix_equals_stream_encoded_at_that_budget_closely(grey, monkeypatch):
     # long stream's filter, fitted at its own budget, takes its bytes from
     # every cut: at a short one that can cost a little more than the filter
     # gives back (here -0.03 dB at 500 B of 4000), and a short stream's own
-    # filter does better (0.1-0.3 dB, measured on the samples and
+    # filter does better (by 0.01-0.23 dB, measured on the samples and
     # photographs at 500-2000 B of 4000).
     long = debt.encode(grey, 4000)
     filtered_cuts = [psnr(grey, debt.decode(long[:budget])) for budget in (500, 1000, 2000)]
