@@ -452,10 +452,12 @@ def debt_mode(data: bytes) -> str:
 
 def debt_quality(img, budget: int) -> dict:
     from rovlink import debt
+    from rovlink.debt import codec
 
     data = debt.encode(img, budget)
     dec = debt.decode(data)
-    return dict(bytes=len(data), **measures(img, dec), mode=debt_mode(data))
+    return dict(bytes=len(data), **measures(img, dec), mode=debt_mode(data),
+                filter=codec.unpack_header(data).filtered)
 
 
 def quality_rows(images: dict, budgets, progress=None, avif_best: bool = False) -> list[dict]:
@@ -582,7 +584,7 @@ def header_bytes(data: bytes) -> int:
     """DEBT's header and side bytes: what it spends before the first coded coefficient."""
     from rovlink.debt import codec
 
-    return codec.split_bytes_end(data)
+    return codec.filter_bytes_end(data)
 
 
 def losses(quality: list[dict], images: dict) -> list[dict]:

@@ -9,9 +9,12 @@
 # error, raise the region of interest SHIFT planes (general scaling; the 9/7
 # transform is then shape-adaptive, region and rest lifted apart, so that the
 # region's coefficients describe it alone), and hand the magnitudes to
-# the bit-plane coder, which stops at the byte budget.  decode reverses it from
-# whatever prefix it gets, reconstructing each coefficient at the middle of the
-# interval its decoded bits leave open.
+# the bit-plane coder, which stops at the byte budget.  Without a region of
+# interest, a 9/7 stream then gets a restoration filter fitted to its picture
+# when that pays, the coefficients coded again in what the filter leaves of
+# the budget (`_restored`, `restore`).  decode reverses it from whatever
+# prefix it gets, reconstructing each coefficient at the middle of the
+# interval its decoded bits leave open, and runs the filter over the picture.
 #
 # The stream header is in `header`, everything that follows from it alone
 # (band layout, scales, region masks) in `plan`, the bit-plane coder in
@@ -25,7 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from . import coder, kernels, rangecoder, twolevel
+from . import coder, kernels, rangecoder, restore, twolevel
 from .header import (
     MAX_SHIFT,
     MAX_SIDE,
@@ -351,15 +354,17 @@ def _encode_payload(img: np.ndarray, colour: bool, reversible: bool, roi, shift:
                          plan.cdef8, plan.node_def, prior=not reversible)
     if errors is not None and not reversible:
         errors.append(_coefficient_error(flat, plan, rec, pk))
-        if views is not None:
-            angles = rotation_matrix(rotation) if rotation else None
+    if views is not None and not reversible:
+        angles = rotation_matrix(rotation) if rotation else None
 
-            def view(against=None):
-                comps = _components97(rec, pk, sgn, plan, height, width, colour)
-                if against is None:
-                    return _image(comps, colour, False, angles)
-                return _squared_error97(comps, angles, against)
-            views.append(view)
+        def view(against=None, components=False):
+            comps = _components97(rec, pk, sgn, plan, height, width, colour)
+            if components:
+                return comps
+            if against is None:
+                return _image(comps, colour, False, angles)
+            return _squared_error97(comps, angles, against)
+        views.append(view)
     if complete:
         n = rangecoder.flush(st, buf)
         n = min(n, buf.shape[0])
@@ -419,6 +424,7 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
                              views=views)
     if roi is not None or unpack_header(stream).reversible:
         return stream           # an ROI's own order, or exact: nothing better to try
+    view, packets = views[-1], ()
     if textured and errors[-1] > PACKETS_ABOVE_MSE * height * width:
         # A texture: its packet stream for this rate (PACKETS_BY_RATE), the
         # the one split along the edges (`_along_depths`) or the dyadic one, told apart by
@@ -427,17 +433,18 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
         # pictures the decoder will show, made from the encoder's own state
         # (`_picture97`: no decoding pass; their squared errors summed
         # without making them, `_squared_error97`).
-        tried = [(errors[-1], views[-1], stream)]
+        tried = [(errors[-1], views[-1], stream, ())]
         for packets in (_packets_for(8.0 * limit / img.size), along_splits(*_along_depths(img, colour, shared),
                                                                              MAX_LEVELS)):
             packet_errors: list = []
             packet_views: list = []
             other = _packet_stream(img, colour, packets, limit, packet_errors, shared, packet_views)
-            tried.append((packet_errors[-1], packet_views[-1], other))
+            tried.append((packet_errors[-1], packet_views[-1], other, packets))
         tried.sort(key=lambda t: t[0])
-        (a, view_a, stream), (b, view_b, other) = tried[:2]
-        if b <= a * CLOSE and view_b(img) < view_a(img):
-            stream = other
+        (a, view, stream, packets), (b, view_b, other, packets_b) = tried[:2]
+        if b <= a * CLOSE and view_b(img) < view(img):
+            view, stream, packets = view_b, other, packets_b
+    stream = _restored(img, colour, stream, view, packets, limit, shared)
     if near is not None:
         # A mask and its residual are no wavelet: told apart by decoding.
         other = _mask_and_residual_stream(img, colour, near, limit)
@@ -447,6 +454,49 @@ def encode(image: np.ndarray, budget: int, roi=None, shift: int = 0, mono=None) 
 
 
 CLOSE = 1.08
+
+
+def _restored(img: np.ndarray, colour: bool, stream: bytes, view, packets: tuple, limit: int,
+              shared: dict) -> bytes:
+    """`stream` (9/7, no region of interest; `view` makes its picture from
+    the encoder's state) with a restoration filter when one pays (see
+    `restore`): fitted on its picture, the coefficients coded again in the
+    budget less the filter's bytes, kept when that picture, filtered, has
+    less squared error than `stream`'s."""
+    height, width = img.shape[:2]
+    end = split_bytes_end(stream)
+    if len(stream) < end + (ROTATION_BYTES if colour else 0) + 2:
+        return stream           # no room for coefficients, let alone a filter
+    unfiltered = view(img)
+    angles = rotation_matrix(stream[end:end + ROTATION_BYTES]) if colour else None
+    comps = [np.array(c) for c in view(components=True)]      # out of the work array
+    if colour:
+        origs = np.empty((3, height, width))
+        _components97_into(img, True, angles, origs)
+    else:
+        origs = [img - 128.0]
+    # Squared error in the components' units (colour: a third of RGB's).
+    error = unfiltered / (3.0 if colour else 1.0)
+    price = restore.COST_SLOPE * error / max(limit, 1)
+    filters, net = restore.fit(comps, list(origs), price)
+    if net <= restore.WORTH_TRYING * error:
+        return stream
+    filter_bytes = restore.section(filters)
+    views: list = []
+    room = limit - len(filter_bytes)
+    if packets:
+        other = _packet_stream(img, colour, packets, room, None, shared, views)
+    else:
+        other = _wavelet_stream(img, colour, None, 0, room, None, None, shared, views)
+    h = unpack_header(other)
+    if h.reversible and not h.packets:
+        return stream
+    filtered = restore.apply(views[-1](components=True), filters)
+    if _squared_error97(filtered, angles, img) >= unfiltered:
+        return stream
+    end = split_bytes_end(other)
+    return (pack_header(Header(h.width, h.height, h.colour, h.reversible, h.top, filtered=True)) + other[h.size:end]
+            + filter_bytes + other[end:])
 # The packet stream is not tried when the dyadic one already leaves less than
 # this squared error per pixel (summed over the colour planes' weights as
 # `_coefficient_error` counts it: about the picture's mean squared error per
@@ -641,6 +691,16 @@ def split_bytes_end(data: bytes) -> int:
     return h.size + (2 if data[h.size] >> 6 == 0 else 1)
 
 
+def filter_bytes_end(data: bytes) -> int:
+    """Where a stream's header, the bytes naming its wavelet packet split and
+    its restoration filter (`restore`) end."""
+    end = split_bytes_end(data)
+    h = unpack_header(data)
+    if h.filtered:
+        _filters, end = restore.parse(data, end, 3 if h.colour else 1)
+    return end
+
+
 def packets_of(field: int, extra: int | None) -> tuple:
     """The split a packet stream names by its field and, for field 0, the
     byte after it (`_packet_stream`)."""
@@ -723,6 +783,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
     if h.mask_and_residual:
         return _decode_mask_and_residual(h, data[h.size:])
     start = h.size
+    filtered = h.filtered
     if h.packets:
         if len(data) <= h.size:     # not even the packet byte: a flat picture
             shape = (h.height, h.width, 3) if h.colour else (h.height, h.width)
@@ -740,6 +801,9 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
         h = Header(h.width, h.height, h.colour, False, byte & 63)
         if h.top > max_top(h):
             raise ValueError("corrupted DEBT stream (bit-plane count out of range)")
+    filters = None
+    if filtered:
+        filters, start = restore.parse(data, start, 3 if h.colour else 1)
     rotation = None
     if h.colour and not h.reversible:
         if len(data) < start + ROTATION_BYTES:      # not even the colour axes: a flat picture
@@ -761,7 +825,7 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
               lay.noff, lay.nw, lay.seg, KMAX, h.top, buf, st, rec, pk, sgn,
               plan.cdef8, plan.node_def, prior=not h.reversible)
     if not h.reversible:
-        return _picture97(rec, pk, sgn, plan, h.height, h.width, h.colour, rotation)
+        return _picture97(rec, pk, sgn, plan, h.height, h.width, h.colour, rotation, filters)
     cfloor = plan.cfloor
     pk = pk.astype(np.int64)
     known = pk >= 0
@@ -776,10 +840,15 @@ def _decode(data: bytes, levels: int | None = None, packets: tuple = ()) -> np.n
     return _image(comps, h.colour, True)
 
 
-def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotation) -> np.ndarray:
+def _picture97(rec, pk, sgn, plan, height: int, width: int, colour: bool, rotation,
+               filters: list | None = None) -> np.ndarray:
     """The 9/7 picture of the coder's state: each coefficient at its
-    reconstruction point (`kernels.reconstruct97`), the transform inverted."""
-    return _image(_components97(rec, pk, sgn, plan, height, width, colour), colour, False, rotation)
+    reconstruction point (`kernels.reconstruct97`), the transform inverted,
+    the restoration filter run (`restore`) when the stream has one."""
+    comps = _components97(rec, pk, sgn, plan, height, width, colour)
+    if filters is not None:
+        comps = restore.apply(comps, filters)
+    return _image(comps, colour, False, rotation)
 
 
 def _components97(rec, pk, sgn, plan, height: int, width: int, colour: bool) -> list[np.ndarray]:
@@ -852,6 +921,7 @@ def warm_up() -> None:
         soft = np.where(rng.random((16, 16)) < 0.4, 250, 5).astype(np.uint8)
         soft[3, :] = np.arange(16) * 16
         decode(encode(soft, 120))                                                # mask + residual
+    restore.warm_up()
     from . import jit
 
     jit.mark_warmed()

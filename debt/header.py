@@ -1,9 +1,10 @@
 # The DEBT stream header: what the decoder must know before the first coded bit.
 #
 # Header, most significant bit first, then padded to a byte with a check:
-#     MAGIC:4 (1001)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
+#     MAGIC:4 (1000)  COLOUR:1  REVERSIBLE:1  ROI:1  WIDTH:10  HEIGHT:10  TOP:6
 #     if ROI:  SHIFT:4  X0:10  Y0:10  X1:10  Y1:10
-#     CHECK: the remaining bits of the last byte (7 without ROI, 3 with),
+#     else:    FILTER:1 (a 9/7 stream with a restoration filter, `restore`)
+#     CHECK: the remaining bits of the last byte (6 without ROI, 3 with),
 #            the low bits of a CRC-8 of the header with CHECK zero
 # so 5 bytes without a region of interest and 10 with one.  The decomposition
 # depth follows from the size (`transform.levels_for`); TOP is the highest
@@ -25,13 +26,14 @@ from dataclasses import dataclass
 # pictures were coded in their own rotation of RGB and the finest bands at
 # their synthesis norm, rovlink's DEBT before November 2026), 1010 format 2
 # (before issue 40's contexts: significance and set decisions by where they
-# come from, coder.py), 1001 is format 3.  A decoder refuses a format it does
+# come from, coder.py), 1001 format 3 (before the restoration filter and the
+# header's FILTER bit, restore.py), 1000 is format 4.  A decoder refuses a format it does
 # not speak with a clear error instead of showing a wrong picture (an old
 # recording, or an ROV and a console of different versions).  No format may
 # begin 0110: a picture's TRACK record does (docs/PROTOCOL.md §10).
-MAGIC = 0b1001
-OLD_FORMATS = {0b1011: 1, 0b1010: 2}
-FORMAT = 3
+MAGIC = 0b1000
+OLD_FORMATS = {0b1011: 1, 0b1010: 2, 0b1001: 3}
+FORMAT = 4
 
 
 class IncompleteStream(ValueError):
@@ -53,6 +55,7 @@ class Header:
     top: int
     roi: tuple[int, int, int, int] | None = None
     shift: int = 0
+    filtered: bool = False       # FILTER: never with a region of interest
 
     @property
     def two_level(self) -> bool:
@@ -90,6 +93,8 @@ def pack_header(h: Header) -> bytes:
     if h.roi is not None:
         fields.append((h.shift, 4))
         fields.extend((v, 10) for v in h.roi)
+    else:
+        fields.append((int(h.filtered), 1))
     value = 0
     nbits = 0
     for v, n in fields:
@@ -134,9 +139,12 @@ def unpack_header(data: bytes) -> Header:
     top = take(6)
     roi = None
     shift = 0
+    filtered = False
     if has_roi:
         shift = take(4)
         roi = (take(10), take(10), take(10), take(10))
+    else:
+        filtered = bool(take(1))
     check_bits = nbits - pos
     check = value & ((1 << check_bits) - 1)
     expected = _crc8((value & ~((1 << check_bits) - 1)).to_bytes(size, "big")) & ((1 << check_bits) - 1)
@@ -148,7 +156,9 @@ def unpack_header(data: bytes) -> Header:
         x0, y0, x1, y1 = roi
         if not (x0 < x1 <= width and y0 < y1 <= height) or not 1 <= shift <= MAX_SHIFT:
             raise ValueError("corrupted DEBT header (region of interest outside the image)")
-    h = Header(width, height, colour, reversible, top, roi, shift)
+    h = Header(width, height, colour, reversible, top, roi, shift, filtered)
+    if filtered and reversible and not h.packets:
+        raise ValueError("corrupted DEBT header (a restoration filter on a stream that has none)")
     if top > max_top(h) and not (h.two_level or h.mask_and_residual or h.packets):
         raise ValueError("corrupted DEBT header (bit-plane count out of range)")
     return h
