@@ -188,27 +188,28 @@ def _restore_row(m3, m2, m1, r0, p1, p2, p3, h0, h1, h2, taps, e1, e2, out):
     # The filter along a row, added to `out`: the row and the six around it
     # start MARGIN pixels left of the first output, so that every index is
     # from 0 and the compiler vectorises the loop.  Each pixel's class by
-    # its activity (h0 + h1 + h2; the classes' edges e1, e2): the three
-    # classes' changes all made and one kept (a class without taps has
-    # zeros).
+    # its activity (h0 + h1 + h2; the classes' edges e1, e2): its class's
+    # taps picked first (a class without taps has zeros), then one sum made
+    # (the same products and sums as that class's alone, so the same float;
+    # making all three classes' sums and keeping one took 0.068 ms of a
+    # 320x240 picture against 0.056).
     a0, a1, a2, a3, a4, a5 = taps[0, 0], taps[0, 1], taps[0, 2], taps[0, 3], taps[0, 4], taps[0, 5]
     b0, b1, b2, b3, b4, b5 = taps[1, 0], taps[1, 1], taps[1, 2], taps[1, 3], taps[1, 4], taps[1, 5]
     c0, c1, c2, c3, c4, c5 = taps[2, 0], taps[2, 1], taps[2, 2], taps[2, 3], taps[2, 4], taps[2, 5]
     for j in range(out.shape[0]):
-        cc = r0[j + 3] + r0[j + 3]
-        d0 = r0[j + 4] + r0[j + 2] - cc
-        d1 = r0[j + 5] + r0[j + 1] - cc
-        d2 = r0[j + 6] + r0[j] - cc
-        d3 = p1[j + 3] + m1[j + 3] - cc
-        d4 = p2[j + 3] + m2[j + 3] - cc
-        d5 = p3[j + 3] + m3[j + 3] - cc
-        va = a0 * d0 + a1 * d1 + a2 * d2 + a3 * d3 + a4 * d4 + a5 * d5
-        vb = b0 * d0 + b1 * d1 + b2 * d2 + b3 * d3 + b4 * d4 + b5 * d5
-        vc = c0 * d0 + c1 * d1 + c2 * d2 + c3 * d3 + c4 * d4 + c5 * d5
         act = h0[j] + h1[j] + h2[j]
-        v = vb if act >= e1 else va
-        v = vc if act >= e2 else v
-        out[j] += v
+        g1 = act >= e1
+        g2 = act >= e2
+        t0 = c0 if g2 else (b0 if g1 else a0)
+        t1 = c1 if g2 else (b1 if g1 else a1)
+        t2 = c2 if g2 else (b2 if g1 else a2)
+        t3 = c3 if g2 else (b3 if g1 else a3)
+        t4 = c4 if g2 else (b4 if g1 else a4)
+        t5 = c5 if g2 else (b5 if g1 else a5)
+        cc = r0[j + 3] + r0[j + 3]
+        out[j] += (t0 * (r0[j + 4] + r0[j + 2] - cc) + t1 * (r0[j + 5] + r0[j + 1] - cc)
+                   + t2 * (r0[j + 6] + r0[j] - cc) + t3 * (p1[j + 3] + m1[j + 3] - cc)
+                   + t4 * (p2[j + 3] + m2[j + 3] - cc) + t5 * (p3[j + 3] + m3[j + 3] - cc))
 
 
 @_jit
