@@ -502,20 +502,40 @@ def _max_row(a, out):
         out[n] = max(a[2 * n], 0)
 
 
-@_jit
 def reconstruct97(rec, pk, sgn, pos, inv_scale, out):
     """Coefficients at the middle of their open intervals, into Mallat arrays."""
-    for c in range(rec.shape[0]):
-        p = pk[c]
-        if p < 0:
+    n8 = pk.shape[0] >> 3
+    _reconstruct97(rec, pk, sgn, pos, inv_scale, out, np.ascontiguousarray(pk[:n8 << 3]).view(np.int64))
+
+
+@_jit_plain
+def _reconstruct97(rec, pk, sgn, pos, inv_scale, out, pk8):
+    # Eight coefficients at a time (`pk8`: `pk` read 8 bytes at once) past
+    # those never found significant (pk -1, every bit set): at a few
+    # thousand bytes most are, in runs (the coding order is band by band;
+    # a grey 320x240 picture at 2000 B: 88 % of its groups of eight), so
+    # its 76800 coefficients took 0.041 ms and now 0.019 (without reference
+    # counting, 0.029 of it).  Those left are made as before, each written
+    # once: the same values.
+    n = rec.shape[0]
+    n8 = pk8.shape[0]
+    for g in range(n8 + 1):
+        if g < n8 and pk8[g] == -1:
             continue
-        r = rec[c]
-        step = np.int64(1) << np.int64(p)
-        # Wavelet magnitudes fall off within an interval (Laplacian-like), so
-        # the best guess sits below its middle, most of all right after the
-        # significance decision.
-        v = (r + (DELTA_SIG if r == step else DELTA_REF) * step) * inv_scale[c]
-        out[pos[c]] = -v if sgn[c] else v
+        e = (g + 1) << 3
+        if e > n:
+            e = n
+        for c in range(g << 3, e):
+            p = pk[c]
+            if p < 0:
+                continue
+            r = rec[c]
+            step = np.int64(1) << np.int64(p)
+            # Wavelet magnitudes fall off within an interval (Laplacian-like), so
+            # the best guess sits below its middle, most of all right after the
+            # significance decision.
+            v = (r + (DELTA_SIG if r == step else DELTA_REF) * step) * inv_scale[c]
+            out[pos[c]] = -v if sgn[c] else v
 
 
 @_jit
