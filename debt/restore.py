@@ -272,7 +272,8 @@ class Filter:
         taps = np.zeros((3, NTAPS), dtype=np.float32)
         for c, t in enumerate(self.taps):
             if t is not None:
-                taps[c] = np.asarray(t, dtype=np.float32) * np.float32(TAP_STEP)
+                taps[c] = t
+        taps *= np.float32(TAP_STEP)    # exact (a power of two), once for all three rows
         e1, e2 = GROUP_EDGES[self.grouping]
         return taps, np.float32(9 * e1), np.float32(9 * e2)
 
