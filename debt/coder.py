@@ -82,6 +82,15 @@
 #   the smallest and the largest code value the missing bytes allow and stops
 #   at the first decision on which they disagree.  Every decision it makes is
 #   therefore the encoder's, and a longer prefix yields a superset of them.
+# - Speed (issue 40, decode within OpenJPEG's time): a grey 320x240 picture at
+#   2000 B makes ~22k decisions (11k of them quadrants of split sets) in
+#   ~0.6 ms, its profile flat (loads of neighbours, contexts and model, and
+#   the branches on decided bits).  Measured and left out, the same streams
+#   each: the decoder's step without branches on the bit (selects) 1 %
+#   slower; the floor and deficit loads skipped when a plan has none (a 9/7
+#   stream without a region) 2-5 % slower (the compiled loop laid out
+#   worse); the traversal inlined once per mode, so each side's copy holds
+#   only its own branches, numba would not inline it.
 
 from __future__ import annotations
 

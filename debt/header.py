@@ -78,12 +78,22 @@ def header_size(has_roi: bool) -> int:
     return 10 if has_roi else 5
 
 
+def _crc8_step(crc: int) -> int:
+    # One byte's eight shifts of the CRC-8 (polynomial 0x07).
+    for _ in range(8):
+        crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc
+
+
+# The eight shifts of every value, looked up once a byte (every decode checks
+# a header: 5.5 -> ~1 us in Python).
+_CRC8_TABLE = tuple(_crc8_step(v) for v in range(256))
+
+
 def _crc8(data: bytes) -> int:
     crc = 0
     for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        crc = _CRC8_TABLE[crc ^ byte]
     return crc
 
 

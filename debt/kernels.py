@@ -201,6 +201,34 @@ def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
 
 
 @_jit_plain
+def _inverse_rows_split(a, out, h, w, hl, wl, roi):
+    # `_inverse_rows` with `split` (`out` another array), each row lifted
+    # where it lies, its low columns a[r, :wl] and high ones a[r, wl:w]
+    # (already apart, so no copy into work rows: 0.11 -> 0.088 ms of the
+    # 0.15 of a 320x240 grey picture's inverse), then written interleaved
+    # into `out`.  The same operations on the same values, so the same
+    # results; `a`'s rows are left lifted, for the caller overwrites them.
+    x0, x1 = roi[0], roi[2]
+    has, lo0, lo1, hi0, hi1 = _region_rows(roi, h, hl)
+    nh = w - wl
+    for r in range(h):
+        lo = a[r, :wl]
+        hi = a[r, wl:w]
+        if has and (lo0 <= r < min(lo1, hl) or max(hi0, hl) <= r < hi1):
+            _inverse_row(lo, hi, 0, x0)
+            _inverse_row(lo, hi, x0, x1)
+            _inverse_row(lo, hi, x1, w)
+        else:
+            _inverse_row(lo, hi, 0, w)
+        dst = out[2 * r if r < hl else 2 * (r - hl) + 1]
+        for i in range(nh):
+            dst[2 * i] = lo[i]
+            dst[2 * i + 1] = hi[i]
+        if wl > nh:
+            dst[2 * nh] = lo[nh]
+
+
+@_jit_plain
 def _forward_row(lo, hi, s, e):
     # The four analysis lifting steps along one split row segment.
     _lift_split(lo, hi, s, e, 1, _A)
@@ -271,7 +299,7 @@ def inverse97(a, levels, roi):
             # Each row's inverse step written straight to where the columns'
             # interleaving puts it (in `rows`), then copied back once.
             if w > 1:
-                _inverse_rows(a, rows, h, w, hl, wl, cur, lo, hi, True)
+                _inverse_rows_split(a, rows, h, w, hl, wl, cur)
             else:
                 for r in range(h):
                     rows[2 * r if r < hl else 2 * (r - hl) + 1, 0] = a[r, 0]
@@ -474,20 +502,40 @@ def _max_row(a, out):
         out[n] = max(a[2 * n], 0)
 
 
-@_jit
 def reconstruct97(rec, pk, sgn, pos, inv_scale, out):
     """Coefficients at the middle of their open intervals, into Mallat arrays."""
-    for c in range(rec.shape[0]):
-        p = pk[c]
-        if p < 0:
+    n8 = pk.shape[0] >> 3
+    _reconstruct97(rec, pk, sgn, pos, inv_scale, out, np.ascontiguousarray(pk[:n8 << 3]).view(np.int64))
+
+
+@_jit_plain
+def _reconstruct97(rec, pk, sgn, pos, inv_scale, out, pk8):
+    # Eight coefficients at a time (`pk8`: `pk` read 8 bytes at once) past
+    # those never found significant (pk -1, every bit set): at a few
+    # thousand bytes most are, in runs (the coding order is band by band;
+    # a grey 320x240 picture at 2000 B: 88 % of its groups of eight), so
+    # its 76800 coefficients took 0.041 ms and now 0.019 (without reference
+    # counting, 0.029 of it).  Those left are made as before, each written
+    # once: the same values.
+    n = rec.shape[0]
+    n8 = pk8.shape[0]
+    for g in range(n8 + 1):
+        if g < n8 and pk8[g] == -1:
             continue
-        r = rec[c]
-        step = np.int64(1) << np.int64(p)
-        # Wavelet magnitudes fall off within an interval (Laplacian-like), so
-        # the best guess sits below its middle, most of all right after the
-        # significance decision.
-        v = (r + (DELTA_SIG if r == step else DELTA_REF) * step) * inv_scale[c]
-        out[pos[c]] = -v if sgn[c] else v
+        e = (g + 1) << 3
+        if e > n:
+            e = n
+        for c in range(g << 3, e):
+            p = pk[c]
+            if p < 0:
+                continue
+            r = rec[c]
+            step = np.int64(1) << np.int64(p)
+            # Wavelet magnitudes fall off within an interval (Laplacian-like), so
+            # the best guess sits below its middle, most of all right after the
+            # significance decision.
+            v = (r + (DELTA_SIG if r == step else DELTA_REF) * step) * inv_scale[c]
+            out[pos[c]] = -v if sgn[c] else v
 
 
 @_jit

@@ -320,3 +320,34 @@ def test_the_coders_context_tables_are_its_branches():
             h, v = (-hc, -vc) if flip else (hc, vc)
             sctx = (0 if v == 0 else 1) if h == 0 else (4 if v == 1 else (3 if v == 0 else 2))
             assert coder.SIGN_TABLE[(hc + 1) * 3 + vc + 1] == sctx * 2 + flip
+
+
+@pytest.mark.parametrize("n", [0, 5, 8, 77, 4099])
+def test_reconstruct97_skipping_groups_of_eight_makes_every_coefficient_as_before(n):
+    # The coefficient by coefficient loop as it was, against the kernel that
+    # skips eight at a time where none is significant: runs of pk -1 of every
+    # length, and a count that is not a multiple of eight.
+    rng = np.random.default_rng(n)
+    pk = np.full(n, -1, dtype=np.int8)
+    where = rng.random(n) < np.where(np.arange(n) < n // 3, 0.6, 0.04)
+    pk[where] = rng.integers(0, 14, int(where.sum()))
+    rec = np.zeros(n, dtype=np.int64)
+    rec[where] = rng.integers(1, 1 << 14, int(where.sum()))
+    rec[where] = np.maximum(rec[where], np.int64(1) << pk[where].astype(np.int64))
+    fresh = where & (rng.random(n) < 0.3)          # just found significant: rec is its plane's step
+    rec[fresh] = np.int64(1) << pk[fresh].astype(np.int64)
+    sgn = rng.integers(0, 2, n).astype(np.uint8)
+    pos = rng.permutation(n).astype(np.int64)
+    inv_scale = rng.random(n) + 0.25
+    want = np.full(n, 7.0)
+    for c in range(n):
+        p = int(pk[c])
+        if p < 0:
+            continue
+        step = 1 << p
+        r = int(rec[c])
+        v = (r + (kernels.DELTA_SIG if r == step else kernels.DELTA_REF) * step) * inv_scale[c]
+        want[pos[c]] = -v if sgn[c] else v
+    got = np.full(n, 7.0)
+    kernels.reconstruct97(rec, pk, sgn, pos, inv_scale, got)
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))

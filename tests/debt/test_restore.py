@@ -146,3 +146,41 @@ def test_the_encoder_keeps_the_unfiltered_stream_when_the_filter_does_not_pay(gr
     monkeypatch.setattr(restore, "fit", promise)
     data = debt.encode(grey, 2000)
     assert not unpack_header(data).filtered
+
+
+@pytest.mark.parametrize("grouping", range(len(restore.GROUPINGS)))
+def test_the_rows_pick_the_class_as_the_three_sums_did_bit_for_bit(grouping):
+    # The kernel once made every class's sum and kept one; it now picks the
+    # class's taps first and makes one sum: the same float32 operations, so
+    # the same picture to the last bit (streams and pictures must not move).
+    rng = np.random.default_rng(grouping)
+    h, w = 31, 45
+    x = np.cumsum(rng.normal(size=(h, w)) * 9, axis=1) + rng.normal(size=(h, w)) * 3
+    taps = [rng.integers(-90, 90, restore.NTAPS).astype(np.int8) for _ in range(restore.classes_of(grouping))]
+    f = restore.Filter(grouping, taps)
+    t, e1, e2 = f.kernel_args()
+    pad, lap, hsum = (np.zeros_like(a) for a in restore._activity_work((h, w)))
+    restore.activity(np.ascontiguousarray(x), pad, lap, hsum)
+    m = restore.MARGIN
+    want = x.copy()
+    for y in range(h):
+        rows = [pad[y + m + dy] for dy in range(-3, 4)]
+        r0 = rows[3]
+        cc = r0[m:m + w] + r0[m:m + w]
+        d = [r0[m + k:m + k + w] + r0[m - k:m - k + w] - cc for k in (1, 2, 3)]
+        d += [rows[3 + k][m:m + w] + rows[3 - k][m:m + w] - cc for k in (1, 2, 3)]
+        sums = []
+        for c in range(3):
+            v = t[c, 0] * d[0]
+            for k in range(1, restore.NTAPS):
+                v = v + t[c, k] * d[k]
+            sums.append(v)
+        if e1 >= 1e29:
+            v = sums[0]
+        else:
+            act = hsum[y] + hsum[y + 1] + hsum[y + 2]
+            v = np.where(act >= e1, sums[1], sums[0])
+            v = np.where(act >= e2, sums[2], v)
+        want[y] += v.astype(np.float64)
+    got = restore.apply([x.copy()], [f])[0]
+    assert np.array_equal(got.view(np.int64), want.view(np.int64))
