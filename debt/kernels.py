@@ -168,13 +168,12 @@ def _inverse_row(lo, hi, s, e):
 
 
 @_jit_plain
-def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
+def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi):
     # Inverse horizontal step of one level, row by row (rows are
     # independent, so row by row equals step by step): the row's low and
     # high columns copied apart, the four lifting steps (`_lift_split`),
-    # and the samples written interleaved into row r of `out`, or with
-    # `split` into the row of `out` the vertical step's interleaving puts
-    # row r at (`out` then another array).  With a region, its rows
+    # and the samples written interleaved into row r of `out` (the vertical
+    # step's interleaving of rows: `_inverse_rows_split`).  With a region, its rows
     # (low rows ceil(y0/2) .. ceil(y1/2), high rows hl + floor(y0/2) ..
     # hl + floor(y1/2)) are lifted in three segments, left of, over and
     # right of it.
@@ -192,7 +191,7 @@ def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
             _inverse_row(lo, hi, x1, w)
         else:
             _inverse_row(lo, hi, 0, w)
-        dst = out[(2 * r if r < hl else 2 * (r - hl) + 1) if split else r]
+        dst = out[r]
         for i in range(nh):
             dst[2 * i] = lo[i]
             dst[2 * i + 1] = hi[i]
@@ -202,7 +201,8 @@ def _inverse_rows(a, out, h, w, hl, wl, roi, lo, hi, split):
 
 @_jit_plain
 def _inverse_rows_split(a, out, h, w, hl, wl, roi):
-    # `_inverse_rows` with `split` (`out` another array), each row lifted
+    # `_inverse_rows` into the row of `out` (another array) the vertical
+    # step's interleaving puts row r at, each row lifted
     # where it lies, its low columns a[r, :wl] and high ones a[r, wl:w]
     # (already apart, so no copy into work rows: 0.11 -> 0.088 ms of the
     # 0.15 of a 320x240 grey picture's inverse), then written interleaved
@@ -306,7 +306,7 @@ def inverse97(a, levels, roi):
             for r in range(h):
                 _copy_run(rows[r, :w], a[r, :w])
         elif w > 1:
-            _inverse_rows(a, a, h, w, hl, wl, cur, lo, hi, False)
+            _inverse_rows(a, a, h, w, hl, wl, cur, lo, hi)
         if h > 1:
             _vertical(a, h, w, cur, 0, -_D)
             _vertical(a, h, w, cur, 1, -_C)
