@@ -62,8 +62,11 @@ CURVE_STEP = 64
 TIMING_BUDGET = 2000
 AVIF_SPEED = 6          # libavif's default, the speed a ROV would run
 AVIF_BEST_SPEED = 0     # libavif's slowest, most thorough search (`--avif-best`)
-ENCODE_TARGET = 2.0     # DEBT's time over OpenJPEG's, at most
+ENCODE_TARGET = 2.0     # DEBT's time over OpenJPEG's, at most (the camera's speed targets)
 DECODE_TARGET = 1.5
+# Issue 40 asks for both within OpenJPEG's own time, judged apart from the
+# targets above so that each stays what it was set as.
+WITHIN_OPENJPEG = 1.0
 
 
 # ---------------------------------------------------------------- metrics
@@ -776,6 +779,7 @@ def measure(runs: int = 7, curve_on: bool = True, which: str = "photos", budgets
         encode_ratio_vs_openjpeg=enc_ratio,
         decode_ratio_vs_openjpeg=dec_ratio,
         speed_target_met=bool(enc_ratio <= ENCODE_TARGET and dec_ratio <= DECODE_TARGET),
+        within_openjpeg_time=bool(enc_ratio <= WITHIN_OPENJPEG and dec_ratio <= WITHIN_OPENJPEG),
         curves_monotone=all(c["monotone"] for c in curves.values()) if curves else None,
     )
     for codec in ("webp", "avif", "avif_best"):
@@ -891,6 +895,8 @@ def render(result: dict) -> str:
          t["encode_ratio_vs_openjpeg"] <= ENCODE_TARGET],
         ["decode time / OpenJPEG, worst (2000 B)", _r(t["decode_ratio_vs_openjpeg"]),
          t["decode_ratio_vs_openjpeg"] <= DECODE_TARGET],
+        ["encode and decode within OpenJPEG's own time (issue 40)",
+         f"{_r(t['encode_ratio_vs_openjpeg'])} / {_r(t['decode_ratio_vs_openjpeg'])}", t["within_openjpeg_time"]],
         ["progressive curves monotone", t["curves_monotone"], t["curves_monotone"]],
     ]))
     return "\n".join(parts)
