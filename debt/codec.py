@@ -926,6 +926,16 @@ def warm_up() -> None:
         soft = np.where(rng.random((16, 16)) < 0.4, 250, 5).astype(np.uint8)
         soft[3, :] = np.arange(16) * 16
         decode(encode(soft, 120))                                                # mask + residual
+    # A texture (its packet streams, their errors, the picture's squared
+    # error) and pictures as the camera hands them: read-only arrays are a
+    # type of their own to numba, compiled apart (found compiling during the
+    # test suite, a process at a time, well after this warm-up).
+    texture = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
+    for image in (texture, texture[..., 0].copy()):
+        locked = image.copy()
+        locked.flags.writeable = False
+        for picture in (image, locked):
+            decode(encode(picture, 700))
     restore.warm_up()
     from . import jit
 
