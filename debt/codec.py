@@ -933,7 +933,7 @@ def warm_up() -> None:
     texture = rng.integers(0, 256, (64, 64, 3), dtype=np.uint8)
     for image in (texture, texture[..., 0].copy()):
         locked = image.copy()
-        locked.flags.writeable = False
+        locked.setflags(write=False)
         for picture in (image, locked):
             decode(encode(picture, 700))
     restore.warm_up()
