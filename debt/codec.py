@@ -469,9 +469,9 @@ def _restored(img: np.ndarray, colour: bool, stream: bytes, view, packets: tuple
     end = split_bytes_end(stream)
     if len(stream) < end + (ROTATION_BYTES if colour else 0) + 2:
         return stream           # no room for coefficients, let alone a filter
-    unfiltered = view(img)
     angles = rotation_matrix(stream[end:end + ROTATION_BYTES]) if colour else None
     comps = [np.array(c) for c in view(components=True)]      # out of the work array
+    unfiltered = _squared_error97(comps, angles, img)          # what view(img) gives, the picture made once
     if colour:
         origs = np.empty((3, height, width))
         _components97_into(img, True, angles, origs)

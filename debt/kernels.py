@@ -208,6 +208,8 @@ def _inverse_rows_split(a, out, h, w, hl, wl, roi):
     # 0.15 of a 320x240 grey picture's inverse), then written interleaved
     # into `out`.  The same operations on the same values, so the same
     # results; `a`'s rows are left lifted, for the caller overwrites them.
+    # Its lifting and interleaving are written out as `_inverse_rows`' are:
+    # as one helper called from both, the inverse took 0.148 ms, not 0.121.
     x0, x1 = roi[0], roi[2]
     has, lo0, lo1, hi0, hi1 = _region_rows(roi, h, hl)
     nh = w - wl
